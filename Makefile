@@ -1,0 +1,43 @@
+# roverav: `make demo` runs the main job, `make test` runs the suite.
+# Both set everything up on a fresh machine first (Debian libraries for headless
+# MuJoCo rendering, a .venv with the CPU build of torch).
+
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.roverav-installed
+export MUJOCO_GL ?= egl
+export PYOPENGL_PLATFORM ?= egl
+
+.PHONY: setup demo test lint bench clean-shm
+
+setup: $(STAMP)
+
+# EGL + Mesa (llvmpipe) for MuJoCo's offscreen renderer; installed only when missing.
+.sysdeps:
+	@if ! ldconfig -p | grep -q 'libEGL.so.1' || ! ls /usr/lib/*/dri/swrast_dri.so /usr/lib/*/dri/libdril_dri.so >/dev/null 2>&1; then \
+	  echo "installing EGL/Mesa libraries for headless rendering"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO apt-get install -y -qq libegl1 libgl1 libgles2 libegl-mesa0 libgl1-mesa-dri >/dev/null; \
+	fi
+	@touch .sysdeps
+
+$(STAMP): pyproject.toml constraints.txt .sysdeps
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# CPU torch first, pinned, so no dependency range can pull a CUDA build.
+	$(PY) -m pip install -q -c constraints.txt torch==2.13.0
+	$(PY) -m pip install -q -c constraints.txt -e '.[train,dev]'
+	@touch $(STAMP)
+
+demo: setup
+	$(PY) benchmarks/ipc_latency.py
+
+test: setup
+	$(PY) -m pytest -q
+
+lint: setup
+	$(VENV)/bin/ruff check .
+
+bench: setup
+	$(PY) benchmarks/ipc_latency.py
