@@ -1,0 +1,377 @@
+"""Supervise an Active Vision daemon and a trainer as one unit.
+
+    python launch/run_pair.py [--name N] [--slots K] [--daemon-arg ARG ...]
+                              [--max-restarts R] -- TRAINER COMMAND ...
+
+What it does, in order:
+
+1. Removes segments of that name left behind by a dead earlier run (and only those: a
+   segment whose writer is alive belongs to a running daemon, and the supervisor refuses
+   to start beside it).
+2. Starts ``python -m active_vision --name N --slots K [daemon args]`` and waits for the
+   line that contains ``ready`` (bounded by ``--ready-timeout``). A daemon that exits or
+   never gets ready is reported with the tail of its log.
+3. Starts the trainer with ``ROVERAV_SHM_NAME`` and ``ROVERAV_SLOTS`` in its environment.
+   Both processes' output is interleaved line by line with a ``[daemon]`` / ``[trainer]``
+   prefix.
+4. While the trainer runs, a daemon that exits is restarted on the same name (it reuses
+   the segments, so the trainer's env goes on after its next ``reset()``), with backoff,
+   at most ``--max-restarts`` times. When restarts are exhausted the trainer is stopped
+   and the supervisor exits with status 70 and the reason.
+5. SIGINT and SIGTERM are forwarded, trainer first and then daemon, each with a grace
+   period before SIGKILL.
+
+Exit status: the trainer's (128 + n when it died of signal n); 69 when the daemon never
+became ready; 70 when daemon restarts were exhausted; 2 for bad usage. On every way out
+no segment of that name remains in ``/dev/shm``.
+
+Children run in their own sessions (so a terminal's Ctrl-C reaches the supervisor, which
+stops them in order) and get SIGTERM from the kernel if the supervisor itself is killed
+(``PR_SET_PDEATHSIG``), so even ``kill -9`` of the supervisor leaves no orphan daemon.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import ctypes
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+# Runnable as a plain script (``python launch/run_pair.py``) from a checkout.
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from shm_protocol import FrameReader, ShmError, camera_name, slot_name  # noqa: E402
+
+EXIT_USAGE = 2
+EXIT_DAEMON_NOT_READY = 69  # EX_UNAVAILABLE
+EXIT_RESTARTS_EXHAUSTED = 70  # EX_SOFTWARE
+SHM_DIR = Path("/dev/shm")
+_PR_SET_PDEATHSIG = 1
+_LOG_TAIL_LINES = 40
+
+
+@dataclass
+class PairConfig:
+    """Options of one supervised run."""
+
+    trainer: list[str]
+    """The trainer command line."""
+    name: str = "rl_observation"
+    """Base name of the daemon's segments."""
+    slots: int = 1
+    """Number of daemon slots (one per env of a vector env)."""
+    daemon_args: list[str] = field(default_factory=list)
+    """Extra arguments passed to the daemon."""
+    max_restarts: int = 3
+    """How many times a daemon that exits while the trainer runs is restarted."""
+    ready_timeout: float = 120.0
+    """Seconds to wait for the daemon's ready line."""
+    grace: float = 10.0
+    """Seconds a stopped process gets between SIGTERM and SIGKILL."""
+    backoff: float = 0.5
+    """First restart delay in seconds; doubles on each restart, capped at 8 s."""
+    daemon_cmd: list[str] = field(default_factory=lambda: [sys.executable, "-m", "active_vision"])
+    """How the daemon is started (before its options)."""
+
+
+def segment_names(name: str, slots: int) -> list[str]:
+    """Every segment a daemon serving ``name`` with ``slots`` slots creates."""
+    names = []
+    for i in range(slots):
+        fused = slot_name(name, i)
+        names += [fused, camera_name(fused)]
+    return names
+
+
+def _segments_of(name: str) -> list[str]:
+    """Segments in /dev/shm that belong to base name ``name`` (any slot count)."""
+    pattern = re.compile(rf"^{re.escape(name)}(_\d+)?(_camera)?$")
+    try:
+        return sorted(p.name for p in SHM_DIR.iterdir() if pattern.match(p.name))
+    except FileNotFoundError:
+        return []
+
+
+def _writer_alive(segment: str) -> bool:
+    """True when a live process writes ``segment`` (per its trailer's pid and heartbeat)."""
+    try:
+        reader = FrameReader(segment, attach_timeout=0.0)
+    except (ShmError, OSError, ValueError):
+        return False
+    try:
+        return bool(reader.is_writer_alive())
+    finally:
+        reader.close()
+
+
+def remove_segments(names: Sequence[str]) -> list[str]:
+    """Unlink the named segments that exist; returns those removed."""
+    removed = []
+    for seg in names:
+        try:
+            (SHM_DIR / seg).unlink()
+            removed.append(seg)
+        except FileNotFoundError:
+            pass
+    return removed
+
+
+def _set_pdeathsig() -> None:  # runs in the child between fork and exec
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        pass
+
+
+class _Child:
+    """A supervised process whose output is relayed with a prefix."""
+
+    def __init__(self, label: str, argv: list[str], env: dict[str, str], out_lock: threading.Lock):
+        self.label = label
+        self.tail: collections.deque[str] = collections.deque(maxlen=_LOG_TAIL_LINES)
+        self.ready = threading.Event()
+        self._lock = out_lock
+        self.proc = subprocess.Popen(
+            argv,
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env=env,
+            start_new_session=True,
+            preexec_fn=_set_pdeathsig,
+        )
+        self._relay = threading.Thread(target=self._pump, name=f"relay-{label}", daemon=True)
+        self._relay.start()
+
+    def _pump(self) -> None:
+        assert self.proc.stdout is not None
+        for raw in iter(self.proc.stdout.readline, b""):
+            line = raw.decode(errors="replace").rstrip("\n")
+            self.tail.append(line)
+            if re.search(r"\bready\b", line):
+                self.ready.set()
+            with self._lock:
+                sys.stdout.write(f"[{self.label}] {line}\n")
+                sys.stdout.flush()
+
+    def poll(self) -> int | None:
+        return self.proc.poll()
+
+    def stop(self, grace: float) -> int:
+        """SIGTERM the child's process group, SIGKILL after ``grace`` seconds."""
+        if self.proc.poll() is None:
+            self._signal(signal.SIGTERM)
+            try:
+                self.proc.wait(grace)
+            except subprocess.TimeoutExpired:
+                self._signal(signal.SIGKILL)
+                self.proc.wait()
+        self._relay.join(timeout=2.0)
+        return self.proc.returncode
+
+    def _signal(self, sig: int) -> None:
+        try:
+            os.killpg(self.proc.pid, sig)
+        except ProcessLookupError:
+            pass
+
+    def tail_text(self) -> str:
+        return "\n".join(f"    {line}" for line in self.tail) or "    (no output)"
+
+
+def _status(returncode: int) -> int:
+    return 128 - returncode if returncode < 0 else returncode
+
+
+class Supervisor:
+    """Runs one daemon + trainer pair to completion. ``run()`` returns the exit status."""
+
+    def __init__(self, cfg: PairConfig):
+        self.cfg = cfg
+        self._out_lock = threading.Lock()
+        self._stop_signal: int | None = None
+        self.daemon: _Child | None = None
+        self.trainer: _Child | None = None
+
+    def say(self, msg: str) -> None:
+        with self._out_lock:
+            sys.stdout.write(f"[rover-pair] {msg}\n")
+            sys.stdout.flush()
+
+    # -- lifecycle ------------------------------------------------------------------
+    def run(self) -> int:
+        previous = {
+            sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGINT, signal.SIGTERM)
+        }
+        try:
+            return self._run()
+        finally:
+            for child in (self.trainer, self.daemon):
+                if child is not None:
+                    child.stop(self.cfg.grace)
+            left = remove_segments(_segments_of(self.cfg.name))
+            if left:
+                self.say(f"removed leftover segments: {', '.join(left)}")
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+
+    def _on_signal(self, signum: int, _frame: object) -> None:
+        self._stop_signal = signum
+
+    def _run(self) -> int:
+        cfg = self.cfg
+        if not self._clear_stale():
+            return EXIT_USAGE
+        if not self._start_daemon():
+            return EXIT_DAEMON_NOT_READY
+        env = dict(os.environ, ROVERAV_SHM_NAME=cfg.name, ROVERAV_SLOTS=str(cfg.slots))
+        self.trainer = _Child("trainer", cfg.trainer, env, self._out_lock)
+        self.say(f"trainer started (pid {self.trainer.proc.pid}): {' '.join(cfg.trainer)}")
+        restarts = 0
+        while True:
+            code = self.trainer.poll()
+            if code is not None:
+                self.trainer.stop(cfg.grace)  # reap its process group's stragglers
+                self.say(f"trainer exited with status {_status(code)}")
+                return _status(code)
+            if self._stop_signal is not None:
+                name = signal.Signals(self._stop_signal).name
+                self.say(f"{name} received: stopping trainer, then daemon")
+                code = self.trainer.stop(cfg.grace)
+                return _status(code)
+            assert self.daemon is not None
+            dcode = self.daemon.poll()
+            if dcode is not None:
+                if restarts >= cfg.max_restarts:
+                    self.say(
+                        f"daemon exited with status {_status(dcode)} and {restarts} restart(s) "
+                        f"are used up (--max-restarts {cfg.max_restarts}); stopping the trainer."
+                        f"\n  daemon log tail:\n{self.daemon.tail_text()}"
+                    )
+                    self.trainer.stop(cfg.grace)
+                    return EXIT_RESTARTS_EXHAUSTED
+                restarts += 1
+                delay = min(cfg.backoff * 2 ** (restarts - 1), 8.0)
+                self.say(
+                    f"daemon exited with status {_status(dcode)}; restart {restarts}/"
+                    f"{cfg.max_restarts} in {delay:.1f} s (segments are reused)"
+                )
+                if self._sleep(delay) and not self._start_daemon():
+                    self.trainer.stop(cfg.grace)
+                    return EXIT_RESTARTS_EXHAUSTED
+                continue
+            time.sleep(0.05)
+
+    def _sleep(self, seconds: float) -> bool:
+        """Sleep unless a stop signal arrives; True when the sleep ran out normally."""
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            if self._stop_signal is not None:
+                return False
+            time.sleep(0.02)
+        return True
+
+    def _clear_stale(self) -> bool:
+        segments = _segments_of(self.cfg.name)
+        live = [s for s in segments if not s.endswith("_camera") and _writer_alive(s)]
+        if live:
+            self.say(
+                f"a live daemon already serves '{self.cfg.name}' (segments: {', '.join(live)}). "
+                "Stop it first, or pick another --name."
+            )
+            return False
+        removed = remove_segments(segments)
+        if removed:
+            self.say(f"removed segments left by a dead earlier run: {', '.join(removed)}")
+        return True
+
+    def _start_daemon(self) -> bool:
+        cfg = self.cfg
+        argv = [*cfg.daemon_cmd, "--name", cfg.name, "--slots", str(cfg.slots), *cfg.daemon_args]
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.daemon = _Child("daemon", argv, env, self._out_lock)
+        deadline = time.monotonic() + cfg.ready_timeout
+        while not self.daemon.ready.wait(0.05):
+            if self.daemon.poll() is not None:
+                self.daemon.stop(cfg.grace)
+                self.say(
+                    f"daemon exited with status {_status(self.daemon.proc.returncode)} before "
+                    f"it was ready.\n  command: {' '.join(argv)}\n  log tail:\n"
+                    f"{self.daemon.tail_text()}"
+                )
+                return False
+            if time.monotonic() > deadline or self._stop_signal is not None:
+                why = (
+                    "was interrupted"
+                    if self._stop_signal
+                    else (f"was not ready after {cfg.ready_timeout:.0f} s (--ready-timeout)")
+                )
+                self.daemon.stop(cfg.grace)
+                self.say(
+                    f"daemon {why}.\n  command: {' '.join(argv)}\n  log tail:\n"
+                    f"{self.daemon.tail_text()}"
+                )
+                return False
+        self.say(f"daemon ready (pid {self.daemon.proc.pid}) on '{cfg.name}', {cfg.slots} slot(s)")
+        return True
+
+
+def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--" in argv:
+        split = argv.index("--")
+        own, trainer = argv[:split], argv[split + 1 :]
+    else:
+        own, trainer = argv, []
+    parser = argparse.ArgumentParser(
+        prog="rover-pair",
+        description="Run the Active Vision daemon and a trainer together, supervised.",
+        epilog="Example: rover-pair --slots 2 -- rover-train --env fused --n-envs 2",
+    )
+    parser.add_argument("--name", default=PairConfig.name, help="segment base name")
+    parser.add_argument("--slots", type=int, default=PairConfig.slots, help="daemon slots")
+    parser.add_argument(
+        "--daemon-arg",
+        action="append",
+        default=[],
+        metavar="ARG",
+        help="extra daemon argument (repeatable; use --daemon-arg=--depth for dashes)",
+    )
+    parser.add_argument("--max-restarts", type=int, default=PairConfig.max_restarts)
+    parser.add_argument("--ready-timeout", type=float, default=PairConfig.ready_timeout)
+    parser.add_argument("--grace", type=float, default=PairConfig.grace)
+    ns = parser.parse_args(own)
+    if not trainer:
+        parser.error("no trainer command: put it after '--', e.g. -- rover-train --env fused")
+    if ns.slots < 1:
+        parser.error(f"--slots must be at least 1, got {ns.slots}")
+    if ns.max_restarts < 0:
+        parser.error(f"--max-restarts must be 0 or more, got {ns.max_restarts}")
+    return PairConfig(
+        trainer=trainer,
+        name=ns.name,
+        slots=ns.slots,
+        daemon_args=ns.daemon_arg,
+        max_restarts=ns.max_restarts,
+        ready_timeout=ns.ready_timeout,
+        grace=ns.grace,
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return Supervisor(parse_args(argv)).run()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,118 @@
+"""Building roverav envs for training and evaluation (single and vectorised)."""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+
+log = logging.getLogger(__name__)
+
+ENV_IDS = {
+    "lidar": "roverav/RoverEnv-v0",
+    "fused": "roverav/RoverEnvFused-v0",
+    "discrete": "roverav/RoverEnvFusedDiscrete-v0",
+}
+FUSED_KINDS = ("fused", "discrete")
+DEFAULT_SHM_NAME = "rl_observation"
+ENV_SHM_NAME = "ROVERAV_SHM_NAME"  # set by rover-pair for the trainer
+
+
+def default_shm_name() -> str:
+    """The segment base name: ``$ROVERAV_SHM_NAME`` (set by rover-pair) or the seed's default."""
+    return os.environ.get(ENV_SHM_NAME, DEFAULT_SHM_NAME)
+
+
+def env_kwargs(
+    kind: str,
+    world: str,
+    slot: int = 0,
+    shm_name: str | None = None,
+    length: int | None = None,
+    connect_timeout: float | None = None,
+    render_mode: str | None = None,
+) -> dict[str, Any]:
+    """Constructor keywords for env ``kind`` (``lidar``, ``fused`` or ``discrete``)."""
+    if kind not in ENV_IDS:
+        raise ValueError(f"unknown env kind {kind!r}; choose one of {sorted(ENV_IDS)}")
+    kwargs: dict[str, Any] = {"world_n": world}
+    if length is not None:
+        kwargs["length"] = length
+    if render_mode is not None:
+        kwargs["render_mode"] = render_mode
+    if kind in FUSED_KINDS:
+        kwargs["rl_obs_name"] = shm_name or default_shm_name()
+        kwargs["slot"] = slot
+        if connect_timeout is not None:
+            kwargs["connection_check_timeout"] = connect_timeout
+    return kwargs
+
+
+def make_env(kind: str, **kwargs: Any) -> gym.Env:
+    """``gymnasium.make`` the env of ``kind`` with :func:`env_kwargs` keywords."""
+    import rover_env  # noqa: F401  (registers the roverav/ ids)
+
+    return gym.make(ENV_IDS[kind], **env_kwargs(kind, **kwargs))
+
+
+class DaemonRecovery(gym.Wrapper):
+    """Lets a training run outlive a daemon crash.
+
+    A fused env raises when its daemon dies or stalls mid-episode. This wrapper turns that
+    into the end of the episode (``truncated=True``, ``info["daemon_error"]`` says why), and
+    its ``reset()`` retries for up to ``recover_timeout`` seconds while rover-pair restarts
+    the daemon on the same segments. Truncation, not termination: the episode did not fail,
+    so value bootstrapping stays correct.
+    """
+
+    def __init__(self, env: gym.Env, recover_timeout: float = 60.0):
+        super().__init__(env)
+        self.recover_timeout = recover_timeout
+        self._last_obs: Any = None
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        from shm_protocol.errors import ShmError
+
+        deadline = time.monotonic() + self.recover_timeout
+        while True:
+            try:
+                obs, info = self.env.reset(**kwargs)
+                self._last_obs = obs
+                return obs, info
+            except ShmError as exc:
+                if time.monotonic() > deadline:
+                    raise
+                log.warning("reset: daemon not available (%s); retrying", exc)
+                time.sleep(0.5)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        from shm_protocol.errors import ShmError
+
+        try:
+            obs, reward, terminated, truncated, info = self.env.step(action)
+        except ShmError as exc:
+            log.warning("step: %s; ending the episode (truncated) and waiting for the daemon", exc)
+            return self._last_obs, 0.0, False, True, {"daemon_error": str(exc)}
+        self._last_obs = obs
+        return obs, reward, terminated, truncated, info
+
+
+def env_factory(kind: str, monitor_dir: str | None = None, **kwargs: Any) -> Callable[[], gym.Env]:
+    """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker."""
+
+    def _thunk() -> gym.Env:
+        from stable_baselines3.common.monitor import Monitor
+
+        env = make_env(kind, **kwargs)
+        if kind in FUSED_KINDS:
+            env = DaemonRecovery(env)
+        filename = None
+        if monitor_dir is not None:
+            filename = os.path.join(monitor_dir, f"slot{kwargs.get('slot', 0)}")
+        return Monitor(env, filename=filename)
+
+    return _thunk

@@ -1,0 +1,300 @@
+"""rover-eval: run a saved policy (or a random one) for K seeded episodes and report.
+
+    rover-eval runs/demo/model.zip --env fused --world maze --episodes 10 --video runs/demo/eval.mp4
+    rover-eval --policy random --env lidar --world maze --episodes 20
+
+An evaluation episode ends at the first goal reached (success), at a termination (flip,
+stuck, out of bounds), at the env's length limit, or after ``--max-steps`` (a timeout).
+Episode i is reset with seed ``--seed + i``, so two policies meet the same start/goal pairs.
+
+Metrics (the table, and ``--json``'s last line):
+- success rate: episodes that reached the goal.
+- collision rate: episodes with at least one collision step.
+- timeouts: episodes ended by the step limit without success or failure.
+- path length: metres driven (mean over episodes).
+- SPL: success weighted by path length, mean of S * d0 / max(p, d0) with d0 the straight
+  start-goal distance (a lower bound of the shortest path) and p the path driven.
+- time to goal: simulated seconds, mean over successful episodes.
+- personal-space intrusion rate: fraction of steps with a pedestrian within 1.2 m.
+- min pedestrian distance: the smallest over all steps of all episodes (mean of the
+  per-episode minima in brackets).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rover_train.envs import ENV_IDS, default_shm_name, make_env
+
+PERSONAL_SPACE_M = 1.2
+VIDEO_PANEL = 256  # pixels per side of each video panel
+
+
+@dataclass
+class EpisodeResult:
+    success: bool
+    collided: bool
+    timeout: bool
+    termination: str
+    path_length: float
+    start_distance: float
+    time_to_goal: float | None
+    steps: int
+    intrusion_steps: int
+    min_ped_distance: float
+    ret: float
+
+
+def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | None) -> Any:
+    """A callable obs -> action: the saved SB3 model, or uniform random actions."""
+    if policy == "random":
+        space = env.action_space
+        return lambda _obs: space.sample()
+    if model is None:
+        raise SystemExit("rover-eval: give a model .zip or --policy random")
+    if not model.is_file():
+        raise SystemExit(f"rover-eval: no model file at {model} (train one with rover-train)")
+    from stable_baselines3 import DQN, PPO, SAC
+
+    classes = {"ppo": PPO, "sac": SAC, "dqn": DQN}
+    if algo is None:
+        meta = model.parent / "metrics.json"
+        if meta.is_file():
+            algo = json.loads(meta.read_text()).get("algo")
+    order = [algo] if algo else ["ppo", "sac", "dqn"]
+    errors = []
+    for name in order:
+        try:
+            loaded = classes[name].load(model, device="cpu")
+            return lambda obs: loaded.predict(obs, deterministic=True)[0]
+        except Exception as exc:  # noqa: BLE001 - try the next algorithm
+            errors.append(f"{name}: {exc}")
+    raise SystemExit(f"rover-eval: could not load {model}: " + "; ".join(errors))
+
+
+def _video_frame(env: Any, obs: Any) -> np.ndarray:
+    import cv2
+
+    chase = env.render()
+    panels = [cv2.resize(chase, (VIDEO_PANEL, VIDEO_PANEL), interpolation=cv2.INTER_AREA)]
+    if isinstance(obs, dict) and "fused_image" in obs:
+        fused = obs["fused_image"]
+        for c in range(fused.shape[2]):
+            ch = (np.clip(fused[:, :, c], 0, 1) * 255).astype(np.uint8)
+            ch = cv2.resize(ch, (VIDEO_PANEL, VIDEO_PANEL), interpolation=cv2.INTER_NEAREST)
+            cmap = cv2.COLORMAP_INFERNO if c else None
+            rgb = (
+                cv2.applyColorMap(ch, cmap)[:, :, ::-1]
+                if cmap is not None
+                else np.repeat(ch[:, :, None], 3, 2)
+            )
+            panels.append(rgb)
+    return np.concatenate(panels, axis=1)
+
+
+def run_episode(
+    env: Any, act: Any, seed: int, max_steps: int, frames: list | None
+) -> EpisodeResult:
+    obs, info = env.reset(seed=seed)
+    base = env.unwrapped
+    pos = np.array(obs["pose"][:2], dtype=np.float64)
+    start_distance = float(obs["target"][0])
+    control_dt = float(getattr(base, "control_dt", 0.05))
+    path = 0.0
+    collided = False
+    intrusions = 0
+    min_ped = float(info.get("min_pedestrian_distance", np.inf))
+    ret = 0.0
+    success = False
+    termination = "timeout"
+    steps = 0
+    while steps < max_steps:
+        steps += 1
+        obs, reward, terminated, truncated, info = env.step(act(obs))
+        if frames is not None:
+            frames.append(_video_frame(env, obs))
+        ret += float(reward)
+        new = np.array(obs["pose"][:2], dtype=np.float64)
+        path += float(np.linalg.norm(new - pos))
+        pos = new
+        collided |= bool(info.get("collision", False))
+        d_ped = float(info.get("min_pedestrian_distance", np.inf))
+        intrusions += int(d_ped < PERSONAL_SPACE_M)
+        min_ped = min(min_ped, d_ped)
+        if info.get("goals_reached", 0) > 0:
+            success, termination = True, "goal"
+            break
+        if terminated:
+            termination = str(info.get("termination_reason") or "terminated")
+            break
+        if truncated:
+            termination = "length"
+            break
+    return EpisodeResult(
+        success=success,
+        collided=collided,
+        timeout=termination in ("timeout", "length"),
+        termination=termination,
+        path_length=path,
+        start_distance=start_distance,
+        time_to_goal=steps * control_dt if success else None,
+        steps=steps,
+        intrusion_steps=intrusions,
+        min_ped_distance=min_ped,
+        ret=ret,
+    )
+
+
+def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
+    n = len(results)
+    spl = [
+        (r.start_distance / max(r.path_length, r.start_distance)) if r.success else 0.0
+        for r in results
+    ]
+    ttg = [r.time_to_goal for r in results if r.time_to_goal is not None]
+    total_steps = sum(r.steps for r in results)
+    finite_min = [r.min_ped_distance for r in results if np.isfinite(r.min_ped_distance)]
+    return {
+        "episodes": n,
+        "success_rate": sum(r.success for r in results) / n,
+        "collision_rate": sum(r.collided for r in results) / n,
+        "timeouts": sum(r.timeout for r in results),
+        "path_length_m": float(np.mean([r.path_length for r in results])),
+        "spl": float(np.mean(spl)),
+        "time_to_goal_s": float(np.mean(ttg)) if ttg else None,
+        "personal_space_intrusion_rate": sum(r.intrusion_steps for r in results)
+        / max(total_steps, 1),
+        "min_pedestrian_distance_m": float(min(finite_min)) if finite_min else None,
+        "mean_episode_min_pedestrian_distance_m": float(np.mean(finite_min))
+        if finite_min
+        else None,
+        "mean_return": float(np.mean([r.ret for r in results])),
+        "terminations": {
+            t: sum(r.termination == t for r in results)
+            for t in sorted({r.termination for r in results})
+        },
+    }
+
+
+def format_table(summary: dict[str, Any], title: str) -> str:
+    def fmt(v: Any, spec: str) -> str:
+        return "n/a" if v is None else format(v, spec)
+
+    rows = [
+        ("episodes", str(summary["episodes"])),
+        ("success rate", fmt(summary["success_rate"], ".0%")),
+        ("collision rate", fmt(summary["collision_rate"], ".0%")),
+        ("timeouts", str(summary["timeouts"])),
+        ("path length (m)", fmt(summary["path_length_m"], ".2f")),
+        ("SPL", fmt(summary["spl"], ".3f")),
+        ("mean time to goal (s)", fmt(summary["time_to_goal_s"], ".1f")),
+        ("personal-space intrusion rate", fmt(summary["personal_space_intrusion_rate"], ".1%")),
+        (
+            "min pedestrian distance (m)",
+            f"{fmt(summary['min_pedestrian_distance_m'], '.2f')} (mean of episode minima "
+            f"{fmt(summary['mean_episode_min_pedestrian_distance_m'], '.2f')})",
+        ),
+        ("mean return", fmt(summary["mean_return"], ".1f")),
+        ("endings", ", ".join(f"{k} {v}" for k, v in summary["terminations"].items())),
+    ]
+    width = max(len(k) for k, _ in rows)
+    lines = [title, "-" * len(title)]
+    lines += [f"| {k.ljust(width)} | {v} |" for k, v in rows]
+    return "\n".join(lines)
+
+
+def write_video(frames: list[np.ndarray], path: Path, fps: float) -> None:
+    import cv2
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+    if not writer.isOpened():
+        raise RuntimeError(f"OpenCV could not open {path} for writing (mp4v codec)")
+    try:
+        for f in frames:
+            writer.write(np.ascontiguousarray(f[:, :, ::-1]))
+    finally:
+        writer.release()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s")
+    p = argparse.ArgumentParser(prog="rover-eval", description=__doc__.split("\n")[0])
+    p.add_argument("model", nargs="?", type=Path, help="a model .zip written by rover-train")
+    p.add_argument("--policy", choices=["random"], help="evaluate uniform random actions instead")
+    p.add_argument(
+        "--algo", choices=["ppo", "sac", "dqn"], help="default: from metrics.json beside the model"
+    )
+    p.add_argument("--env", choices=sorted(ENV_IDS), default="lidar")
+    p.add_argument("--world", default="maze")
+    p.add_argument("--episodes", type=int, default=10)
+    p.add_argument("--seed", type=int, default=1000, help="episode i uses seed + i")
+    p.add_argument(
+        "--max-steps", type=int, default=1000, help="steps before an episode is a timeout"
+    )
+    p.add_argument("--shm-name", default=default_shm_name())
+    p.add_argument("--slot", type=int, default=0)
+    p.add_argument("--video", type=Path, help="write an MP4: chase view beside the fused channels")
+    p.add_argument("--video-episodes", type=int, default=1, help="episodes recorded in the video")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON on the last line")
+    args = p.parse_args(argv)
+    if (args.model is None) == (args.policy is None):
+        p.error("give exactly one of: a model .zip, or --policy random")
+
+    from shm_protocol.errors import ShmError
+
+    try:
+        env = make_env(
+            args.env,
+            world=args.world,
+            slot=args.slot,
+            shm_name=args.shm_name,
+            render_mode="rgb_array" if args.video else None,
+        )
+    except ShmError as exc:
+        print(
+            f"{exc}\n\nrover-eval --env {args.env} needs the daemon: "
+            f"av-daemon --name {args.shm_name}",
+            file=sys.stderr,
+        )
+        return 1
+    try:
+        act = load_policy(args.model, args.policy, env, args.algo)
+        results, frames = [], []
+        for i in range(args.episodes):
+            record = args.video is not None and i < args.video_episodes
+            results.append(
+                run_episode(env, act, args.seed + i, args.max_steps, frames if record else None)
+            )
+        fps = 1.0 / float(getattr(env.unwrapped, "control_dt", 0.05))
+    finally:
+        env.close()
+    summary = summarise(results)
+    who = "random policy" if args.policy else str(args.model)
+    print(
+        format_table(
+            summary,
+            f"{who} on {ENV_IDS[args.env]} ({args.world}), "
+            f"seeds {args.seed}..{args.seed + args.episodes - 1}",
+        )
+    )
+    if args.video is not None and frames:
+        write_video(frames, args.video, fps)
+        print(f"wrote {args.video} ({len(frames)} frames)")
+    if args.json:
+        print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,360 @@
+"""rover-train: train a Stable-Baselines3 policy on a roverav env.
+
+    rover-train --env lidar --world maze --timesteps 200000
+    rover-pair --slots 2 -- rover-train --env fused --n-envs 2 --timesteps 50000
+
+Everything that runs is visible top to bottom: parse the arguments, build the vector env
+(env i on daemon slot i), build or resume the model with the ``RoverExtractor`` (a CNN for
+``fused_image``, an MLP for the other keys), learn with checkpoints and TensorBoard scalars,
+then write ``model.zip``, ``metrics.json`` and ``learning_curve.png`` into ``--logdir``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from rover_train.envs import ENV_IDS, FUSED_KINDS, default_shm_name, env_factory
+
+log = logging.getLogger("rover_train")
+
+ALGOS = ("ppo", "sac", "dqn")
+EXIT_NO_DAEMON = 1
+
+
+@dataclass
+class TrainArgs:
+    """Arguments of one training run."""
+
+    env: str = "lidar"
+    """Which env: lidar (RoverEnv), fused (RoverEnvFused) or discrete (its Discrete(60) twin)."""
+    world: str = "maze"
+    """World: inspect, moon (island) or maze."""
+    algo: str = "ppo"
+    """ppo (all envs), sac (lidar, fused) or dqn (discrete)."""
+    timesteps: int = 100_000
+    """Total environment steps to train for (over all envs)."""
+    n_envs: int = 1
+    """Parallel envs (subprocesses); env i uses daemon slot i."""
+    seed: int = 0
+    """Seed of the model and of env i's first reset (seed + i)."""
+    device: str = "cpu"
+    """Torch device for the policy: cpu or cuda."""
+    logdir: Path = Path("runs/train")
+    """Run directory: model, metrics, curve, checkpoints, TensorBoard events."""
+    checkpoint_every: int = 25_000
+    """Save a checkpoint every this many environment steps (0: never)."""
+    resume: Path | None = None
+    """A model .zip, or a run directory whose newest checkpoint (or model.zip) is loaded."""
+    progress: bool = True
+    """Show a progress bar."""
+    shm_name: str = field(default_factory=default_shm_name)
+    """Daemon segment base name (fused envs); defaults to $ROVERAV_SHM_NAME set by rover-pair."""
+    length: int | None = None
+    """Episode length override (default: the env's own, 2000 lidar / 6000 fused)."""
+    connect_timeout: float = 10.0
+    """Seconds to wait for the daemon's segments before giving up (fused envs)."""
+    n_steps: int = 512
+    """PPO rollout length per env."""
+
+
+def parse_args(argv: Sequence[str] | None = None) -> TrainArgs:
+    d = TrainArgs()
+    p = argparse.ArgumentParser(prog="rover-train", description=__doc__.split("\n")[0])
+    p.add_argument("--env", choices=sorted(ENV_IDS), default=d.env)
+    p.add_argument("--world", default=d.world, help="inspect, moon (island) or maze")
+    p.add_argument("--algo", choices=ALGOS, default=d.algo)
+    p.add_argument("--timesteps", type=int, default=d.timesteps)
+    p.add_argument("--n-envs", type=int, default=d.n_envs)
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--device", default=d.device, help="cpu or cuda")
+    p.add_argument("--logdir", type=Path, default=d.logdir)
+    p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every)
+    p.add_argument("--resume", type=Path, default=None)
+    p.add_argument("--no-progress", dest="progress", action="store_false")
+    p.add_argument("--shm-name", default=d.shm_name)
+    p.add_argument("--length", type=int, default=None)
+    p.add_argument("--connect-timeout", type=float, default=d.connect_timeout)
+    p.add_argument("--n-steps", type=int, default=d.n_steps)
+    ns = p.parse_args(argv)
+    args = TrainArgs(**vars(ns))
+    problem = validate(args)
+    if problem:
+        p.error(problem)
+    return args
+
+
+def validate(args: TrainArgs) -> str | None:
+    """A message naming what is wrong with ``args`` and how to fix it, or None."""
+    if args.algo == "dqn" and args.env != "discrete":
+        return "--algo dqn needs a discrete action space: use --env discrete (or --algo ppo/sac)"
+    if args.algo == "sac" and args.env == "discrete":
+        return "--algo sac needs continuous actions: use --env lidar|fused, or --algo ppo/dqn"
+    if args.n_envs < 1 or args.timesteps < 1:
+        return "--n-envs and --timesteps must be at least 1"
+    if args.device.startswith("cuda"):
+        import torch
+
+        if not torch.cuda.is_available():
+            return f"--device {args.device}: torch sees no CUDA device here; use --device cpu"
+    return None
+
+
+def check_daemon(args: TrainArgs) -> str | None:
+    """For fused envs: None when every slot's segments exist, else what to do about it."""
+    if args.env not in FUSED_KINDS:
+        return None
+    from shm_protocol.errors import ShmError
+
+    from shm_protocol import FrameReader, slot_name
+
+    for i in range(args.n_envs):
+        name = slot_name(args.shm_name, i)
+        try:
+            FrameReader(name, attach_timeout=args.connect_timeout).close()
+        except ShmError as exc:
+            return (
+                f"{exc}\n\nrover-train --env {args.env} needs the Active Vision daemon serving "
+                f"'{args.shm_name}' with at least {args.n_envs} slot(s). Either start it in "
+                f"another terminal:\n    av-daemon --name {args.shm_name} --slots {args.n_envs}\n"
+                f"or let rover-pair run both:\n    rover-pair --name {args.shm_name} "
+                f"--slots {args.n_envs} -- rover-train {' '.join(sys.argv[1:])}"
+            )
+    return None
+
+
+def build_vec_env(args: TrainArgs, monitor_dir: Path) -> Any:
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    thunks = [
+        env_factory(
+            args.env,
+            monitor_dir=str(monitor_dir),
+            world=args.world,
+            slot=i,
+            shm_name=args.shm_name,
+            length=args.length,
+            connect_timeout=args.connect_timeout,
+        )
+        for i in range(args.n_envs)
+    ]
+    if args.n_envs == 1:
+        return DummyVecEnv(thunks)
+    return SubprocVecEnv(thunks, start_method="forkserver")
+
+
+def _algo_class(name: str) -> Any:
+    from stable_baselines3 import DQN, PPO, SAC
+
+    return {"ppo": PPO, "sac": SAC, "dqn": DQN}[name]
+
+
+def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
+    from rover_train.policies import RoverExtractor
+
+    cls = _algo_class(args.algo)
+    policy_kwargs = {"features_extractor_class": RoverExtractor}
+    if args.resume is not None:
+        path = resolve_checkpoint(args.resume)
+        log.info("resuming from %s", path)
+        return cls.load(path, env=venv, device=args.device, tensorboard_log=str(tb_dir))
+    common: dict[str, Any] = {
+        "policy": "MultiInputPolicy",
+        "env": venv,
+        "seed": args.seed,
+        "device": args.device,
+        "tensorboard_log": str(tb_dir),
+        "policy_kwargs": policy_kwargs,
+        "verbose": 0,
+    }
+    if args.algo == "ppo":
+        return cls(
+            n_steps=args.n_steps, batch_size=128, n_epochs=5, gamma=0.99, ent_coef=0.005, **common
+        )
+    if args.algo == "sac":
+        return cls(buffer_size=100_000, learning_starts=1_000, **common)
+    return cls(buffer_size=50_000, learning_starts=1_000, exploration_fraction=0.3, **common)
+
+
+def resolve_checkpoint(path: Path) -> Path:
+    """A .zip as given, or the newest checkpoint (else model.zip) in a run directory."""
+    if path.is_file():
+        return path
+    if path.is_dir():
+        ckpts = sorted((path / "checkpoints").glob("*.zip"), key=lambda p: p.stat().st_mtime)
+        if ckpts:
+            return ckpts[-1]
+        if (path / "model.zip").is_file():
+            return path / "model.zip"
+    raise FileNotFoundError(
+        f"--resume {path}: no model .zip there (looked for the file itself, "
+        f"{path}/checkpoints/*.zip and {path}/model.zip)"
+    )
+
+
+def make_metrics_callback() -> Any:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class RoverMetrics(BaseCallback):
+        """Logs episode return, success, collisions, intrusions and frame latency."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            self.episodes: list[dict[str, float]] = []
+            self._acc: list[dict[str, float]] = []
+
+        def _on_training_start(self) -> None:
+            self._acc = [self._blank() for _ in range(self.training_env.num_envs)]
+
+        @staticmethod
+        def _blank() -> dict[str, float]:
+            return {"collisions": 0.0, "intrusions": 0.0, "latency_sum": 0.0, "latency_n": 0.0}
+
+        def _on_step(self) -> bool:
+            for i, info in enumerate(self.locals["infos"]):
+                acc = self._acc[i]
+                acc["collisions"] += float(bool(info.get("collision", False)))
+                acc["intrusions"] += float(info.get("min_pedestrian_distance", np.inf) < 1.2)
+                if "frame_latency_ms" in info:
+                    acc["latency_sum"] += float(info["frame_latency_ms"])
+                    acc["latency_n"] += 1
+                if "episode" not in info:
+                    continue
+                ep = {
+                    "timestep": float(self.num_timesteps),
+                    "return": float(info["episode"]["r"]),
+                    "length": float(info["episode"]["l"]),
+                    "success": float(info.get("goals_reached", 0) > 0),
+                    "goals": float(info.get("goals_reached", 0)),
+                    "collisions": acc["collisions"],
+                    "intrusions": acc["intrusions"],
+                    "termination": info.get("termination_reason") or "length",
+                }
+                if acc["latency_n"]:
+                    ep["frame_latency_ms"] = acc["latency_sum"] / acc["latency_n"]
+                self.episodes.append(ep)
+                self._acc[i] = self._blank()
+                recent = self.episodes[-20:]
+                self.logger.record("charts/episodic_return", ep["return"])
+                self.logger.record("charts/episodic_length", ep["length"])
+                self.logger.record("charts/success_rate", np.mean([e["success"] for e in recent]))
+                self.logger.record("charts/collisions", ep["collisions"])
+                self.logger.record("charts/personal_space_intrusions", ep["intrusions"])
+                if "frame_latency_ms" in ep:
+                    self.logger.record("charts/frame_latency_ms", ep["frame_latency_ms"])
+            return True
+
+    return RoverMetrics()
+
+
+def save_learning_curve(episodes: list[dict[str, Any]], path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4), dpi=100)
+    if episodes:
+        x = np.array([e["timestep"] for e in episodes])
+        y = np.array([e["return"] for e in episodes])
+        ax.plot(x, y, ".", alpha=0.35, label="episode return")
+        k = max(1, min(20, len(y) // 5))
+        if len(y) >= k:
+            smooth = np.convolve(y, np.ones(k) / k, mode="valid")
+            ax.plot(x[k - 1 :], smooth, "-", lw=2, label=f"mean of {k}")
+        ax.legend(loc="best")
+    else:
+        ax.text(
+            0.5, 0.5, "no episode finished within the budget", ha="center", transform=ax.transAxes
+        )
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("return")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def train(args: TrainArgs) -> dict[str, Any]:
+    """Run one training job; returns the metrics written to ``metrics.json``."""
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
+
+    args.logdir.mkdir(parents=True, exist_ok=True)
+    monitor_dir = args.logdir / "monitor"
+    monitor_dir.mkdir(exist_ok=True)
+    venv = build_vec_env(args, monitor_dir)
+    try:
+        model = build_model(args, venv, args.logdir / "tb")
+        metrics_cb = make_metrics_callback()
+        callbacks = [metrics_cb]
+        if args.checkpoint_every > 0:
+            every = max(args.checkpoint_every // args.n_envs, 1)
+            callbacks.append(
+                CheckpointCallback(every, str(args.logdir / "checkpoints"), name_prefix=args.algo)
+            )
+        start = time.perf_counter()
+        model.learn(
+            total_timesteps=args.timesteps,
+            callback=CallbackList(callbacks),
+            progress_bar=args.progress,
+            reset_num_timesteps=args.resume is None,
+            tb_log_name=f"{args.algo}_{args.env}",
+        )
+        wall = time.perf_counter() - start
+        model.save(args.logdir / "model.zip")
+    finally:
+        venv.close()
+    episodes = metrics_cb.episodes
+    recent = episodes[-20:]
+    metrics: dict[str, Any] = {
+        "env": args.env,
+        "env_id": ENV_IDS[args.env],
+        "world": args.world,
+        "algo": args.algo,
+        "timesteps": int(model.num_timesteps),
+        "wall_time_s": round(wall, 2),
+        "steps_per_s": round(args.timesteps / wall, 1) if wall > 0 else None,
+        "episodes": len(episodes),
+        "mean_return_last20": float(np.mean([e["return"] for e in recent])) if recent else None,
+        "success_rate_last20": float(np.mean([e["success"] for e in recent])) if recent else None,
+        "args": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(args).items()},
+        "episode_log": episodes,
+    }
+    (args.logdir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    save_learning_curve(
+        episodes,
+        args.logdir / "learning_curve.png",
+        f"{args.algo.upper()} on {ENV_IDS[args.env]} ({args.world})",
+    )
+    return metrics
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    args = parse_args(argv)
+    problem = check_daemon(args)
+    if problem:
+        print(problem, file=sys.stderr)
+        return EXIT_NO_DAEMON
+    metrics = train(args)
+    print(
+        f"trained {metrics['algo']} on {metrics['env_id']} ({metrics['world']}): "
+        f"{metrics['timesteps']} steps in {metrics['wall_time_s']} s "
+        f"({metrics['steps_per_s']} steps/s), {metrics['episodes']} episodes; "
+        f"wrote {args.logdir}/model.zip, metrics.json, learning_curve.png"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
