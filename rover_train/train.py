@@ -113,9 +113,8 @@ def check_daemon(args: TrainArgs) -> str | None:
     """For fused envs: None when every slot's segments exist, else what to do about it."""
     if args.env not in FUSED_KINDS:
         return None
-    from shm_protocol.errors import ShmError
-
     from shm_protocol import FrameReader, slot_name
+    from shm_protocol.errors import ShmError
 
     for i in range(args.n_envs):
         name = slot_name(args.shm_name, i)
