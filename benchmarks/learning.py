@@ -1,0 +1,119 @@
+"""Does PPO learn? PPO against the random policy on RoverEnv (maze) and RoverEnvFused.
+
+    python benchmarks/learning.py                      # lidar: 3 seeds x 100k steps; fused: 2 x 20k
+    python benchmarks/learning.py --lidar-steps 30000 --seeds 1 --fused-steps 0   # quick look
+
+For each seed it trains with rover-train's own code, then evaluates the trained policy and
+the random policy on the same fixed evaluation seeds (rover-eval's code) and prints one
+table. The fused part starts its own av-daemon on a private segment name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from rover_train import evaluate  # noqa: E402
+from rover_train.envs import make_env  # noqa: E402
+from rover_train.train import TrainArgs, train  # noqa: E402
+
+
+def evaluate_policy(
+    kind: str, world: str, model: Path | None, episodes: int, max_steps: int, shm: str
+) -> dict:
+    env = make_env(kind, world=world, shm_name=shm)
+    try:
+        act = evaluate.load_policy(
+            model, None if model else "random", env, "ppo" if model else None
+        )
+        results = [
+            evaluate.run_episode(env, act, 5000 + i, max_steps, None) for i in range(episodes)
+        ]
+    finally:
+        env.close()
+    return evaluate.summarise(results)
+
+
+def start_daemon(name: str) -> subprocess.Popen:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "active_vision", "--name", name, "--threads", "1"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        if "ready" in line:
+            return proc
+    raise RuntimeError(f"daemon exited with {proc.wait()} before it was ready")
+
+
+def run(
+    kind: str, world: str, steps: int, seeds: int, episodes: int, max_steps: int, shm: str
+) -> list[str]:
+    rows = []
+    random = evaluate_policy(kind, world, None, episodes, max_steps, shm)
+    for seed in range(seeds):
+        with tempfile.TemporaryDirectory() as tmp:
+            t0 = time.perf_counter()
+            args = TrainArgs(
+                env=kind, world=world, timesteps=steps, seed=seed, logdir=Path(tmp),
+                checkpoint_every=0, progress=False, shm_name=shm, length=1000,
+            )  # fmt: skip
+            train(args)
+            wall = time.perf_counter() - t0
+            trained = evaluate_policy(
+                kind, world, Path(tmp) / "model.zip", episodes, max_steps, shm
+            )
+        rows.append(
+            f"| {kind} | {world} | {steps} | {seed} | {wall:.0f} | "
+            f"{trained['success_rate']:.0%} | {trained['mean_return']:.1f} | "
+            f"{trained['spl']:.2f} | "
+            f"{random['success_rate']:.0%} | {random['mean_return']:.1f} |"
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--world", default="maze")
+    p.add_argument("--lidar-steps", type=int, default=100_000)
+    p.add_argument("--fused-steps", type=int, default=20_000)
+    p.add_argument("--seeds", type=int, default=3)
+    p.add_argument("--fused-seeds", type=int, default=2)
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument("--max-steps", type=int, default=600)
+    a = p.parse_args()
+    header = (
+        "| env | world | train steps | seed | train s | PPO success | PPO return | PPO SPL "
+        "| random success | random return |\n|---|---|---|---|---|---|---|---|---|---|"
+    )
+    print(header, flush=True)
+    rows = []
+    if a.lidar_steps > 0:
+        rows += run("lidar", a.world, a.lidar_steps, a.seeds, a.episodes, a.max_steps, "")
+    if a.fused_steps > 0:
+        name = f"bench_learning_{os.getpid()}"
+        daemon = start_daemon(name)
+        try:
+            rows += run(
+                "fused", a.world, a.fused_steps, a.fused_seeds, a.episodes, a.max_steps, name
+            )
+        finally:
+            daemon.send_signal(signal.SIGTERM)
+            daemon.wait(10)
+    print("\n" + header + "\n" + "\n".join(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
