@@ -1,0 +1,239 @@
+"""Walking pedestrians: mocap figures (head, torso, arms, swinging legs) on back-and-forth paths.
+
+Each pedestrian is three mocap bodies: the upper body (torso, arms, head) and two legs that
+swing about the hip as it walks. Their geoms collide with the rover (not with the scenery:
+mocap bodies cannot be pushed), are in geom group 1 (seen by the LIDAR and the cameras), and
+get clothing colours from a palette kept apart from the rover's and the scenery's colours.
+
+Every episode each pedestrian gets a new straight path (3-8 m, clear of obstacles, inside
+the world's pedestrian area), a speed in [1.0, 1.5] m/s, a start point on the path and a
+palette draw, all from the generator passed to :meth:`Pedestrians.reset` (the env's
+``np_random``). Position at simulated time t is a closed form of t, so the figures move
+identically whatever the step size.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+
+from rover_env.worlds.spec import GROUP_PEDESTRIAN, WorldSpec
+
+SPEED_RANGE = (1.0, 1.5)  # m/s, walking speed
+PATH_LENGTH_RANGE = (3.0, 8.0)  # m
+PATH_CLEARANCE = 0.45  # m from obstacle footprints
+MIN_START_DISTANCE = 2.0  # m from the rover's spawn
+HIP_HEIGHT = 0.9
+HIP_HALF_WIDTH = 0.1
+LEG_LENGTH = 0.85
+STEP_LENGTH = 0.7  # m per step: one leg cycle is two steps
+LEG_SWING = 0.45  # rad amplitude
+_MAX_TRIES = 200
+
+# Clothing and skin palettes (RGB). Shirts are saturated hues; the scenery is grey, sand,
+# beige and dark blue, the rover light grey with an orange accent.
+SHIRTS = (
+    (0.85, 0.10, 0.12),
+    (0.90, 0.20, 0.60),
+    (0.95, 0.85, 0.10),
+    (0.15, 0.70, 0.20),
+    (0.55, 0.20, 0.75),
+    (0.05, 0.75, 0.80),
+    (0.98, 0.98, 0.98),
+)
+TROUSERS = ((0.10, 0.10, 0.25), (0.08, 0.08, 0.08), (0.35, 0.22, 0.12), (0.60, 0.55, 0.35))
+SKIN = ((0.96, 0.80, 0.69), (0.80, 0.60, 0.45), (0.55, 0.37, 0.25), (0.36, 0.24, 0.16))
+
+
+class _Path(NamedTuple):
+    """Out-and-back walk from (ax, ay) along unit (ux, uy) for ``length`` m; ``phase`` is
+    the distance already walked at t = 0 (a length of 0 stands still)."""
+
+    ax: float
+    ay: float
+    ux: float
+    uy: float
+    length: float
+    speed: float
+    phase: float
+
+
+def body_name(i: int) -> str:
+    return f"pedestrian{i}"
+
+
+def pedestrians_xml(n: int) -> str:
+    """MJCF worldbody fragment with ``n`` pedestrians (parked far below the ground)."""
+    g = GROUP_PEDESTRIAN
+    parts = []
+    for i in range(n):
+        name = body_name(i)
+        park = f"{10.0 * i} 0 -50"
+        parts.append(
+            f'<body name="{name}" mocap="true" pos="{park}">'
+            f'<geom name="{name}_torso" type="capsule" fromto="0 0 {HIP_HEIGHT + 0.1} 0 0 1.35" '
+            f'size="0.17" group="{g}" rgba="1 0 0 1"/>'
+            f'<geom name="{name}_head" type="sphere" pos="0 0 1.6" size="0.11" group="{g}" '
+            f'rgba="1 1 1 1"/>'
+            f'<geom name="{name}_arm_l" type="capsule" fromto="0.02 0.24 1.38 0.06 0.26 0.92" '
+            f'size="0.05" group="{g}" rgba="1 0 0 1"/>'
+            f'<geom name="{name}_arm_r" type="capsule" fromto="0.02 -0.24 1.38 0.06 -0.26 0.92" '
+            f'size="0.05" group="{g}" rgba="1 0 0 1"/>'
+            "</body>"
+        )
+        for side in ("l", "r"):
+            parts.append(
+                f'<body name="{name}_leg_{side}" mocap="true" pos="{park}">'
+                f'<geom name="{name}_leg_{side}" type="capsule" '
+                f'fromto="0 0 0 0 0 {-(LEG_LENGTH - 0.07)}" size="0.07" group="{g}" '
+                f'rgba="0 0 1 1"/>'
+                "</body>"
+            )
+    return "".join(parts)
+
+
+class Pedestrians:
+    """The pedestrians of one MuJoCo model: their paths, and their mocap poses over time."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, world: WorldSpec) -> None:
+        self._model, self._data, self._world = model, data, world
+        self.n = 0
+        while mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body_name(self.n)) >= 0:
+            self.n += 1
+        ids = [
+            [
+                mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body_name(i) + suffix)
+                for i in range(self.n)
+            ]
+            for suffix in ("", "_leg_l", "_leg_r")
+        ]
+        self._mocap = np.array(
+            [[model.body_mocapid[b] for b in row] for row in ids], dtype=np.intp
+        )  # (3, n): upper body, left leg, right leg
+        body_ids = np.array(ids, dtype=np.intp).reshape(-1)
+        self.geom_mask = np.isin(model.geom_bodyid, body_ids)  # (ngeom,) pedestrian geoms
+        self._geoms_by_part = {
+            part: np.array(
+                [
+                    mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{body_name(i)}_{part}")
+                    for i in range(self.n)
+                ]
+            )
+            for part in ("torso", "head", "arm_l", "arm_r", "leg_l", "leg_r")
+        }
+        # Per pedestrian: a Path (plain floats: update() runs every env step).
+        self._paths = [_Path(0.0, 0.0, 1.0, 0.0, 0.0, SPEED_RANGE[0], 0.0)] * self.n
+        self.positions = np.zeros((self.n, 2))  # current (x, y), updated by update()
+        self.headings = np.zeros(self.n)
+        # Mocap rows in update() order: per pedestrian, upper body, left leg, right leg.
+        self._order = self._mocap.T.reshape(-1).copy()
+
+    # --- episode set-up ------------------------------------------------------------------------
+    def reset(self, rng: np.random.Generator, avoid: tuple[float, float] | None = None) -> None:
+        """New paths, speeds, phases and clothes for every pedestrian, then pose at t = 0."""
+        for i in range(self.n):
+            (ax, ay), (ux, uy), length, phase = self._sample_path(rng, avoid)
+            speed = float(rng.uniform(*SPEED_RANGE))
+            self._paths[i] = _Path(ax, ay, ux, uy, length, speed, phase)
+            self._recolour(i, rng)
+        self.update(0.0)
+
+    def _sample_path(
+        self, rng: np.random.Generator, avoid: tuple[float, float] | None
+    ) -> tuple[tuple[float, float], tuple[float, float], float, float]:
+        """(start, unit direction, length, phase): a free path whose start point (at the
+        sampled phase) is at least MIN_START_DISTANCE from ``avoid``."""
+        world = self._world
+        area = world.pedestrian_area
+        length_hi = PATH_LENGTH_RANGE[1]
+        for attempt in range(_MAX_TRIES):
+            if attempt == _MAX_TRIES // 2:
+                length_hi = PATH_LENGTH_RANGE[0]  # crowded: settle for short paths
+            ax, ay = world.sample_free(rng, area, PATH_CLEARANCE)
+            heading = rng.uniform(-math.pi, math.pi)
+            length = rng.uniform(PATH_LENGTH_RANGE[0], length_hi)
+            ux, uy = math.cos(heading), math.sin(heading)
+            bx, by = ax + length * ux, ay + length * uy
+            if not (
+                area.contains(bx, by) and world.segment_is_free((ax, ay), (bx, by), PATH_CLEARANCE)
+            ):
+                continue
+            phase = rng.uniform(0.0, 2.0 * length)  # anywhere on the out-and-back cycle
+            along = phase if phase <= length else 2.0 * length - phase
+            px, py = ax + along * ux, ay + along * uy
+            if avoid is None or math.hypot(px - avoid[0], py - avoid[1]) >= MIN_START_DISTANCE:
+                return (ax, ay), (ux, uy), length, phase
+        # A crowded area: stand still at a free point rather than fail the reset.
+        for _ in range(_MAX_TRIES):
+            ax, ay = world.sample_free(rng, area, PATH_CLEARANCE)
+            if avoid is None or math.hypot(ax - avoid[0], ay - avoid[1]) >= MIN_START_DISTANCE:
+                break
+        return (ax, ay), (1.0, 0.0), 0.0, 0.0
+
+    def _recolour(self, i: int, rng: np.random.Generator) -> None:
+        rgba = self._model.geom_rgba
+        shirt = SHIRTS[rng.integers(len(SHIRTS))]
+        trousers = TROUSERS[rng.integers(len(TROUSERS))]
+        skin = SKIN[rng.integers(len(SKIN))]
+        for part, colour in (
+            ("torso", shirt),
+            ("arm_l", shirt),
+            ("arm_r", shirt),
+            ("head", skin),
+            ("leg_l", trousers),
+            ("leg_r", trousers),
+        ):
+            rgba[self._geoms_by_part[part][i], :3] = colour
+
+    def place(self, i: int, x: float, y: float, heading: float) -> None:
+        """Pin pedestrian ``i`` standing at (x, y) facing ``heading`` (rad) until next reset."""
+        if not 0 <= i < self.n:
+            raise IndexError(f"pedestrian index {i} out of range: this world has {self.n}")
+        self._paths[i] = _Path(
+            float(x), float(y), math.cos(heading), math.sin(heading), 0.0, 0.0, 0.0
+        )
+        self.update(self._data.time)
+
+    # --- motion --------------------------------------------------------------------------------
+    def update(self, t: float) -> None:
+        """Write every pedestrian's mocap pose for simulated time ``t``.
+
+        Plain Python over a handful of figures: cheaper than numpy's per-call overhead.
+        """
+        if self.n == 0:
+            return
+        world = self._world
+        flat = world.heightfield is None
+        positions, headings = self.positions, self.headings
+        pos_rows: list[list[float]] = []
+        quat_rows: list[list[float]] = []
+        for i, (ax, ay, ux, uy, length, speed, phase) in enumerate(self._paths):
+            if length > 0.0:
+                travelled = phase + speed * t
+                s = travelled % (2.0 * length)
+                along = s if s <= length else 2.0 * length - s
+                x, y = ax + along * ux, ay + along * uy
+                if s > length:  # walking back towards the start
+                    ux, uy = -ux, -uy
+                swing = LEG_SWING * math.sin(math.pi * travelled / STEP_LENGTH)
+            else:
+                x, y = ax, ay
+                swing = 0.0
+            positions[i, 0], positions[i, 1] = x, y
+            yaw = math.atan2(uy, ux)
+            headings[i] = yaw
+            z = 0.0 if flat else world.ground_height(x, y)
+            cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+            cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+            pos_rows.append([x, y, z])
+            quat_rows.append([cy, 0.0, 0.0, sy])
+            for side, angle in ((HIP_HALF_WIDTH, swing), (-HIP_HALF_WIDTH, -swing)):
+                # hip = pos + R(yaw) (0, side, HIP_HEIGHT); leg quat = yaw * pitch(angle)
+                cp, sp = math.cos(0.5 * angle), math.sin(0.5 * angle)
+                pos_rows.append([x - sin_yaw * side, y + cos_yaw * side, z + HIP_HEIGHT])
+                quat_rows.append([cy * cp, -sy * sp, cy * sp, sy * cp])
+        self._data.mocap_pos[self._order] = pos_rows
+        self._data.mocap_quat[self._order] = quat_rows

@@ -1,0 +1,459 @@
+"""RoverSim: one MuJoCo world with the rover and its pedestrians, read out by name.
+
+Used by every env and by ``active_vision.dataset`` to render training frames. The OpenGL
+renderer is created on the first render call, in the process that renders, so a sim (or
+an env holding one) can be built in a subprocess vector-env worker.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import NamedTuple
+
+import mujoco
+import numpy as np
+
+from rover_env import rover
+from rover_env.pedestrians import Pedestrians, pedestrians_xml
+from rover_env.worlds import WorldSpec, make_world
+from rover_env.worlds.spec import (
+    CONAFFINITY_WORLD,
+    CONTYPE_WORLD,
+    GROUP_MARKER,
+)
+
+log = logging.getLogger(__name__)
+
+PHYSICS_DT = 0.01  # s; implicitfast keeps the wheel servos stable at this step
+SOLVER_ITERATIONS = 20
+SOLVER_LS_ITERATIONS = 8
+CHASE_MAX_SIZE = (640, 480)  # (width, height): the largest render_chase frame
+# Clip planes relative to the model extent (fixed at _EXTENT): near 2 cm, far 120 m.
+_EXTENT = 10.0
+_ZNEAR, _ZFAR = 0.002, 12.0
+_CHASE_DISTANCE = 2.6
+_CHASE_ELEVATION = -22.0
+_GOAL_BODY = "goal_marker"
+
+
+class CameraFrame(NamedTuple):
+    """One forward-camera frame (arrays owned by the caller).
+
+    :param rgb: uint8 (H, W, 3).
+    :param depth: float32 (H, W) metric depth along the optical axis in metres (the far
+        clip distance where nothing was hit), or None when not requested.
+    :param pedestrian_mask: bool (H, W), True on pixels showing any pedestrian geom, or
+        None when not requested.
+    """
+
+    rgb: np.ndarray
+    depth: np.ndarray | None
+    pedestrian_mask: np.ndarray | None
+
+
+class Contacts(NamedTuple):
+    """What the rover touches now: scenery other than the ground, and pedestrians."""
+
+    obstacle: bool
+    pedestrian: bool
+
+
+def build_mjcf(world: WorldSpec, camera_size: tuple[int, int], physics_dt: float) -> str:
+    """The complete MJCF of ``world`` with the rover, its pedestrians and a goal marker."""
+    height, width = camera_size
+    offwidth = max(width, CHASE_MAX_SIZE[0])
+    offheight = max(height, CHASE_MAX_SIZE[1])
+    sx = 0.5 * (world.spawn.x[0] + world.spawn.x[1])
+    sy = 0.5 * (world.spawn.y[0] + world.spawn.y[1])
+    rover_body, actuators = rover.rover_xml(sx, sy, rover.REST_HEIGHT + world.ground_height(sx, sy))
+    goal = (
+        f'<body name="{_GOAL_BODY}" mocap="true" pos="{sx} {sy} 0">'
+        f'<geom type="cylinder" size="0.5 0.005" pos="0 0 0.005" group="{GROUP_MARKER}" '
+        'contype="0" conaffinity="0" rgba="0.1 0.9 0.2 0.5"/>'
+        f'<geom type="cylinder" size="0.02 0.5" pos="0 0 0.5" group="{GROUP_MARKER}" '
+        'contype="0" conaffinity="0" rgba="0.1 0.9 0.2 0.9"/>'
+        "</body>"
+    )
+    return (
+        f'<mujoco model="roverav_{world.name}">'
+        '<compiler angle="degree" autolimits="true"/>'
+        f'<option timestep="{physics_dt}" integrator="implicitfast" cone="pyramidal" '
+        f'iterations="{SOLVER_ITERATIONS}" ls_iterations="{SOLVER_LS_ITERATIONS}"/>'
+        f'<statistic extent="{_EXTENT}" center="{sx} {sy} 0"/>'
+        "<visual>"
+        '<quality offsamples="0" shadowsize="0" numslices="12" numstacks="8" numquads="1"/>'
+        f'<global offwidth="{offwidth}" offheight="{offheight}"/>'
+        f'<map znear="{_ZNEAR}" zfar="{_ZFAR}"/>'
+        '<headlight ambient="0.35 0.35 0.35" diffuse="0.45 0.45 0.45" specular="0 0 0"/>'
+        "</visual>"
+        "<default>"
+        f'<geom contype="{CONTYPE_WORLD}" conaffinity="{CONAFFINITY_WORLD}" condim="3" '
+        'friction="1.0 0.01 0.001"/>'
+        "</default>"
+        f"<asset>{world.asset_xml}</asset>"
+        "<worldbody>"
+        '<light name="sun" directional="true" pos="0 0 20" dir="-0.3 -0.5 -1" '
+        'diffuse="0.55 0.55 0.55" specular="0 0 0" castshadow="false"/>'
+        + world.worldbody_xml
+        + rover_body
+        + pedestrians_xml(world.n_pedestrians)
+        + goal
+        + "</worldbody>"
+        + f"<actuator>{actuators}</actuator>"
+        + "</mujoco>"
+    )
+
+
+class _GLRenderer:
+    """Offscreen OpenGL rendering of a model: one context, one scene, reused buffers."""
+
+    def __init__(self, model: mujoco.MjModel, pedestrian_geoms: np.ndarray) -> None:
+        self._model = model
+        width, height = model.vis.global_.offwidth, model.vis.global_.offheight
+        self._gl = mujoco.GLContext(width, height)
+        self._gl.make_current()
+        self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
+        self._ctx.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
+        self._scene = mujoco.MjvScene(model, maxgeom=model.ngeom + 64)
+        self.camera_option = mujoco.MjvOption()  # groups 0-2: scenery, pedestrians, rover
+        self.chase_option = mujoco.MjvOption()
+        self.chase_option.geomgroup[GROUP_MARKER] = 1
+        self._pedestrian_geoms = pedestrian_geoms
+        self._buffers: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        # Reverse-Z depth buffer (1 near, 0 far) -> metres: d / (z + c).
+        near = model.vis.map.znear * model.stat.extent
+        far = model.vis.map.zfar * model.stat.extent
+        self._depth_c = np.float32(near / (far - near))
+        self._depth_d = np.float32(far * near / (far - near))
+
+    def _bufs(self, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        bufs = self._buffers.get((width, height))
+        if bufs is None:
+            bufs = (
+                np.empty((height, width, 3), dtype=np.uint8),
+                np.empty((height, width), dtype=np.float32),
+                np.empty((height, width, 3), dtype=np.uint8),
+            )
+            self._buffers[(width, height)] = bufs
+        return bufs
+
+    def render(
+        self,
+        data: mujoco.MjData,
+        camera: mujoco.MjvCamera,
+        option: mujoco.MjvOption,
+        width: int,
+        height: int,
+        depth: bool = False,
+        segmentation: bool = False,
+    ) -> CameraFrame:
+        model, scene, ctx = self._model, self._scene, self._ctx
+        if width > model.vis.global_.offwidth or height > model.vis.global_.offheight:
+            raise ValueError(
+                f"frame {width}x{height} is larger than the offscreen buffer "
+                f"{model.vis.global_.offwidth}x{model.vis.global_.offheight}; ask for a smaller "
+                "frame or build the sim with a larger camera_size"
+            )
+        self._gl.make_current()
+        rect = mujoco.MjrRect(0, 0, width, height)
+        rgb_buf, depth_buf, seg_buf = self._bufs(width, height)
+        mujoco.mjv_updateScene(model, data, option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, scene)
+        mujoco.mjr_render(rect, scene, ctx)
+        mujoco.mjr_readPixels(rgb_buf, depth_buf if depth else None, rect, ctx)
+        rgb = rgb_buf[::-1].copy()
+        depth_m = None
+        if depth:
+            depth_m = depth_buf[::-1] + self._depth_c
+            np.divide(self._depth_d, depth_m, out=depth_m)
+        mask = None
+        if segmentation:
+            mask = self._segment(rect, seg_buf)
+        return CameraFrame(rgb, depth_m, mask)
+
+    def _segment(self, rect: mujoco.MjrRect, seg_buf: np.ndarray) -> np.ndarray:
+        scene = self._scene
+        flags = scene.flags
+        flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
+        flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
+        try:
+            mujoco.mjr_render(rect, scene, self._ctx)
+            mujoco.mjr_readPixels(seg_buf, None, rect, self._ctx)
+        finally:
+            flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 0
+            flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 0
+        # Segment id (1-based scene geom index, 0 = background) -> is a pedestrian geom.
+        is_ped = np.zeros(scene.ngeom + 1, dtype=bool)
+        geom_type = mujoco.mjtObj.mjOBJ_GEOM
+        for i in range(scene.ngeom):
+            g = scene.geoms[i]
+            if g.segid >= 0 and g.objtype == geom_type and self._pedestrian_geoms[g.objid]:
+                is_ped[g.segid + 1] = True
+        seg = seg_buf[::-1].astype(np.int32)
+        segid = seg[..., 0] | (seg[..., 1] << 8) | (seg[..., 2] << 16)
+        np.clip(segid, 0, scene.ngeom, out=segid)
+        return is_ped[segid]
+
+    def close(self) -> None:
+        if self._gl is None:
+            return
+        self._gl.make_current()
+        self._ctx.free()
+        self._gl.free()
+        self._gl = None
+
+
+class RoverSim:
+    """One MuJoCo world with the rover and its pedestrians, with named readouts.
+
+    :param world: ``inspect``, ``moon`` (alias ``island``) or ``maze``.
+    :param camera_size: forward camera frame (height, width) in pixels.
+    :param physics_dt: physics time step (s); ``advance`` runs whole steps.
+    :param seed_rng: generator for the initial state; the sim is reset from it (or from
+        a fixed seed) at construction so it is usable before the first ``reset``.
+    """
+
+    def __init__(
+        self,
+        world: str = "inspect",
+        camera_size: tuple[int, int] = (96, 96),
+        physics_dt: float = PHYSICS_DT,
+        seed_rng: np.random.Generator | None = None,
+    ) -> None:
+        if not physics_dt > 0:
+            raise ValueError(f"physics_dt must be > 0, got {physics_dt}")
+        if len(camera_size) != 2 or min(camera_size) < 1:
+            raise ValueError(f"camera_size must be (height, width) >= 1, got {camera_size}")
+        self.world: WorldSpec = make_world(world)
+        self.camera_size = (int(camera_size[0]), int(camera_size[1]))
+        self.physics_dt = float(physics_dt)
+        self.model = mujoco.MjModel.from_xml_string(
+            build_mjcf(self.world, self.camera_size, self.physics_dt)
+        )
+        self.data = mujoco.MjData(self.model)
+        m, d = self.model, self.data
+        obj = mujoco.mjtObj
+        self._body = mujoco.mj_name2id(m, obj.mjOBJ_BODY, rover.BODY_NAME)
+        free = m.body_jntadr[self._body]
+        self._qpos = m.jnt_qposadr[free]
+        self._qvel = m.jnt_dofadr[free]
+        wheel_joints = [mujoco.mj_name2id(m, obj.mjOBJ_JOINT, n) for n in rover.WHEEL_NAMES]
+        self._wheel_dofs = np.array([m.jnt_dofadr[j] for j in wheel_joints], dtype=np.intp)
+        self._actuators = np.array(
+            [mujoco.mj_name2id(m, obj.mjOBJ_ACTUATOR, n) for n in rover.WHEEL_NAMES],
+            dtype=np.intp,
+        )
+        self._wheel_cmd = np.zeros(4)
+        self._wheel_speeds = np.zeros(4)
+        self._camera_id = mujoco.mj_name2id(m, obj.mjOBJ_CAMERA, rover.CAMERA_NAME)
+        self._goal_mocap = m.body_mocapid[mujoco.mj_name2id(m, obj.mjOBJ_BODY, _GOAL_BODY)]
+        self.pedestrians = Pedestrians(m, d, self.world)
+        # Geom classes for contacts: rover subtree, pedestrians, ground.
+        rover_bodies = {self._body} | {
+            mujoco.mj_name2id(m, obj.mjOBJ_BODY, n) for n in rover.WHEEL_NAMES
+        }
+        self._rover_geoms = np.isin(m.geom_bodyid, list(rover_bodies))
+        self._pedestrian_geoms = self.pedestrians.geom_mask
+        ground_types = (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
+        self._ground_geoms = np.isin(m.geom_type, ground_types) & (m.geom_bodyid == 0)
+        self._lidars: dict[tuple[int, float], rover.Lidar] = {}
+        self._renderer: _GLRenderer | None = None
+        self._camera = mujoco.MjvCamera()
+        self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self._camera.fixedcamid = self._camera_id
+        self._chase = mujoco.MjvCamera()
+        self._chase.type = mujoco.mjtCamera.mjCAMERA_FREE
+        self._chase.distance = _CHASE_DISTANCE
+        self._chase.elevation = _CHASE_ELEVATION
+        self.reset(seed_rng if seed_rng is not None else np.random.default_rng(0))
+
+    # --- state ---------------------------------------------------------------------------------
+    def reset(self, rng: np.random.Generator) -> None:
+        """Fresh physics state: rover at a free spawn with random yaw, new pedestrian paths."""
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        x, y = self.world.sample_free(rng, self.world.spawn, rover.SPAWN_CLEARANCE)
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        self.pedestrians.reset(rng, avoid=(x, y))
+        self.set_rover_pose(x, y, yaw)
+
+    def set_rover_pose(
+        self,
+        x: float,
+        y: float,
+        yaw: float,
+        *,
+        z: float | None = None,
+        roll: float = 0.0,
+        pitch: float = 0.0,
+    ) -> None:
+        """Teleport the rover (zero velocities, wheel servos stopped) and run mj_forward.
+
+        :param z: chassis origin height; default rests the wheels on the ground below.
+        :param roll: rotation about the body x axis (rad), e.g. ``math.pi`` upside down.
+        :param pitch: rotation about the body y axis (rad).
+        """
+        m, d = self.model, self.data
+        if z is None:
+            z = self._rest_height(x, y, yaw)
+        q = self._qpos
+        d.qpos[q : q + 3] = (x, y, z)
+        quat = np.empty(4)
+        # R = Rz(yaw) Ry(pitch) Rx(roll): intrinsic z, y', x'' (lower case = intrinsic).
+        mujoco.mju_euler2Quat(quat, np.array([yaw, pitch, roll]), "zyx")
+        d.qpos[q + 3 : q + 7] = quat
+        v = self._qvel
+        d.qvel[v : v + 6] = 0.0
+        d.qvel[self._wheel_dofs] = 0.0
+        d.ctrl[self._actuators] = 0.0
+        d.qacc_warmstart[:] = 0.0
+        mujoco.mj_forward(m, d)
+
+    def _rest_height(self, x: float, y: float, yaw: float) -> float:
+        world = self.world
+        if world.heightfield is None:
+            return rover.REST_HEIGHT
+        c, s = math.cos(yaw), math.sin(yaw)
+        ground = max(
+            world.ground_height(x + c * wx - s * wy, y + s * wx + c * wy)
+            for wx in (-rover.WHEEL_X, 0.0, rover.WHEEL_X)
+            for wy in (-rover.WHEEL_Y, 0.0, rover.WHEEL_Y)
+        )
+        return ground + rover.REST_HEIGHT + 0.02
+
+    def set_command(self, linear: float, angular: float) -> None:
+        """Drive command: ``linear`` m/s forward, ``angular`` rad/s (left positive)."""
+        rover.wheel_targets(linear, angular, self._wheel_cmd)
+        self.data.ctrl[self._actuators] = self._wheel_cmd
+
+    def advance(self, duration: float) -> None:
+        """Run the physics for ``duration`` s of simulated time (whole physics steps).
+
+        The pedestrians are posed for the end of the interval first, so their positions
+        read during and after this call agree.
+        """
+        n = max(1, int(round(duration / self.physics_dt)))
+        d = self.data
+        self.pedestrians.update(d.time + n * self.physics_dt)
+        mujoco.mj_step(self.model, d, n)
+
+    def set_goal_marker(self, x: float, y: float) -> None:
+        """Move the goal marker (a green disc, drawn in the chase view only)."""
+        self.data.mocap_pos[self._goal_mocap] = (x, y, self.world.ground_height(x, y))
+
+    # --- readouts ------------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        """Simulated time since the last reset (s)."""
+        return float(self.data.time)
+
+    @property
+    def position(self) -> np.ndarray:
+        """Rover chassis origin (x, y, z) in metres (new array)."""
+        q = self._qpos
+        return self.data.qpos[q : q + 3].copy()
+
+    @property
+    def orientation(self) -> np.ndarray:
+        """(pitch, roll, yaw) in radians, the seed's IMU order (new array)."""
+        w, x, y, z = self.data.qpos[self._qpos + 3 : self._qpos + 7]
+        roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+        pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+        yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+        return np.array([pitch, roll, yaw])
+
+    @property
+    def yaw(self) -> float:
+        """Heading (rad, counter-clockwise from +x)."""
+        w, x, y, z = self.data.qpos[self._qpos + 3 : self._qpos + 7]
+        return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """Wheel-odometry (linear m/s, angular rad/s) (new array)."""
+        np.take(self.data.qvel, self._wheel_dofs, out=self._wheel_speeds)
+        return np.array(rover.wheel_odometry(self._wheel_speeds))
+
+    @property
+    def body_velocity(self) -> np.ndarray:
+        """True chassis (forward m/s, yaw rate rad/s) in the body frame (new array)."""
+        v = self._qvel
+        lin_world = self.data.qvel[v : v + 3]
+        yaw = self.yaw
+        forward = math.cos(yaw) * lin_world[0] + math.sin(yaw) * lin_world[1]
+        # freejoint angular velocity is in the body frame; z is the yaw rate when level.
+        return np.array([forward, self.data.qvel[v + 5]])
+
+    def lidar(self, n_points: int, max_range: float) -> np.ndarray:
+        """Planar LIDAR scan: (n_points,) float32 in [0, max_range], min per segment.
+
+        See :class:`rover_env.rover.Lidar` for the ray layout. Returns a new array.
+        """
+        key = (int(n_points), float(max_range))
+        lidar = self._lidars.get(key)
+        if lidar is None:
+            lidar = rover.Lidar(self.model, self.data, n_points, max_range)
+            self._lidars[key] = lidar
+        return lidar.scan().copy()
+
+    @property
+    def pedestrian_positions(self) -> np.ndarray:
+        """(P, 2) pedestrian ground positions (x, y) in metres (new array)."""
+        return self.pedestrians.positions.copy()
+
+    def place_pedestrian(self, i: int, x: float, y: float, heading: float) -> None:
+        """Pin pedestrian ``i`` standing at (x, y) facing ``heading`` until the next reset."""
+        self.pedestrians.place(i, x, y, heading)
+        mujoco.mj_forward(self.model, self.data)
+
+    def rover_contacts(self) -> Contacts:
+        """Whether the rover touches non-ground scenery and/or a pedestrian right now."""
+        d = self.data
+        if d.ncon == 0:
+            return Contacts(False, False)
+        pairs = d.contact.geom[: d.ncon]
+        rover_first = self._rover_geoms[pairs[:, 0]]
+        rover_second = self._rover_geoms[pairs[:, 1]]
+        involved = rover_first | rover_second
+        other = np.where(rover_first, pairs[:, 1], pairs[:, 0])[involved]
+        pedestrian = bool(self._pedestrian_geoms[other].any())
+        obstacle = bool((~self._pedestrian_geoms[other] & ~self._ground_geoms[other]).any())
+        return Contacts(obstacle, pedestrian)
+
+    # --- rendering -----------------------------------------------------------------------------
+    def _gl(self) -> _GLRenderer:
+        if self._renderer is None:
+            self._renderer = _GLRenderer(self.model, self._pedestrian_geoms)
+        return self._renderer
+
+    def render_camera(self, depth: bool = False, segmentation: bool = False) -> CameraFrame:
+        """Forward camera frame (camera_size), optionally with metric depth and the
+        pedestrian mask."""
+        height, width = self.camera_size
+        r = self._gl()
+        return r.render(
+            self.data, self._camera, r.camera_option, width, height, depth, segmentation
+        )
+
+    def render_chase(self, width: int = 480, height: int = 360) -> np.ndarray:
+        """uint8 (height, width, 3) view from behind and above the rover (videos)."""
+        cam = self._chase
+        q = self._qpos
+        cam.lookat[:] = self.data.qpos[q : q + 3]
+        cam.lookat[2] += 0.2
+        cam.azimuth = math.degrees(self.yaw)
+        r = self._gl()
+        return r.render(self.data, cam, r.chase_option, width, height).rgb
+
+    def close(self) -> None:
+        """Free the renderer (the sim stays usable; a later render makes a new one)."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown: GL may already be gone
+            pass

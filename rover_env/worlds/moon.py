@@ -1,0 +1,115 @@
+"""moon (alias island): rough lunar terrain, a height field with hills, crater rims and rocks.
+
+The seed's spawn and goal square is x, y in [-4, 4]; leaving x in [-20, 10] or
+y in [-20, 20] ends the episode. The terrain is gentle around the spawn square (small
+undulation and scattered rocks) and steepens away from it: hills and crater rims with
+slopes past 40 degrees, where the rover can roll or pitch over. The layout is fixed
+(a constant seed); only spawn, goal and pedestrians change per episode.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rover_env.constants import WORLD_RECTANGLES
+from rover_env.worlds import _mjcf
+from rover_env.worlds.spec import GROUP_GROUND, Circle, HeightField, Obstacle, Rect, WorldSpec
+
+NAME = "moon"
+_LAYOUT_SEED = 2024
+_CENTRE = (-5.0, 0.0)
+_RADIUS = (17.0, 22.0)  # hfield covers x in [-22, 12], y in [-22, 22]
+_CELL = 1.0  # m between height samples: coarse, cheap to collide and ray-cast
+_BASE = 0.5
+_FLAT_HALF = 5.0  # |x|, |y| below this stay gentle
+_ROCK_RGBA = "0.42 0.41 0.39 1"
+# Hills (x, y, height m, sigma m) and craters (x, y, rim radius m, rim height m).
+_HILLS = (
+    (-12.0, 9.0, 2.6, 2.2),
+    (6.0, -9.0, 2.2, 1.8),
+    (-15.0, -12.0, 3.0, 2.5),
+    (8.0, 12.0, 2.0, 2.0),
+    (-3.0, 14.0, 1.8, 1.6),
+    (-9.0, -15.0, 1.6, 1.5),
+)
+_CRATERS = ((-11.0, -4.0, 3.0, 0.9), (4.5, 7.5, 2.2, 0.7), (-2.0, -11.0, 2.5, 0.8))
+
+
+def _terrain(x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Ground height (m) on the grid, before normalisation."""
+    h = 0.12 * np.sin(0.7 * x + 0.3) * np.cos(0.55 * y - 0.2) + 0.08 * np.sin(1.3 * y + x)
+    rough = np.zeros_like(x)
+    for hx, hy, height, sigma in _HILLS:
+        rough += height * np.exp(-((x - hx) ** 2 + (y - hy) ** 2) / (2 * sigma**2))
+    for cx, cy, radius, rim in _CRATERS:
+        r = np.hypot(x - cx, y - cy)
+        rough += rim * np.exp(-((r - radius) ** 2) / (2 * 0.6**2))
+        rough -= 1.2 * rim * np.exp(-(r**2) / (2 * (0.5 * radius) ** 2))
+    rough += 0.25 * rng.standard_normal(x.shape)  # boulder-field roughness
+    # Keep the spawn square gentle: roughness fades in beyond _FLAT_HALF.
+    d = np.maximum(np.abs(x), np.abs(y)) - _FLAT_HALF
+    fade = np.clip(d / 3.0, 0.0, 1.0)
+    return h + fade * rough
+
+
+def _rocks(rng: np.random.Generator, hf: HeightField) -> tuple[str, list[Obstacle]]:
+    parts, obstacles = [], []
+    rect = Rect((-19.0, 9.0), (-19.0, 19.0))
+    placed: list[tuple[float, float, float]] = []
+    n_near, n_far = 7, 28
+    while len(placed) < n_near + n_far:
+        near = len(placed) < n_near
+        if near:
+            x, y = rng.uniform(-4.5, 4.5, 2)
+            r = rng.uniform(0.2, 0.45)
+        else:
+            x, y = rect.sample(rng)
+            r = rng.uniform(0.3, 0.8)
+        if any(np.hypot(x - px, y - py) < r + pr + 0.8 for px, py, pr in placed):
+            continue
+        placed.append((float(x), float(y), float(r)))
+    for i, (x, y, r) in enumerate(placed):
+        z = hf.height(x, y) - 0.35 * r  # partly buried
+        parts.append(
+            f'<geom name="rock{i}" type="sphere" pos="{x:.3f} {y:.3f} {z:.3f}" size="{r:.3f}" '
+            f'rgba="{_ROCK_RGBA}"/>'
+        )
+        obstacles.append(Circle(x, y, r))
+    return "".join(parts), obstacles
+
+
+def build() -> WorldSpec:
+    r = WORLD_RECTANGLES[NAME]
+    rng = np.random.default_rng(_LAYOUT_SEED)
+    ncol = int(round(2 * _RADIUS[0] / _CELL)) + 1
+    nrow = int(round(2 * _RADIUS[1] / _CELL)) + 1
+    xs = np.linspace(_CENTRE[0] - _RADIUS[0], _CENTRE[0] + _RADIUS[0], ncol)
+    ys = np.linspace(_CENTRE[1] - _RADIUS[1], _CENTRE[1] + _RADIUS[1], nrow)
+    gx, gy = np.meshgrid(xs, ys)  # (nrow, ncol): row index along y
+    h = _terrain(gx, gy, rng)
+    h -= h.min()
+    z_top = float(h.max())
+    elevation = h / z_top
+    hf = HeightField(_CENTRE, _RADIUS[0], _RADIUS[1], z_top, _BASE, elevation)
+    rocks_xml, obstacles = _rocks(rng, hf)
+    data = " ".join(f"{v:.5f}" for v in elevation.reshape(-1))
+    asset = _mjcf.floor_assets("0.56 0.56 0.54", "0.5 0.5 0.48") + (
+        f'<hfield name="terrain" nrow="{nrow}" ncol="{ncol}" '
+        f'size="{_RADIUS[0]} {_RADIUS[1]} {z_top:.5f} {_BASE}" elevation="{data}"/>'
+    )
+    ground = (
+        f'<geom name="terrain" type="hfield" hfield="terrain" pos="{_CENTRE[0]} {_CENTRE[1]} 0" '
+        f'material="{_mjcf.FLOOR_MATERIAL}" group="{GROUP_GROUND}"/>'
+    )
+    return WorldSpec(
+        name=NAME,
+        spawn=Rect(r["rand_x_range"], r["rand_y_range"]),
+        goal=Rect(r["rand_goal_x_range"], r["rand_goal_y_range"]),
+        bounds=Rect(r["too_far_away_x"], r["too_far_away_y"]),
+        obstacles=tuple(obstacles),
+        pedestrian_area=Rect((-6.0, 6.0), (-6.0, 6.0)),
+        asset_xml=asset,
+        worldbody_xml=ground + rocks_xml,
+        heightfield=hf,
+        n_pedestrians=3,
+    )

@@ -1,0 +1,241 @@
+"""WorldSpec: what an arena is (seed rectangles, obstacle footprints, MJCF scenery).
+
+Geom groups used by every arena (the cameras show groups 0-2, the LIDAR casts against
+groups 0 and 1 only):
+
+- 0: scenery standing on the ground (walls, rocks, panels): collides, scanned, rendered
+- 1: pedestrians: collide with the rover, scanned, rendered
+- 2: ground (plane or height field) and rover visuals: rendered, not scanned (a level
+  2D scan never meets flat ground, and ray casting a height field costs ~7 us a ray)
+- 3: rover collision shapes: invisible
+- 4: markers (goal): drawn in the chase view only
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+
+GROUP_SCENERY = 0
+GROUP_PEDESTRIAN = 1
+GROUP_GROUND = 2
+GROUP_ROVER_VISUAL = 2
+GROUP_ROVER_COLLISION = 3
+GROUP_MARKER = 4
+
+# Collision bits: scenery and pedestrians are contype 1 / conaffinity 2, the rover is
+# contype 2 / conaffinity 1. So the rover collides with both, and nothing else collides
+# (the rover's own parts, pedestrians with scenery or each other).
+CONTYPE_WORLD, CONAFFINITY_WORLD = 1, 2
+CONTYPE_ROVER, CONAFFINITY_ROVER = 2, 1
+_SAMPLE_BATCH = 16
+_MAX_SAMPLE_BATCHES = 100
+
+
+@dataclass(frozen=True)
+class Rect:
+    """Axis-aligned rectangle ``x in [x_lo, x_hi]``, ``y in [y_lo, y_hi]`` (metres)."""
+
+    x: tuple[float, float]
+    y: tuple[float, float]
+
+    def contains(self, x: float, y: float) -> bool:
+        return self.x[0] <= x <= self.x[1] and self.y[0] <= y <= self.y[1]
+
+    def sample(self, rng: np.random.Generator) -> tuple[float, float]:
+        """A point uniformly distributed in the rectangle."""
+        return (float(rng.uniform(*self.x)), float(rng.uniform(*self.y)))
+
+    def expanded(self, margin: float) -> Rect:
+        x, y = self.x, self.y
+        return Rect((x[0] - margin, x[1] + margin), (y[0] - margin, y[1] + margin))
+
+    def intersect(self, other: Rect) -> Rect:
+        return Rect(
+            (max(self.x[0], other.x[0]), min(self.x[1], other.x[1])),
+            (max(self.y[0], other.y[0]), min(self.y[1], other.y[1])),
+        )
+
+
+@dataclass(frozen=True)
+class Circle:
+    """Circular obstacle footprint (rocks, poles, tanks)."""
+
+    x: float
+    y: float
+    radius: float
+
+    def distance(self, x: float, y: float) -> float:
+        """Distance from (x, y) to the footprint (negative inside)."""
+        return math.hypot(x - self.x, y - self.y) - self.radius
+
+
+@dataclass(frozen=True)
+class Box:
+    """Rectangular obstacle footprint: centre, half sizes, yaw (rad)."""
+
+    x: float
+    y: float
+    half_x: float
+    half_y: float
+    yaw: float = 0.0
+
+    def distance(self, x: float, y: float) -> float:
+        """Distance from (x, y) to the footprint (negative inside)."""
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        dx, dy = x - self.x, y - self.y
+        lx, ly = c * dx + s * dy, -s * dx + c * dy
+        qx, qy = abs(lx) - self.half_x, abs(ly) - self.half_y
+        outside = math.hypot(max(qx, 0.0), max(qy, 0.0))
+        return outside + min(max(qx, qy), 0.0)
+
+
+Obstacle = Circle | Box
+
+
+@dataclass(frozen=True, eq=False)
+class HeightField:
+    """A MuJoCo height field: ``elevation`` (nrow, ncol) in [0, 1], row index along +y.
+
+    The geom sits at ``(centre, 0)``, spans ``centre +- (radius_x, radius_y)``; the ground
+    height is ``elevation * z_top`` and the solid extends ``base`` metres below z = 0
+    (MuJoCo hfield ``size="radius_x radius_y z_top base"``).
+    """
+
+    centre: tuple[float, float]
+    radius_x: float
+    radius_y: float
+    z_top: float
+    base: float
+    elevation: np.ndarray = field(repr=False)
+
+    def height(self, x: float, y: float) -> float:
+        """Ground height at (x, y) by bilinear interpolation (0 outside the field)."""
+        nrow, ncol = self.elevation.shape
+        u = (x - self.centre[0] + self.radius_x) / (2 * self.radius_x) * (ncol - 1)
+        v = (y - self.centre[1] + self.radius_y) / (2 * self.radius_y) * (nrow - 1)
+        if not (0.0 <= u <= ncol - 1 and 0.0 <= v <= nrow - 1):
+            return 0.0
+        c0, r0 = min(int(u), ncol - 2), min(int(v), nrow - 2)
+        fu, fv = u - c0, v - r0
+        e = self.elevation
+        h = (
+            e[r0, c0] * (1 - fu) * (1 - fv)
+            + e[r0, c0 + 1] * fu * (1 - fv)
+            + e[r0 + 1, c0] * (1 - fu) * fv
+            + e[r0 + 1, c0 + 1] * fu * fv
+        )
+        return float(h * self.z_top)
+
+
+@dataclass(frozen=True, eq=False)
+class WorldSpec:
+    """One arena: the seed's rectangles, obstacle footprints, and its MJCF scenery.
+
+    :param name: canonical world name (``inspect``, ``moon``, ``maze``).
+    :param spawn: rover spawn rectangle (seed ``rand_x_range`` x ``rand_y_range``).
+    :param goal: goal rectangle (seed ``rand_goal_x_range`` x ``rand_goal_y_range``).
+    :param bounds: out-of-bounds rectangle (seed ``too_far_away_*``): leaving it ends the
+        episode.
+    :param obstacles: footprints of everything the rover cannot stand on; spawn, goals
+        and pedestrian paths keep clear of them.
+    :param pedestrian_area: where pedestrian paths are laid out.
+    :param asset_xml: MJCF ``<asset>`` children (textures, materials, hfields).
+    :param worldbody_xml: MJCF ``<worldbody>`` children (ground and scenery geoms).
+    :param heightfield: the terrain, when the ground is not flat.
+    :param n_pedestrians: walking figures in this world.
+    """
+
+    name: str
+    spawn: Rect
+    goal: Rect
+    bounds: Rect
+    obstacles: tuple[Obstacle, ...]
+    pedestrian_area: Rect
+    asset_xml: str
+    worldbody_xml: str
+    heightfield: HeightField | None = None
+    n_pedestrians: int = 3
+
+    @cached_property
+    def _footprints(self) -> tuple[np.ndarray, np.ndarray]:
+        """Obstacles as arrays: circles (k, 3) x y r; boxes (m, 6) x y hx hy cos sin."""
+        circles = np.array(
+            [(o.x, o.y, o.radius) for o in self.obstacles if isinstance(o, Circle)]
+        ).reshape(-1, 3)
+        boxes = np.array(
+            [
+                (o.x, o.y, o.half_x, o.half_y, math.cos(o.yaw), math.sin(o.yaw))
+                for o in self.obstacles
+                if isinstance(o, Box)
+            ]
+        ).reshape(-1, 6)
+        return circles, boxes
+
+    def clearance_many(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Distance from each point to the nearest obstacle footprint (negative inside)."""
+        x, y = np.asarray(x, dtype=float)[..., None], np.asarray(y, dtype=float)[..., None]
+        circles, boxes = self._footprints
+        best = np.full(x.shape[:-1], np.inf)
+        if len(circles):
+            d = np.hypot(x - circles[:, 0], y - circles[:, 1]) - circles[:, 2]
+            best = np.minimum(best, d.min(axis=-1))
+        if len(boxes):
+            dx, dy = x - boxes[:, 0], y - boxes[:, 1]
+            c, s = boxes[:, 4], boxes[:, 5]
+            qx = np.abs(c * dx + s * dy) - boxes[:, 2]
+            qy = np.abs(-s * dx + c * dy) - boxes[:, 3]
+            d = np.hypot(np.maximum(qx, 0.0), np.maximum(qy, 0.0)) + np.minimum(
+                np.maximum(qx, qy), 0.0
+            )
+            best = np.minimum(best, d.min(axis=-1))
+        return best
+
+    def clearance(self, x: float, y: float) -> float:
+        """Distance from (x, y) to the nearest obstacle footprint (inf with none)."""
+        return float(self.clearance_many(np.array(x), np.array(y)))
+
+    def is_free(self, x: float, y: float, clearance: float = 0.0) -> bool:
+        """True when a disc of radius ``clearance`` at (x, y) touches no obstacle."""
+        return self.clearance(x, y) > clearance
+
+    def in_bounds(self, x: float, y: float) -> bool:
+        """False once the seed's out-of-bounds rectangle is left."""
+        return self.bounds.contains(x, y)
+
+    def ground_height(self, x: float, y: float) -> float:
+        """Terrain height at (x, y) (0 on flat worlds)."""
+        return 0.0 if self.heightfield is None else self.heightfield.height(x, y)
+
+    def sample_free(
+        self, rng: np.random.Generator, rect: Rect, clearance: float
+    ) -> tuple[float, float]:
+        """Uniform point of ``rect`` whose ``clearance`` disc is obstacle-free.
+
+        Rejection sampling (candidates drawn in batches, the first free one wins), so the
+        result is uniform over the free part of the rectangle.
+        """
+        for _ in range(_MAX_SAMPLE_BATCHES):
+            xs = rng.uniform(rect.x[0], rect.x[1], _SAMPLE_BATCH)
+            ys = rng.uniform(rect.y[0], rect.y[1], _SAMPLE_BATCH)
+            free = np.flatnonzero(self.clearance_many(xs, ys) > clearance)
+            if len(free):
+                return float(xs[free[0]]), float(ys[free[0]])
+        raise RuntimeError(
+            f"world {self.name!r}: no free point with clearance {clearance} m found in "
+            f"{rect} after {_MAX_SAMPLE_BATCHES * _SAMPLE_BATCH} tries; the obstacles cover "
+            "the rectangle"
+        )
+
+    def segment_is_free(
+        self, a: tuple[float, float], b: tuple[float, float], clearance: float, step: float = 0.25
+    ) -> bool:
+        """True when every point of segment a-b (sampled every ``step`` m) is free."""
+        length = math.hypot(b[0] - a[0], b[1] - a[1])
+        t = np.linspace(0.0, 1.0, max(2, int(length / step) + 2))
+        xs = a[0] + t * (b[0] - a[0])
+        ys = a[1] + t * (b[1] - a[1])
+        return bool(np.all(self.clearance_many(xs, ys) > clearance))
