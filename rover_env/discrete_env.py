@@ -1,0 +1,80 @@
+"""DiscreteRoverEnvFused: RoverEnvFused with the seed's Discrete(60) speed x compass actions."""
+
+from __future__ import annotations
+
+import logging
+import numbers
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from rover_env import constants as c
+from rover_env.fused_env import RoverEnvFused
+
+log = logging.getLogger(__name__)
+
+SPEED_LEVELS = np.array(c.DISCRETE_SPEED_LEVELS, dtype=np.float32)  # m/s, seed 002
+N_SPEEDS = len(SPEED_LEVELS)  # 5
+N_DIRECTIONS = c.DISCRETE_N_DIRECTIONS  # 12
+DIRECTION_ANGLES = np.linspace(-np.pi, np.pi, N_DIRECTIONS, endpoint=False)  # absolute, rad
+
+
+def decode_action(action: Any) -> tuple[int, int]:
+    """(speed_idx, direction_idx) of a flat action in ``0..59``, as the seed decodes it.
+
+    Accepts a Python int, a numpy integer or a 0-d/size-1 integer array; anything else,
+    or an index outside ``0..59``, raises ``ValueError``.
+    """
+    value = action
+    if isinstance(value, np.ndarray):
+        if value.size != 1:
+            raise ValueError(
+                f"a discrete action is one integer, got an array of shape {value.shape}"
+            )
+        value = value.reshape(()).item() if np.issubdtype(value.dtype, np.integer) else value.item()
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(
+            f"a discrete action must be an integer in 0..{N_SPEEDS * N_DIRECTIONS - 1}, "
+            f"got {action!r} ({type(action).__name__})"
+        )
+    index = int(value)
+    if not 0 <= index < N_SPEEDS * N_DIRECTIONS:
+        raise ValueError(f"action {index} is outside 0..{N_SPEEDS * N_DIRECTIONS - 1}")
+    return index // N_DIRECTIONS, index % N_DIRECTIONS
+
+
+class DiscreteRoverEnvFused(RoverEnvFused):
+    """RoverEnvFused with ``Discrete(60)`` actions: 5 speeds x 12 absolute compass headings.
+
+    ## Action space
+
+    ``Discrete(60)``: ``speed_idx = a // 12``, ``direction_idx = a % 12``.
+
+    | speed_idx | 0 | 1 | 2 | 3 | 4 |
+    |---|---|---|---|---|---|
+    | speed (m/s) | -0.2 | 0.0 | 0.3 | 0.6 | 1.0 |
+
+    ``direction_idx`` k gives the absolute heading ``-pi + k * pi / 6`` (``np.linspace(-pi,
+    pi, 12, endpoint=False)``: -pi, -2.62, ..., 2.62 rad, 0 = +x, "East"), tracked by the same
+    PID as the continuous env. Example: 27 -> 0.3 m/s towards -1.57 rad ("South").
+    Integer-like inputs (int, numpy integer, 0-d array) are accepted; anything else or
+    outside ``0..59`` raises ``ValueError``. The seed printed each action; this env logs
+    it at DEBUG.
+
+    Everything else (observation, reward, episode end, info, arguments) is
+    :class:`~rover_env.fused_env.RoverEnvFused`'s.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.n_speeds = N_SPEEDS
+        self.n_directions = N_DIRECTIONS
+        self.speed_levels = SPEED_LEVELS
+        self.direction_angles = DIRECTION_ANGLES
+        self.action_space = spaces.Discrete(N_SPEEDS * N_DIRECTIONS)
+
+    def _decode_action(self, action: Any) -> tuple[float, float]:
+        speed_idx, direction_idx = decode_action(action)
+        log.debug("action %r -> speed_idx %d, direction_idx %d", action, speed_idx, direction_idx)
+        return float(self.speed_levels[speed_idx]), float(self.direction_angles[direction_idx])
