@@ -1,0 +1,60 @@
+"""shm_protocol: frames between processes over POSIX shared memory.
+
+One writer publishes ``(H, W, C)`` float32/uint8 frames into ``/dev/shm/<name>``; any number
+of readers copy them out. The first bytes are the seed's layout (float64 timestamp, uint32
+valid flag, payload), so seed-style peers interoperate; a 64-byte trailer adds a seqlock,
+the source frame number, the writer's pid and heartbeat, and a futex word for waking.
+See docs/protocol.md.
+
+    w = FrameWriter("rl_observation", shape=(96, 96, 3), dtype=np.float32)
+    seq = w.publish(frame, source_seq=k)
+    r = FrameReader("rl_observation", attach_timeout=30.0)
+    f = r.wait_for(source_seq=k, timeout=2.0)     # Frame(data, timestamp, seq, source_seq)
+"""
+
+from .errors import (
+    FrameTimeoutError,
+    InvalidNameError,
+    LayoutError,
+    NonFiniteError,
+    SegmentNotFoundError,
+    ShmError,
+    WriterGoneError,
+)
+from .layout import (
+    CHANNEL_DEPTH,
+    CHANNEL_GRAY,
+    CHANNEL_HEATMAP,
+    DEPTH_MAX_M,
+    FUSED_DTYPE,
+    FUSED_SHAPE,
+    channel_to_depth,
+    depth_to_channel,
+)
+from .names import camera_name, slot_name, validate_name
+from .reader import Frame, FrameReader
+from .writer import FrameWriter
+
+__all__ = [
+    "CHANNEL_DEPTH",
+    "CHANNEL_GRAY",
+    "CHANNEL_HEATMAP",
+    "DEPTH_MAX_M",
+    "FUSED_DTYPE",
+    "FUSED_SHAPE",
+    "Frame",
+    "FrameReader",
+    "FrameTimeoutError",
+    "FrameWriter",
+    "InvalidNameError",
+    "LayoutError",
+    "NonFiniteError",
+    "SegmentNotFoundError",
+    "ShmError",
+    "WriterGoneError",
+    "camera_name",
+    "channel_to_depth",
+    "depth_to_channel",
+    "slot_name",
+    "validate_name",
+]

@@ -1,0 +1,83 @@
+"""Segment names: validation, the per-slot names of a vector env, the camera segment's name.
+
+A segment named ``rl_observation`` is the file ``/dev/shm/rl_observation``; it is the same
+object Python's ``SharedMemory(name="rl_observation")`` opens, so seed-style peers find it.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+from .errors import InvalidNameError
+
+SHM_DIR = "/dev/shm"
+"""Where POSIX shared memory lives on Linux (``shm_open`` names are files here)."""
+
+MAX_NAME_LENGTH = 128
+"""Longest accepted name. NAME_MAX is 255; the margin leaves room for the ``_<slot>`` and
+``_camera`` suffixes and for the hidden temporary name used while a segment is created."""
+
+CAMERA_SUFFIX = "_camera"
+
+_NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*")
+
+
+def validate_name(name: str) -> str:
+    """Return ``name`` if it can name a segment, else raise :class:`InvalidNameError`.
+
+    Accepted: 1 to ``MAX_NAME_LENGTH`` characters from ``A-Z a-z 0-9 _ . -``, not starting
+    with ``.`` or ``-`` (hidden files are this package's temporaries). No ``/``: POSIX names
+    are one path component, and a leading ``/`` (the ``shm_open`` spelling) is rejected so
+    that one segment has one spelling.
+    """
+    if not isinstance(name, str):
+        raise InvalidNameError(f"segment name must be a str, got {type(name).__name__}")
+    if "/" in name:
+        hint = f"; use {name.lstrip('/')!r}" if name.startswith("/") and "/" not in name[1:] else ""
+        raise InvalidNameError(
+            f"invalid segment name {name!r}: it must not contain '/'{hint} "
+            f"(the segment is the file {SHM_DIR}/<name>)"
+        )
+    if not 1 <= len(name) <= MAX_NAME_LENGTH:
+        raise InvalidNameError(
+            f"invalid segment name {name[:40]!r}{'...' if len(name) > 40 else ''}: length "
+            f"{len(name)}, expected 1 to {MAX_NAME_LENGTH} characters"
+        )
+    if not _NAME_RE.fullmatch(name):
+        bad = sorted({c for c in name if not re.fullmatch(r"[A-Za-z0-9_.\-]", c)})
+        why = f"characters {bad!r} are not allowed" if bad else "it must not start with '.' or '-'"
+        raise InvalidNameError(
+            f"invalid segment name {name!r}: {why}; use letters, digits, '_', '.' and '-'"
+        )
+    return name
+
+
+def slot_name(base: str, i: int) -> str:
+    """Name of slot ``i`` of a daemon serving ``base``: ``base`` for 0, ``f"{base}_{i}"`` else."""
+    validate_name(base)
+    if isinstance(i, bool) or not isinstance(i, int) or i < 0:
+        raise ValueError(f"slot index must be an int >= 0, got {i!r}")
+    return base if i == 0 else validate_name(f"{base}_{i}")
+
+
+def camera_name(name: str) -> str:
+    """The camera input segment that pairs with fused segment ``name``: ``f"{name}_camera"``."""
+    validate_name(name)
+    return validate_name(f"{name}{CAMERA_SUFFIX}")
+
+
+def segment_path(name: str) -> str:
+    """The file that holds segment ``name`` (validated)."""
+    return os.path.join(SHM_DIR, validate_name(name))
+
+
+__all__ = [
+    "CAMERA_SUFFIX",
+    "MAX_NAME_LENGTH",
+    "SHM_DIR",
+    "camera_name",
+    "segment_path",
+    "slot_name",
+    "validate_name",
+]
