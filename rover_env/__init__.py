@@ -1,14 +1,45 @@
 """roverav's MuJoCo simulation and Gymnasium envs (RoverEnv, RoverEnvFused, discrete).
 
 Importing this package sets ``MUJOCO_GL=egl`` (unless already set) before MuJoCo loads,
-so rendering works headless, and registers the ``roverav/`` env ids.
+so rendering works headless, and registers the ``roverav/`` env ids:
+
+- ``roverav/RoverEnv-v0``: :class:`RoverEnv` (LIDAR)
+- ``roverav/RoverEnvFused-v0``: ``rover_env.fused_env:RoverEnvFused``
+- ``roverav/RoverEnvFusedDiscrete-v0``: ``rover_env.discrete_env:DiscreteRoverEnvFused``
+
+Episode length is the envs' own ``length`` argument (they truncate themselves), so no
+``TimeLimit`` wrapper is registered.
 """
 
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from gymnasium.envs.registration import register, registry  # noqa: E402
+
+from rover_env.core import RoverEnvBase  # noqa: E402
+from rover_env.lidar_env import RoverEnv  # noqa: E402
+from rover_env.reward import RewardConfig  # noqa: E402
 from rover_env.simulation import CameraFrame, Contacts, RoverSim  # noqa: E402
 from rover_env.worlds import WORLD_NAMES, WorldSpec, make_world  # noqa: E402
 
-__all__ = ["WORLD_NAMES", "CameraFrame", "Contacts", "RoverSim", "WorldSpec", "make_world"]
+_ENVS = {
+    "roverav/RoverEnv-v0": "rover_env.lidar_env:RoverEnv",
+    "roverav/RoverEnvFused-v0": "rover_env.fused_env:RoverEnvFused",
+    "roverav/RoverEnvFusedDiscrete-v0": "rover_env.discrete_env:DiscreteRoverEnvFused",
+}
+for _env_id, _entry_point in _ENVS.items():
+    if _env_id not in registry:
+        register(id=_env_id, entry_point=_entry_point)
+
+__all__ = [
+    "WORLD_NAMES",
+    "CameraFrame",
+    "Contacts",
+    "RewardConfig",
+    "RoverEnv",
+    "RoverEnvBase",
+    "RoverSim",
+    "WorldSpec",
+    "make_world",
+]

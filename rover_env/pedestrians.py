@@ -14,6 +14,7 @@ identically whatever the step size.
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import NamedTuple
 
@@ -21,6 +22,8 @@ import mujoco
 import numpy as np
 
 from rover_env.worlds.spec import GROUP_PEDESTRIAN, WorldSpec
+
+log = logging.getLogger(__name__)
 
 SPEED_RANGE = (1.0, 1.5)  # m/s, walking speed
 PATH_LENGTH_RANGE = (3.0, 8.0)  # m
@@ -31,7 +34,10 @@ HIP_HALF_WIDTH = 0.1
 LEG_LENGTH = 0.85
 STEP_LENGTH = 0.7  # m per step: one leg cycle is two steps
 LEG_SWING = 0.45  # rad amplitude
-_MAX_TRIES = 200
+YIELD_DISTANCE = 1.0  # m: a pedestrian waits rather than walk into the rover
+_BATCH = 32  # candidate paths checked per batch
+_MAX_BATCHES = 20
+_PATH_SAMPLES = 33  # clearance checks along a path (every 0.25 m on an 8 m path)
 
 # Clothing and skin palettes (RGB). Shirts are saturated hues; the scenery is grey, sand,
 # beige and dark blue, the rover light grey with an orange accent.
@@ -49,8 +55,8 @@ SKIN = ((0.96, 0.80, 0.69), (0.80, 0.60, 0.45), (0.55, 0.37, 0.25), (0.36, 0.24,
 
 
 class _Path(NamedTuple):
-    """Out-and-back walk from (ax, ay) along unit (ux, uy) for ``length`` m; ``phase`` is
-    the distance already walked at t = 0 (a length of 0 stands still)."""
+    """Out-and-back walk from (ax, ay) along unit (ux, uy) for ``length`` m at ``speed``
+    m/s (a length of 0 stands still)."""
 
     ax: float
     ay: float
@@ -58,7 +64,6 @@ class _Path(NamedTuple):
     uy: float
     length: float
     speed: float
-    phase: float
 
 
 def body_name(i: int) -> str:
@@ -124,54 +129,74 @@ class Pedestrians:
             )
             for part in ("torso", "head", "arm_l", "arm_r", "leg_l", "leg_r")
         }
-        # Per pedestrian: a Path (plain floats: update() runs every env step).
-        self._paths = [_Path(0.0, 0.0, 1.0, 0.0, 0.0, SPEED_RANGE[0], 0.0)] * self.n
-        self.positions = np.zeros((self.n, 2))  # current (x, y), updated by update()
+        # Per pedestrian: a Path (plain floats: advance() runs every env step).
+        self._paths = [_Path(0.0, 0.0, 1.0, 0.0, 0.0, SPEED_RANGE[0])] * self.n
+        self._walked = [0.0] * self.n  # metres along each out-and-back cycle
+        self.positions = np.zeros((self.n, 2))  # current (x, y), updated with the poses
         self.headings = np.zeros(self.n)
-        # Mocap rows in update() order: per pedestrian, upper body, left leg, right leg.
+        # Mocap rows in _write_poses() order: per pedestrian, upper body, left leg, right leg.
         self._order = self._mocap.T.reshape(-1).copy()
 
     # --- episode set-up ------------------------------------------------------------------------
     def reset(self, rng: np.random.Generator, avoid: tuple[float, float] | None = None) -> None:
-        """New paths, speeds, phases and clothes for every pedestrian, then pose at t = 0."""
+        """New paths, speeds, start points and clothes for every pedestrian, then pose them."""
         for i in range(self.n):
             (ax, ay), (ux, uy), length, phase = self._sample_path(rng, avoid)
             speed = float(rng.uniform(*SPEED_RANGE))
-            self._paths[i] = _Path(ax, ay, ux, uy, length, speed, phase)
+            self._paths[i] = _Path(ax, ay, ux, uy, length, speed)
+            self._walked[i] = phase
             self._recolour(i, rng)
-        self.update(0.0)
+        self._write_poses()
 
     def _sample_path(
         self, rng: np.random.Generator, avoid: tuple[float, float] | None
     ) -> tuple[tuple[float, float], tuple[float, float], float, float]:
-        """(start, unit direction, length, phase): a free path whose start point (at the
-        sampled phase) is at least MIN_START_DISTANCE from ``avoid``."""
+        """(start, unit direction, length, phase): a free path inside the pedestrian area
+        whose position at the sampled phase is at least MIN_START_DISTANCE from ``avoid``.
+
+        Candidates are drawn and checked in batches (one clearance query per batch); the
+        first valid candidate wins.
+        """
         world = self._world
         area = world.pedestrian_area
+        k = _BATCH
+        t = np.linspace(0.0, 1.0, _PATH_SAMPLES)
         length_hi = PATH_LENGTH_RANGE[1]
-        for attempt in range(_MAX_TRIES):
-            if attempt == _MAX_TRIES // 2:
+        for attempt in range(_MAX_BATCHES):
+            if attempt == _MAX_BATCHES // 2:
                 length_hi = PATH_LENGTH_RANGE[0]  # crowded: settle for short paths
-            ax, ay = world.sample_free(rng, area, PATH_CLEARANCE)
-            heading = rng.uniform(-math.pi, math.pi)
-            length = rng.uniform(PATH_LENGTH_RANGE[0], length_hi)
-            ux, uy = math.cos(heading), math.sin(heading)
+            ax = rng.uniform(area.x[0], area.x[1], k)
+            ay = rng.uniform(area.y[0], area.y[1], k)
+            heading = rng.uniform(-math.pi, math.pi, k)
+            length = rng.uniform(PATH_LENGTH_RANGE[0], length_hi, k)
+            phase = rng.uniform(0.0, 2.0, k) * length  # anywhere on the out-and-back cycle
+            ux, uy = np.cos(heading), np.sin(heading)
             bx, by = ax + length * ux, ay + length * uy
-            if not (
-                area.contains(bx, by) and world.segment_is_free((ax, ay), (bx, by), PATH_CLEARANCE)
-            ):
-                continue
-            phase = rng.uniform(0.0, 2.0 * length)  # anywhere on the out-and-back cycle
-            along = phase if phase <= length else 2.0 * length - phase
-            px, py = ax + along * ux, ay + along * uy
-            if avoid is None or math.hypot(px - avoid[0], py - avoid[1]) >= MIN_START_DISTANCE:
-                return (ax, ay), (ux, uy), length, phase
+            ok = (area.x[0] <= bx) & (bx <= area.x[1]) & (area.y[0] <= by) & (by <= area.y[1])
+            if avoid is not None:
+                along = np.where(phase <= length, phase, 2.0 * length - phase)
+                px, py = ax + along * ux, ay + along * uy
+                ok &= np.hypot(px - avoid[0], py - avoid[1]) >= MIN_START_DISTANCE
+            cand = np.flatnonzero(ok)  # only paths that pass the cheap tests get walked
+            xs = ax[cand, None] + (length * ux)[cand, None] * t
+            ys = ay[cand, None] + (length * uy)[cand, None] * t
+            free = np.all(world.clearance_many(xs, ys) > PATH_CLEARANCE, axis=1)
+            good = cand[free]
+            if len(good):
+                i = good[0]
+                return (
+                    (float(ax[i]), float(ay[i])),
+                    (float(ux[i]), float(uy[i])),
+                    float(length[i]),
+                    float(phase[i]),
+                )
         # A crowded area: stand still at a free point rather than fail the reset.
-        for _ in range(_MAX_TRIES):
-            ax, ay = world.sample_free(rng, area, PATH_CLEARANCE)
-            if avoid is None or math.hypot(ax - avoid[0], ay - avoid[1]) >= MIN_START_DISTANCE:
+        log.warning("world %s: no free pedestrian path found; one stands still", world.name)
+        for _ in range(_MAX_BATCHES):
+            sx, sy = world.sample_free(rng, area, PATH_CLEARANCE)
+            if avoid is None or math.hypot(sx - avoid[0], sy - avoid[1]) >= MIN_START_DISTANCE:
                 break
-        return (ax, ay), (1.0, 0.0), 0.0, 0.0
+        return (sx, sy), (1.0, 0.0), 0.0, 0.0
 
     def _recolour(self, i: int, rng: np.random.Generator) -> None:
         rgba = self._model.geom_rgba
@@ -192,17 +217,33 @@ class Pedestrians:
         """Pin pedestrian ``i`` standing at (x, y) facing ``heading`` (rad) until next reset."""
         if not 0 <= i < self.n:
             raise IndexError(f"pedestrian index {i} out of range: this world has {self.n}")
-        self._paths[i] = _Path(
-            float(x), float(y), math.cos(heading), math.sin(heading), 0.0, 0.0, 0.0
-        )
-        self.update(self._data.time)
+        self._paths[i] = _Path(float(x), float(y), math.cos(heading), math.sin(heading), 0.0, 0.0)
+        self._walked[i] = 0.0
+        self._write_poses()
 
     # --- motion --------------------------------------------------------------------------------
-    def update(self, t: float) -> None:
-        """Write every pedestrian's mocap pose for simulated time ``t``.
+    def advance(self, dt: float, rover_xy: tuple[float, float] | None = None) -> None:
+        """Walk every pedestrian ``dt`` seconds on, then write the mocap poses.
 
-        Plain Python over a handful of figures: cheaper than numpy's per-call overhead.
+        A pedestrian whose next position would come within YIELD_DISTANCE of the rover,
+        with the rover ahead of it, waits instead (mocap bodies push with infinite mass:
+        walking through the rover would throw it about).
         """
+        walked = self._walked
+        for i, path in enumerate(self._paths):
+            if path.length <= 0.0:
+                continue
+            nxt = walked[i] + path.speed * dt
+            if rover_xy is not None:
+                x, y, ux, uy = _position(path, nxt)
+                rx, ry = rover_xy[0] - x, rover_xy[1] - y
+                if rx * rx + ry * ry < YIELD_DISTANCE**2 and rx * ux + ry * uy > 0.0:
+                    continue
+            walked[i] = nxt
+        self._write_poses()
+
+    def _write_poses(self) -> None:
+        """Mocap poses from the walked distances (plain Python: a handful of figures)."""
         if self.n == 0:
             return
         world = self._world
@@ -210,18 +251,10 @@ class Pedestrians:
         positions, headings = self.positions, self.headings
         pos_rows: list[list[float]] = []
         quat_rows: list[list[float]] = []
-        for i, (ax, ay, ux, uy, length, speed, phase) in enumerate(self._paths):
-            if length > 0.0:
-                travelled = phase + speed * t
-                s = travelled % (2.0 * length)
-                along = s if s <= length else 2.0 * length - s
-                x, y = ax + along * ux, ay + along * uy
-                if s > length:  # walking back towards the start
-                    ux, uy = -ux, -uy
-                swing = LEG_SWING * math.sin(math.pi * travelled / STEP_LENGTH)
-            else:
-                x, y = ax, ay
-                swing = 0.0
+        for i, path in enumerate(self._paths):
+            walked = self._walked[i]
+            x, y, ux, uy = _position(path, walked)
+            swing = LEG_SWING * math.sin(math.pi * walked / STEP_LENGTH) if path.length else 0.0
             positions[i, 0], positions[i, 1] = x, y
             yaw = math.atan2(uy, ux)
             headings[i] = yaw
@@ -237,3 +270,14 @@ class Pedestrians:
                 quat_rows.append([cy * cp, -sy * sp, cy * sp, sy * cp])
         self._data.mocap_pos[self._order] = pos_rows
         self._data.mocap_quat[self._order] = quat_rows
+
+
+def _position(path: _Path, walked: float) -> tuple[float, float, float, float]:
+    """(x, y, walking direction x, y) after ``walked`` metres on the out-and-back path."""
+    if path.length <= 0.0:
+        return path.ax, path.ay, path.ux, path.uy
+    s = walked % (2.0 * path.length)
+    if s <= path.length:
+        return path.ax + s * path.ux, path.ay + s * path.uy, path.ux, path.uy
+    along = 2.0 * path.length - s  # walking back towards the start
+    return path.ax + along * path.ux, path.ay + along * path.uy, -path.ux, -path.uy

@@ -16,6 +16,7 @@ import numpy as np
 from rover_env.worlds.spec import (
     CONAFFINITY_ROVER,
     CONTYPE_ROVER,
+    GROUND_FRICTION,
     GROUP_ROVER_COLLISION,
     GROUP_ROVER_VISUAL,
 )
@@ -43,6 +44,7 @@ MAX_WHEEL_SPEED = 50.0  # rad/s (3.25 m/s at the rim), actuator ctrlrange
 WHEEL_TORQUE = 3.0  # N m per wheel, actuator forcerange
 WHEEL_KV = 2.0  # N m s / rad, velocity servo gain
 WHEEL_ARMATURE = 0.005  # kg m^2, motor and gearbox inertia seen at the wheel
+WHEEL_FRICTIONLOSS = 0.15  # N m of gearbox friction: a stopped rover holds on ~8 deg slopes
 # Skid-steer: wheels slip sideways while turning, so the body turns slower than the
 # wheel speed difference suggests. Commands use an effective track wider than the real
 # one (measured on flat ground: commanded angular rate ~ achieved), odometry the same.
@@ -68,7 +70,10 @@ def rover_xml(x: float = 0.0, y: float = 0.0, z: float = REST_HEIGHT) -> tuple[s
     cx, cy, cz = CHASSIS_HALF
     vg, cg = GROUP_ROVER_VISUAL, GROUP_ROVER_COLLISION
     # The rover's collision bits meet the world's (scenery, pedestrians), never its own.
-    col = f'contype="{CONTYPE_ROVER}" conaffinity="{CONAFFINITY_ROVER}"'
+    col = (
+        f'contype="{CONTYPE_ROVER}" conaffinity="{CONAFFINITY_ROVER}" priority="0" '
+        f'friction="{GROUND_FRICTION}"'
+    )
     wheels = []
     for name, sx, sy in (
         ("front_left", 1, 1),
@@ -79,9 +84,9 @@ def rover_xml(x: float = 0.0, y: float = 0.0, z: float = REST_HEIGHT) -> tuple[s
         wheels.append(
             f'<body name="{name}" pos="{sx * WHEEL_X} {sy * WHEEL_Y} 0">'
             f'<joint name="{name}" type="hinge" axis="0 1 0" armature="{WHEEL_ARMATURE}" '
-            f'damping="0.01"/>'
+            f'damping="0.01" frictionloss="{WHEEL_FRICTIONLOSS}"/>'
             f'<geom name="{name}" type="sphere" size="{WHEEL_RADIUS}" mass="{WHEEL_MASS}" '
-            f'group="{cg}" {col} condim="3" friction="1.0 0.01 0.001" '
+            f'group="{cg}" {col} condim="3" '
             f'rgba="0 0 0 0"/>'
             f'<geom type="cylinder" size="{WHEEL_RADIUS} {WHEEL_WIDTH / 2}" euler="90 0 0" '
             f'group="{vg}" contype="0" conaffinity="0" mass="0" rgba="{_WHEEL_RGBA}"/>'

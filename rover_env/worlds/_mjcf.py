@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import math
 
-from rover_env.worlds.spec import GROUP_GROUND, Box, Circle
+from rover_env.worlds.spec import GROUND_FRICTION, GROUP_GROUND, Box, Circle
 
 FLOOR_MATERIAL = "floor"
+# Ground geoms override the scenery default: the wheels' own friction and priority.
+GROUND_CONTACT = f'friction="{GROUND_FRICTION}" priority="0"'
 
 
 def floor_assets(rgb1: str, rgb2: str) -> str:
@@ -23,7 +25,7 @@ def floor(centre: tuple[float, float], half: float) -> str:
     """A square plane floor rendered in 1 m quads (third size value 1)."""
     return (
         f'<geom name="floor" type="plane" pos="{centre[0]} {centre[1]} 0" size="{half} {half} 1" '
-        f'material="{FLOOR_MATERIAL}" group="{GROUP_GROUND}"/>'
+        f'material="{FLOOR_MATERIAL}" group="{GROUP_GROUND}" {GROUND_CONTACT}/>'
     )
 
 

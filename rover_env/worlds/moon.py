@@ -99,7 +99,7 @@ def build() -> WorldSpec:
     )
     ground = (
         f'<geom name="terrain" type="hfield" hfield="terrain" pos="{_CENTRE[0]} {_CENTRE[1]} 0" '
-        f'material="{_mjcf.FLOOR_MATERIAL}" group="{GROUP_GROUND}"/>'
+        f'material="{_mjcf.FLOOR_MATERIAL}" group="{GROUP_GROUND}" {_mjcf.GROUND_CONTACT}/>'
     )
     return WorldSpec(
         name=NAME,

@@ -31,6 +31,12 @@ GROUP_MARKER = 4
 # (the rover's own parts, pedestrians with scenery or each other).
 CONTYPE_WORLD, CONAFFINITY_WORLD = 1, 2
 CONTYPE_ROVER, CONAFFINITY_ROVER = 2, 1
+# Friction: wheels grip the ground (1.0, both priority 0, MuJoCo takes the max), but
+# scenery and pedestrians have priority 1 and their own low friction, so a spinning
+# wheel pressed against a wall slides instead of climbing it and flipping the rover.
+GROUND_FRICTION = "1.0 0.01 0.001"
+OBSTACLE_FRICTION = "0.3 0.005 0.0001"
+OBSTACLE_PRIORITY = 1
 _SAMPLE_BATCH = 16
 _MAX_SAMPLE_BATCHES = 100
 
