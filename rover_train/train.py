@@ -65,6 +65,9 @@ class TrainArgs:
     """Seconds to wait for the daemon's segments before giving up (fused envs)."""
     n_steps: int = 512
     """PPO rollout length per env."""
+    threads: int = 1
+    """Torch intra-op threads of the trainer (small nets on CPU run best on one; the
+    daemon and the env workers need the other cores)."""
 
 
 def parse_args(argv: Sequence[str] | None = None) -> TrainArgs:
@@ -85,6 +88,7 @@ def parse_args(argv: Sequence[str] | None = None) -> TrainArgs:
     p.add_argument("--length", type=int, default=None)
     p.add_argument("--connect-timeout", type=float, default=d.connect_timeout)
     p.add_argument("--n-steps", type=int, default=d.n_steps)
+    p.add_argument("--threads", type=int, default=d.threads)
     ns = p.parse_args(argv)
     args = TrainArgs(**vars(ns))
     problem = validate(args)
@@ -288,6 +292,9 @@ def train(args: TrainArgs) -> dict[str, Any]:
     """Run one training job; returns the metrics written to ``metrics.json``."""
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
+    import torch
+
+    torch.set_num_threads(max(args.threads, 1))
     args.logdir.mkdir(parents=True, exist_ok=True)
     monitor_dir = args.logdir / "monitor"
     monitor_dir.mkdir(exist_ok=True)

@@ -3,10 +3,7 @@
 from __future__ import annotations
 
 import math
-import os
 import signal
-import subprocess
-import sys
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,6 +12,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium import spaces
+from helpers.daemon import Daemon
 
 import rover_env  # noqa: F401  (registers the ids)
 from rover_env.discrete_env import DiscreteRoverEnvFused, decode_action
@@ -25,49 +23,12 @@ ROOT = Path(__file__).resolve().parents[1]
 PI = np.float32(np.pi)
 
 
-class Daemon:
-    """A real `python -m active_vision` process serving ``name``."""
-
-    def __init__(self, name: str, slots: int = 1) -> None:
-        self.name = name
-        self.slots = slots
-        self.proc: subprocess.Popen[str] | None = None
-
-    def start(self) -> Daemon:
-        env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "active_vision", "--name", self.name,
-             "--slots", str(self.slots), "--threads", "1"],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT,
-        )  # fmt: skip
-        assert self.proc.stdout is not None
-        lines = []
-        for line in self.proc.stdout:
-            lines.append(line)
-            if "ready" in line:
-                return self
-        raise RuntimeError("daemon died before ready:\n" + "".join(lines))
-
-    def stop(self, sig: int = signal.SIGTERM) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            self.proc.wait(15)
-        if self.proc is not None and self.proc.stdout is not None:
-            self.proc.stdout.close()
-        self.proc = None
-
-
-def _remove_leftovers(name: str) -> None:
-    for p in Path("/dev/shm").glob(f"{name}*"):
-        p.unlink(missing_ok=True)
-
-
 @pytest.fixture(scope="module")
 def daemon() -> Iterator[Daemon]:
     d = Daemon(f"test_fused_{uuid.uuid4().hex[:8]}", slots=2).start()
     yield d
     d.stop()
-    _remove_leftovers(d.name)
+    d.remove_leftovers()
 
 
 def _fused(daemon: Daemon, **kw: object) -> RoverEnvFused:
@@ -269,4 +230,4 @@ def test_killed_daemon_raises_promptly_and_restart_recovers() -> None:
         env.close()  # twice is fine
     finally:
         d.stop()
-        _remove_leftovers(d.name)
+        d.remove_leftovers()

@@ -1,0 +1,111 @@
+"""rover-train and rover-eval: tiny real runs (lidar and fused) and their outputs."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import pytest
+from helpers.daemon import Daemon
+
+from rover_train.train import TrainArgs, validate
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _cli(module: str, *args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    return subprocess.run(
+        [sys.executable, "-m", module, *args],
+        capture_output=True, text=True, timeout=timeout, cwd=ROOT, env=env,
+    )  # fmt: skip
+
+
+def _check_outputs(logdir: Path, env: str) -> None:
+    assert (logdir / "model.zip").stat().st_size > 1000
+    assert (logdir / "learning_curve.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    metrics = json.loads((logdir / "metrics.json").read_text())
+    assert metrics["env"] == env and metrics["timesteps"] >= 256
+    assert list((logdir / "tb").rglob("events.out.tfevents.*"))
+
+
+def test_lidar_train_then_eval(tmp_path: Path) -> None:
+    res = _cli("rover_train.train", "--env", "lidar", "--timesteps", "256", "--n-steps", "128",
+               "--logdir", str(tmp_path), "--no-progress", "--checkpoint-every", "128")  # fmt: skip
+    assert res.returncode == 0, res.stdout + res.stderr
+    _check_outputs(tmp_path, "lidar")
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == [
+        "ppo_128_steps.zip", "ppo_256_steps.zip"
+    ]  # fmt: skip
+    res = _cli("rover_train.evaluate", str(tmp_path / "model.zip"), "--env", "lidar",
+               "--episodes", "2", "--max-steps", "30", "--json")  # fmt: skip
+    assert res.returncode == 0, res.stdout + res.stderr
+    for row in (
+        "success rate",
+        "collision rate",
+        "timeouts",
+        "path length",
+        "SPL",
+        "mean time to goal",
+        "personal-space intrusion rate",
+        "min pedestrian distance",
+    ):
+        assert row in res.stdout  # fmt: skip
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    assert summary["episodes"] == 2 and summary["timeouts"] == 2
+
+
+def test_resume_continues_the_step_count(tmp_path: Path) -> None:
+    first = _cli("rover_train.train", "--env", "lidar", "--timesteps", "128", "--n-steps", "128",
+                 "--logdir", str(tmp_path), "--no-progress", "--checkpoint-every", "0")  # fmt: skip
+    assert first.returncode == 0, first.stderr
+    again = _cli("rover_train.train", "--env", "lidar", "--timesteps", "128", "--n-steps", "128",
+                 "--logdir", str(tmp_path), "--no-progress", "--resume", str(tmp_path))  # fmt: skip
+    assert again.returncode == 0, again.stderr
+    assert json.loads((tmp_path / "metrics.json").read_text())["timesteps"] == 256
+
+
+def test_fused_train_then_eval_with_video(tmp_path: Path) -> None:
+    d = Daemon(f"test_train_{uuid.uuid4().hex[:8]}").start()
+    try:
+        res = _cli("rover_train.train", "--env", "fused", "--timesteps", "256", "--n-steps", "128",
+                   "--logdir", str(tmp_path), "--no-progress", "--shm-name", d.name)  # fmt: skip
+        assert res.returncode == 0, res.stdout + res.stderr
+        _check_outputs(tmp_path, "fused")
+        video = tmp_path / "eval.mp4"
+        res = _cli("rover_train.evaluate", str(tmp_path / "model.zip"), "--env", "fused",
+                   "--episodes", "1", "--max-steps", "10", "--shm-name", d.name,
+                   "--video", str(video))  # fmt: skip
+        assert res.returncode == 0, res.stdout + res.stderr
+        assert "success rate" in res.stdout
+        import cv2
+
+        cap = cv2.VideoCapture(str(video))
+        ok, frame = cap.read()
+        cap.release()
+        assert ok and frame.shape[1] == 4 * frame.shape[0]  # chase view + 3 fused channels
+    finally:
+        d.stop()
+        d.remove_leftovers()
+
+
+def test_fused_without_daemon_says_how_to_start_one(tmp_path: Path) -> None:
+    name = f"test_nodaemon_{uuid.uuid4().hex[:8]}"
+    res = _cli("rover_train.train", "--env", "fused", "--timesteps", "64", "--logdir",
+               str(tmp_path), "--shm-name", name, "--connect-timeout", "0.2")  # fmt: skip
+    assert res.returncode == 1
+    assert f"av-daemon --name {name}" in res.stderr and "rover-pair" in res.stderr
+    assert not (tmp_path / "model.zip").exists()
+
+
+@pytest.mark.parametrize(
+    ("env", "algo", "fragment"),
+    [("lidar", "dqn", "--env discrete"), ("discrete", "sac", "continuous")],
+)
+def test_invalid_algorithm_env_pairs_are_explained(env: str, algo: str, fragment: str) -> None:
+    problem = validate(TrainArgs(env=env, algo=algo))
+    assert problem is not None and fragment in problem
