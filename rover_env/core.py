@@ -312,6 +312,8 @@ class RoverEnvBase(gym.Env):
         ``goal`` (x, y) places the goal there.
         """
         super().reset(seed=seed)
+        if seed is not None:
+            self._total_steps = 0  # a seeded reset starts a reproducible run
         options = options or {}
         self.sim.reset(self.np_random)
         if "rover_pose" in options:

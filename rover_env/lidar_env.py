@@ -111,7 +111,8 @@ class RoverEnv(RoverEnvBase):
 
     ## Info
 
-    ``steps``, ``total_steps`` (over all episodes), ``reward``, ``episode_reward``,
+    ``steps``, ``total_steps`` (over all episodes since the last seeded reset),
+    ``reward``, ``episode_reward``,
     ``goals_reached``, ``is_success`` (at least one goal), ``collision``,
     ``collision_count``, ``termination_reason`` ("" while running), ``distance_to_goal``,
     ``min_pedestrian_distance``, ``x_position``, ``y_position``, ``goal``, and each

@@ -41,7 +41,9 @@ REST_HEIGHT = WHEEL_RADIUS
 
 # --- drive ----------------------------------------------------------------------------------
 MAX_WHEEL_SPEED = 50.0  # rad/s (3.25 m/s at the rim), actuator ctrlrange
-WHEEL_TORQUE = 3.0  # N m per wheel, actuator forcerange
+# N m per wheel, actuator forcerange: enough to slip the wheels and to turn in place at
+# the PID's 7 rad/s clamp, little enough that pushing into a wall does not rock the rover.
+WHEEL_TORQUE = 1.5
 WHEEL_KV = 2.0  # N m s / rad, velocity servo gain
 WHEEL_ARMATURE = 0.005  # kg m^2, motor and gearbox inertia seen at the wheel
 WHEEL_FRICTIONLOSS = 0.15  # N m of gearbox friction: a stopped rover holds on ~8 deg slopes

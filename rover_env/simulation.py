@@ -39,6 +39,7 @@ _ZNEAR, _ZFAR = 0.002, 12.0
 _CHASE_DISTANCE = 2.6
 _CHASE_ELEVATION = -22.0
 _GOAL_BODY = "goal_marker"
+_OBSTACLE, _PEDESTRIAN = 1, 2  # contact codes of geoms (0: ground or the rover itself)
 
 
 class CameraFrame(NamedTuple):
@@ -57,10 +58,13 @@ class CameraFrame(NamedTuple):
 
 
 class Contacts(NamedTuple):
-    """What the rover touches now: scenery other than the ground, and pedestrians."""
+    """What the rover touches: scenery other than the ground, and pedestrians."""
 
     obstacle: bool
     pedestrian: bool
+
+
+_NO_CONTACT = Contacts(False, False)
 
 
 def build_mjcf(world: WorldSpec, camera_size: tuple[int, int], physics_dt: float) -> str:
@@ -260,8 +264,12 @@ class RoverSim:
         self._rover_geoms = np.isin(m.geom_bodyid, list(rover_bodies))
         self._pedestrian_geoms = self.pedestrians.geom_mask
         ground_types = (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
-        self._ground_geoms = np.isin(m.geom_type, ground_types) & (m.geom_bodyid == 0)
+        ground = np.isin(m.geom_type, ground_types) & (m.geom_bodyid == 0)
+        codes = np.where(self._pedestrian_geoms, _PEDESTRIAN, _OBSTACLE)
+        codes[ground | self._rover_geoms] = 0
+        self._contact_codes: list[int] = codes.tolist()
         self._lidars: dict[tuple[int, float], rover.Lidar] = {}
+        self._contacts: Contacts | None = None
         self._renderer: _GLRenderer | None = None
         self._camera = mujoco.MjvCamera()
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
@@ -313,6 +321,7 @@ class RoverSim:
         d.ctrl[self._actuators] = 0.0
         d.qacc_warmstart[:] = 0.0
         mujoco.mj_forward(m, d)
+        self._contacts = None
 
     def _rest_height(self, x: float, y: float, yaw: float) -> float:
         world = self.world
@@ -339,10 +348,17 @@ class RoverSim:
         agree.
         """
         n = max(1, int(round(duration / self.physics_dt)))
-        d = self.data
+        m, d = self.model, self.data
         q = self._qpos
         self.pedestrians.advance(n * self.physics_dt, (d.qpos[q], d.qpos[q + 1]))
-        mujoco.mj_step(self.model, d, n)
+        obstacle = pedestrian = False
+        for _ in range(n):
+            mujoco.mj_step(m, d)
+            if d.ncon:
+                touched = self._touching()
+                obstacle |= touched.obstacle
+                pedestrian |= touched.pedestrian
+        self._contacts = Contacts(obstacle, pedestrian)
 
     def set_goal_marker(self, x: float, y: float) -> None:
         """Move the goal marker (a green disc, drawn in the chase view only)."""
@@ -412,20 +428,28 @@ class RoverSim:
         """Pin pedestrian ``i`` standing at (x, y) facing ``heading`` until the next reset."""
         self.pedestrians.place(i, x, y, heading)
         mujoco.mj_forward(self.model, self.data)
+        self._contacts = None
 
     def rover_contacts(self) -> Contacts:
-        """Whether the rover touches non-ground scenery and/or a pedestrian right now."""
+        """Whether the rover touched non-ground scenery and/or a pedestrian during the last
+        :meth:`advance` (at any physics step: a rover pushing into a wall rocks, and its
+        contact comes and goes within a control period), or now if it was posed since."""
+        if self._contacts is None:
+            self._contacts = self._touching()
+        return self._contacts
+
+    def _touching(self) -> Contacts:
+        # Every contact pair involves the rover (the collision bits allow nothing else), so
+        # OR-ing both geoms' codes says what it touches. Plain Python: a handful of pairs.
         d = self.data
-        if d.ncon == 0:
-            return Contacts(False, False)
-        pairs = d.contact.geom[: d.ncon]
-        rover_first = self._rover_geoms[pairs[:, 0]]
-        rover_second = self._rover_geoms[pairs[:, 1]]
-        involved = rover_first | rover_second
-        other = np.where(rover_first, pairs[:, 1], pairs[:, 0])[involved]
-        pedestrian = bool(self._pedestrian_geoms[other].any())
-        obstacle = bool((~self._pedestrian_geoms[other] & ~self._ground_geoms[other]).any())
-        return Contacts(obstacle, pedestrian)
+        n = d.ncon
+        if n == 0:
+            return _NO_CONTACT
+        codes = self._contact_codes
+        flags = 0
+        for a, b in d.contact.geom[:n].tolist():
+            flags |= codes[a] | codes[b]
+        return Contacts(bool(flags & _OBSTACLE), bool(flags & _PEDESTRIAN))
 
     # --- rendering -----------------------------------------------------------------------------
     def _gl(self) -> _GLRenderer:

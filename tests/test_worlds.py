@@ -1,0 +1,89 @@
+"""Worlds: the seed's rectangles to the metre, names and aliases, obstacle-free sampling."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import rover_env  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+from rover_env import WORLD_NAMES, make_world
+from rover_env.rover import SPAWN_CLEARANCE
+from rover_env.worlds import Box, Circle, Rect, canonical_world_name
+
+# The seed's "World-Specific Configuration", copied here independently of constants.py.
+SEED_RECTANGLES = {
+    "inspect": ((-27, -19), (-27, -19), (-27, -19), (-27, -19), (-29, -13), (-29, -17)),
+    "moon": ((-4, 4), (-4, 4), (-4, 4), (-4, 4), (-20, 10), (-20, 20)),
+    "maze": ((-4, 4), (-4, 4), (-4, 4), (-4, 4), (-30, 30), (-30, 30)),
+}
+
+
+def test_world_names_are_the_seeds() -> None:
+    assert set(WORLD_NAMES) == {"inspect", "moon", "maze"}
+
+
+@pytest.mark.parametrize("name", sorted(SEED_RECTANGLES))
+def test_rectangles_equal_the_seed(name: str) -> None:
+    sx, sy, gx, gy, bx, by = SEED_RECTANGLES[name]
+    world = make_world(name)
+    assert world.spawn == Rect(sx, sy)
+    assert world.goal == Rect(gx, gy)
+    assert world.bounds == Rect(bx, by)
+
+
+def test_island_is_moon() -> None:
+    assert canonical_world_name("island") == "moon"
+    assert make_world("island") is make_world("moon")
+
+
+def test_unknown_world_lists_the_choices() -> None:
+    with pytest.raises(ValueError, match="inspect.*island.*maze.*moon"):
+        make_world("mars")
+
+
+@pytest.mark.parametrize("name", WORLD_NAMES)
+def test_sampled_points_never_overlap_obstacles(name: str) -> None:
+    world = make_world(name)
+    rng = np.random.default_rng(0)
+    points = np.array([world.sample_free(rng, world.spawn, SPAWN_CLEARANCE) for _ in range(500)])
+    assert np.all(world.clearance_many(points[:, 0], points[:, 1]) > SPAWN_CLEARANCE)
+    assert np.all(points >= [world.spawn.x[0], world.spawn.y[0]])
+    assert np.all(points <= [world.spawn.x[1], world.spawn.y[1]])
+    # Uniform over the free area: both halves of the rectangle get samples.
+    mid = 0.5 * (world.spawn.x[0] + world.spawn.x[1])
+    assert 100 < np.sum(points[:, 0] < mid) < 400
+
+
+@pytest.mark.parametrize("name", WORLD_NAMES)
+def test_every_world_has_obstacles_in_or_near_the_spawn_area(name: str) -> None:
+    world = make_world(name)
+    near = world.spawn.expanded(3.0)
+    assert any(near.contains(o.x, o.y) for o in world.obstacles)
+
+
+def test_footprint_distances() -> None:
+    assert Circle(0.0, 0.0, 1.0).distance(3.0, 0.0) == pytest.approx(2.0)
+    assert Circle(0.0, 0.0, 1.0).distance(0.0, 0.0) == pytest.approx(-1.0)
+    box = Box(0.0, 0.0, 2.0, 1.0, yaw=math.pi / 2)  # long side along y after the turn
+    assert box.distance(0.0, 3.0) == pytest.approx(1.0)
+    assert box.distance(2.0, 0.0) == pytest.approx(1.0)
+    world = make_world("maze")
+    xs, ys = np.array([0.0, 3.0, 5.0]), np.array([0.0, 0.0, 5.0])
+    vector = world.clearance_many(xs, ys)
+    scalar = [min(o.distance(x, y) for o in world.obstacles) for x, y in zip(xs, ys, strict=True)]
+    np.testing.assert_allclose(vector, scalar)
+
+
+def test_moon_has_terrain_steep_enough_to_flip() -> None:
+    world = make_world("moon")
+    hf = world.heightfield
+    assert hf is not None
+    cell = 2 * hf.radius_x / (hf.elevation.shape[1] - 1)
+    heights = hf.elevation * hf.z_top
+    slope = np.degrees(np.arctan(np.abs(np.diff(heights, axis=1)) / cell)).max()
+    assert slope > 40.0
+    # ... while the spawn square stays gentle.
+    h = [world.ground_height(x, y) for x in np.linspace(-4, 4, 9) for y in np.linspace(-4, 4, 9)]
+    assert max(h) - min(h) < 1.0
