@@ -7,6 +7,8 @@ one writer (this process, a ``FrameWriter``), in one run:
 - ``seed 1 ms poll``: the seed's ``get_fused_observation`` rule (timestamp changed and
   valid == 1, ``bytes()`` + ``np.frombuffer().copy()``, else ``time.sleep(0.001)``).
 - ``spin``: the floor: a loop that never sleeps, then the same consistent copy.
+- ``FrameReader, checksum mode``: the writer adds ``crc32(payload, seq)`` and the reader
+  verifies it (the default on CPUs that are not x86; here to show its cost).
 
 Measured per reader:
 
@@ -18,8 +20,8 @@ Measured per reader:
 - idle CPU: CPU seconds per second the reader burns while waiting for frames that do not
   come (the writer alive, heartbeating).
 
-    python benchmarks/ipc_latency.py            # about 40 s
-    python benchmarks/ipc_latency.py --quick    # about 8 s
+    python benchmarks/ipc_latency.py            # about 50 s
+    python benchmarks/ipc_latency.py --quick    # about 12 s
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ import numpy as np  # noqa: E402
 from shm_protocol import FrameReader, FrameTimeoutError, FrameWriter  # noqa: E402
 
 SHAPE = (96, 96, 3)
-READERS = ("FrameReader", "seed 1 ms poll", "spin")
+READERS = ("FrameReader", "seed 1 ms poll", "spin", "FrameReader, checksum mode")
 STOP = -1.0  # payload value of the frame that ends a phase
 
 
@@ -104,7 +106,7 @@ class _SeedPoller:
 def _receive(kind: str, reader: FrameReader, poller: _SeedPoller, out: np.ndarray,
              deadline: float) -> tuple[float, float] | None:
     """Next frame by ``kind``'s rule: (payload marker, timestamp) or None at the deadline."""
-    if kind == "FrameReader":
+    if kind.startswith("FrameReader"):
         try:
             f = reader.wait_next(timeout=max(0.0, deadline - time.monotonic()), out=out)
         except FrameTimeoutError:
@@ -227,7 +229,7 @@ def _run_reader(kind: str, name: str, writer: FrameWriter, args: Args) -> dict[s
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--quick", action="store_true", help="short run (about 8 s)")
+    p.add_argument("--quick", action="store_true", help="short run (about 12 s)")
     p.add_argument("--frames", type=int, help="latency-phase frames per reader")
     p.add_argument("--rate", type=float, help="latency-phase publish rate, Hz")
     ns = p.parse_args(argv)
@@ -242,6 +244,9 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, dict[str, float]] = {}
     try:
         for kind in READERS:
+            if kind.endswith("checksum mode"):  # last: the same segment, a checksumming writer
+                writer.close()
+                writer = FrameWriter(name, create=False, checksum=True)
             results[kind] = _run_reader(kind, name, writer, args)
     finally:
         writer.close(unlink=True)

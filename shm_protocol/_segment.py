@@ -54,8 +54,11 @@ class Segment:
         self.ino = st.st_ino
         self.dev = st.st_dev
         self.size = st.st_size
-        if self.size <= 0:
-            raise ValueError(f"segment {name!r} is empty ({self.path} has size 0)")
+        if self.size < HEADER_SIZE:
+            raise LayoutError(
+                f"segment {name!r} has {self.size} bytes, less than the 12-byte header "
+                f"({self.path} is being created, or is not a frame segment)"
+            )
         access = mmap.ACCESS_WRITE if writable else mmap.ACCESS_READ
         self._mm: mmap.mmap | None = mmap.mmap(fd, self.size, access=access)
         self._base: np.ndarray | None = np.frombuffer(self._mm, dtype=np.uint8)
@@ -311,7 +314,10 @@ def open_waiting(name: str, writable: bool, attach_timeout: float) -> Segment:
         except FileNotFoundError:
             if time.monotonic() >= deadline:
                 raise not_found_error(name, attach_timeout) from None
-            time.sleep(_ATTACH_POLL_S)
+        except LayoutError:  # a seed-style creator between shm_open and ftruncate
+            if time.monotonic() >= deadline:
+                raise
+        time.sleep(_ATTACH_POLL_S)
 
 
 __all__ = [

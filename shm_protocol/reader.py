@@ -128,7 +128,7 @@ class FrameReader:
             info = seg.trailer_info()
             if info is not None:
                 layout = info.layout
-                self._check_layout(layout, seg)
+                self._check_layout(layout)
             else:
                 shape = self._want_shape or (self.layout.shape if self.layout else None)
                 dtype = self._want_dtype or (self.layout.dtype if self.layout else None)
@@ -140,7 +140,7 @@ class FrameReader:
                         "shape=(96, 96, 3), dtype=np.float32)"
                     )
                 layout = Layout.of(shape, dtype)
-                self._check_layout(layout, seg)
+                self._check_layout(layout)
                 if seg.size < layout.seed_size:
                     raise LayoutError(
                         f"segment {self.name!r} has {seg.size} bytes; a {layout.describe()} "
@@ -177,25 +177,27 @@ class FrameReader:
         if old is not None:
             old.close()
 
-    def _check_layout(self, layout: Layout, seg: Segment) -> None:
+    def _check_layout(self, layout: Layout) -> None:
         want_shape = self._want_shape or (self.layout.shape if self.layout else None)
         want_dtype = self._want_dtype or (self.layout.dtype if self.layout else None)
         if (want_shape is not None and want_shape != layout.shape) or (
             want_dtype is not None and want_dtype != layout.dtype
         ):
             expected = describe(want_shape or layout.shape, want_dtype or layout.dtype)
-            again = " (after it was replaced)" if self.layout is not None else ""
+            if self.layout is None:
+                where, fix = "", "or omit shape/dtype to take the segment's layout"
+            else:
+                where, fix = " (after it was replaced)", "or open a new FrameReader"
             raise LayoutError(
-                f"segment {self.name!r}{again} holds {layout.describe()} frames; this reader "
-                f"expects {expected}. Start the writer with matching settings, or omit "
-                "shape/dtype to take the segment's layout."
+                f"segment {self.name!r}{where} holds {layout.describe()} frames; this reader "
+                f"expects {expected}. Start the writer with matching settings, {fix}."
             )
 
     def _try_reattach(self) -> bool:
         """If the name now refers to another segment, attach to it. True if it did."""
         try:
             seg = Segment.open(self.name, False)
-        except FileNotFoundError:
+        except (FileNotFoundError, LayoutError):  # gone again, or still being created
             return False
         assert self._seg is not None
         if seg.ino == self._seg.ino and seg.dev == self._seg.dev:
