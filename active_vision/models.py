@@ -1,0 +1,217 @@
+"""The perception network: one shared encoder, two heads (pedestrian heatmap, depth).
+
+``AVNet`` is a small fully-convolutional network. Input: a batch of camera frames at the
+fused resolution (``(N, 3, 96, 96)`` float32 RGB in [0, 1]). Output: two maps of the same
+size, the pedestrian heatmap (sigmoid, 1 = pedestrian) and the depth channel in the
+``shm_protocol`` depth convention (``1 - d / DEPTH_MAX_M`` clipped to [0, 1]: near is bright,
+0 at or beyond the far limit).
+
+Layout (widths ``w1, w2, w3``, default 12/24/48)::
+
+    RGB + row coordinate (4 ch, 96²)
+    stem   3×3 s2 -> w1 (48²)  ─────────────────────────────┐ skip
+    enc2   3×3 s2 -> w2, 3×3 (24²) ─────────────┐ skip       │
+    enc3   3×3 s2 -> w3, 3×3 dil 2, 3×3 (12²)   │            │
+    up     1×1 -> w2, ×2 nearest, + skip, 3×3 (24²)          │
+    up     1×1 -> w1, ×2 nearest, + skip, 3×3 (48²) ─────────┘
+    heads  1×1 -> 2 logits (heatmap, depth), ×2 bilinear (96²)
+
+The row coordinate channel lets the depth head learn the ground plane's depth-by-row
+prior. Batch norm is used while training and folded into the convolutions for inference
+(:meth:`AVNet.fuse_for_inference`).
+
+Weights are a plain dict of tensors and primitives (see :func:`save_weights`) and load
+with ``torch.load(..., weights_only=True)``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+logger = logging.getLogger(__name__)
+
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+DEFAULT_WEIGHTS = WEIGHTS_DIR / "avnet.pt"
+REGENERATE_COMMAND = "python -m active_vision.train both"
+WEIGHTS_FORMAT = "roverav.avnet"
+WEIGHTS_VERSION = 1
+
+#: Index of each head in the output of :meth:`AVNet.forward` / :meth:`AVNet.predict`.
+HEAD_HEATMAP = 0
+HEAD_DEPTH = 1
+
+
+class WeightsError(RuntimeError):
+    """The network's weights file is missing, unreadable, or does not match the network."""
+
+
+@dataclass(frozen=True)
+class AVNetConfig:
+    """Shape of the network (stored inside the weights file)."""
+
+    widths: tuple[int, int, int] = (12, 24, 48)
+    """Channels at 1/2, 1/4 and 1/8 of the input resolution."""
+
+
+def _conv_bn(c_in: int, c_out: int, stride: int = 1, dilation: int = 1) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(c_in, c_out, 3, stride, padding=dilation, dilation=dilation, bias=False),
+        nn.BatchNorm2d(c_out),
+        nn.ReLU(inplace=True),
+    )
+
+
+class AVNet(nn.Module):
+    """Shared-encoder network with a pedestrian-heatmap head and a depth head."""
+
+    def __init__(self, config: AVNetConfig | None = None) -> None:
+        super().__init__()
+        self.config = config or AVNetConfig()
+        w1, w2, w3 = self.config.widths
+        self.stem = _conv_bn(4, w1, stride=2)
+        self.enc2 = nn.Sequential(_conv_bn(w1, w2, stride=2), _conv_bn(w2, w2))
+        self.enc3 = nn.Sequential(
+            _conv_bn(w2, w3, stride=2), _conv_bn(w3, w3, dilation=2), _conv_bn(w3, w3)
+        )
+        self.lat3 = nn.Conv2d(w3, w2, 1)
+        self.dec2 = _conv_bn(w2, w2)
+        self.lat2 = nn.Conv2d(w2, w1, 1)
+        self.dec1 = _conv_bn(w1, w1)
+        self.head = nn.Conv2d(w1, 2, 1)
+        self._coord_cache: dict[tuple[int, int, torch.device], torch.Tensor] = {}
+
+    def _coords(self, x: torch.Tensor) -> torch.Tensor:
+        n, _, h, w = x.shape
+        key = (h, w, x.device)
+        coord = self._coord_cache.get(key)
+        if coord is None:
+            rows = torch.linspace(-1.0, 1.0, h, device=x.device, dtype=x.dtype)
+            coord = rows.view(1, 1, h, 1).expand(1, 1, h, w).contiguous()
+            self._coord_cache[key] = coord
+        return coord.expand(n, 1, h, w)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Logits ``(N, 2, H, W)``: index ``HEAD_HEATMAP`` and ``HEAD_DEPTH``.
+
+        :param x: ``(N, 3, H, W)`` float RGB in [0, 1]; H and W divisible by 8.
+        """
+        if x.shape[-1] % 8 or x.shape[-2] % 8:
+            raise ValueError(f"AVNet needs H and W divisible by 8, got {tuple(x.shape[-2:])}")
+        x1 = self.stem(torch.cat((x, self._coords(x)), dim=1))
+        x2 = self.enc2(x1)
+        x3 = self.enc3(x2)
+        y = self.dec2(F.interpolate(self.lat3(x3), scale_factor=2.0, mode="nearest") + x2)
+        y = self.dec1(F.interpolate(self.lat2(y), scale_factor=2.0, mode="nearest") + x1)
+        return F.interpolate(self.head(y), scale_factor=2.0, mode="bilinear", align_corners=False)
+
+    def predict(self, x: torch.Tensor) -> torch.Tensor:
+        """Heatmap and depth channel in [0, 1], ``(N, 2, H, W)``."""
+        return torch.sigmoid(self.forward(x))
+
+    @torch.no_grad()
+    def fuse_for_inference(self) -> AVNet:
+        """Fold every BatchNorm into its convolution (eval mode, in place); returns self."""
+        self.eval()
+        for module in self.modules():
+            if not isinstance(module, nn.Sequential):
+                continue
+            layers = list(module)
+            if (
+                len(layers) == 3
+                and isinstance(layers[0], nn.Conv2d)
+                and isinstance(layers[1], nn.BatchNorm2d)
+            ):
+                module[0] = torch.nn.utils.fusion.fuse_conv_bn_eval(layers[0], layers[1])
+                module[1] = nn.Identity()
+        return self
+
+
+def save_weights(model: AVNet, path: Path, meta: dict[str, Any] | None = None) -> Path:
+    """Write ``model`` (unfused) to ``path`` as a ``weights_only``-loadable dict."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "format": WEIGHTS_FORMAT,
+        "version": WEIGHTS_VERSION,
+        "config": {"widths": list(model.config.widths)},
+        "meta": dict(meta or {}),
+        # fp16 halves the file; the values are cast back to float32 on load.
+        "state_dict": {k: v.detach().to(torch.float16 if v.is_floating_point() else v.dtype)
+                       for k, v in model.state_dict().items()},
+    }
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+    return path
+
+
+def _fail(path: Path, what: str) -> WeightsError:
+    return WeightsError(
+        f"active_vision weights file {path}: {what}. Regenerate it with "
+        f"`{REGENERATE_COMMAND}` (writes {DEFAULT_WEIGHTS}), or pass the path of a "
+        "weights file written by that command."
+    )
+
+
+def load_model(path: Path | str | None = None, *, fuse: bool = True) -> AVNet:
+    """Load an :class:`AVNet` from ``path`` (default: the shipped weights), in eval mode.
+
+    :param fuse: fold batch norm into the convolutions (for inference; not for training).
+    :raises WeightsError: the file is missing, corrupt, or not an AVNet weights file.
+    """
+    path = Path(path) if path is not None else DEFAULT_WEIGHTS
+    if not path.is_file():
+        raise _fail(path, "not found")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises several types for a damaged file
+        raise _fail(path, f"cannot be read ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(payload, dict) or payload.get("format") != WEIGHTS_FORMAT:
+        raise _fail(path, f"is not a {WEIGHTS_FORMAT} weights file")
+    if payload.get("version") != WEIGHTS_VERSION:
+        raise _fail(
+            path, f"has version {payload.get('version')!r}, this code reads {WEIGHTS_VERSION}"
+        )
+    try:
+        config = AVNetConfig(widths=tuple(int(w) for w in payload["config"]["widths"]))
+        model = AVNet(config)
+        state = {k: v.float() if v.is_floating_point() else v
+                 for k, v in payload["state_dict"].items()}
+        model.load_state_dict(state)
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise _fail(path, f"does not match the network ({exc})") from exc
+    model.eval()
+    if fuse:
+        model.fuse_for_inference()
+    logger.debug("loaded %s (widths %s)", path, config.widths)
+    return model
+
+
+def weights_meta(path: Path | str | None = None) -> dict[str, Any]:
+    """The ``meta`` dict stored with the weights (training figures, dataset seed)."""
+    path = Path(path) if path is not None else DEFAULT_WEIGHTS
+    if not path.is_file():
+        raise _fail(path, "not found")
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    return dict(payload.get("meta", {}))
+
+
+__all__ = [
+    "AVNet",
+    "AVNetConfig",
+    "DEFAULT_WEIGHTS",
+    "HEAD_DEPTH",
+    "HEAD_HEATMAP",
+    "REGENERATE_COMMAND",
+    "WeightsError",
+    "load_model",
+    "save_weights",
+    "weights_meta",
+]
