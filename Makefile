@@ -30,8 +30,11 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 	$(PY) -m pip install -q -c constraints.txt -e '.[train,dev]'
 	@touch $(STAMP)
 
+# The main job: a supervised daemon + trainer pair trains PPO on RoverEnvFused (maze),
+# then evaluates it; outputs (model, curve, metrics, table, video) land in runs/demo/.
+DEMO_STEPS ?= 20000
 demo: setup
-	$(PY) benchmarks/ipc_latency.py
+	$(PY) launch/run_pair.py --name roverav_demo -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --out runs/demo
 
 test: setup
 	$(PY) -m pytest -q
@@ -41,3 +44,6 @@ lint: setup
 
 bench: setup
 	$(PY) benchmarks/ipc_latency.py
+	$(PY) benchmarks/env_speed.py
+	$(PY) benchmarks/perception_speed.py
+	$(PY) benchmarks/fused_speed.py
