@@ -1,0 +1,398 @@
+"""av-daemon: camera frames in, fused 96x96x3 observations out, over shared memory.
+
+    av-daemon [--name rl_observation] [--slots N] [--size 96] [--depth model|render]
+              [--threads 1] [--source camera|video:PATH|device:N] [--preview PATH]
+              [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
+
+(also ``python -m active_vision``). For each slot i it creates the fused segment
+``slot_name(name, i)`` (float32 ``size x size x 3``, written by the daemon) and, with
+``--source camera``, the camera segment ``camera_name(slot_name(name, i))`` (uint8
+``size x size x 3``, or ``x 4`` with ``--depth render``: channel 3 is the renderer's depth
+channel), which the env writes (``FrameWriter(..., create=False)``) and the daemon reads.
+Then it prints one line containing ``ready`` (flushed) and serves:
+
+1. waits for new camera frames on any slot (futex wake-ups, short timeouts; idle costs
+   almost no CPU);
+2. runs :class:`~active_vision.perception.Perception` on every slot that has a new frame,
+   as one batch;
+3. publishes each fused frame into its slot's segment with ``source_seq`` = the camera
+   frame's ``seq`` (the env waits on that with ``FrameReader.wait_for``);
+4. refreshes the fused segments' heartbeat while idle, and logs per-stage timings (gray,
+   heatmap+depth, publish) every ``--log-every`` frames.
+
+With ``--source video:PATH`` (or ``device:N``) no camera segment is made: the video plays at
+its frame rate into every slot's fused segment (``source_seq`` counts frames), for trying
+the pipeline without the simulator. ``--preview PATH`` writes slot 0's camera frame and its
+three fused channels side by side (PNG, refreshed twice a second, or an MP4 of every frame).
+
+Start and stop: a live daemon already serving the name (its lock is held, or a fused
+segment's writer is alive with a fresh heartbeat) makes this one refuse with exit status 1.
+Segments left by a dead daemon are taken over in place (same inode, so attached envs keep
+going). SIGINT/SIGTERM: set the shutting-down flag on every segment, unlink every segment
+this daemon holds, exit 0. Exit status 1 for any start-up failure (weights, segments,
+source), 2 for bad usage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import socket
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+
+import numpy as np
+
+from shm_protocol import (
+    FrameReader,
+    FrameWriter,
+    LayoutError,
+    SegmentNotFoundError,
+    ShmError,
+    camera_name,
+    slot_name,
+    validate_name,
+)
+
+logger = logging.getLogger("active_vision.daemon")
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+IDLE_POLL_S = 0.05
+"""Longest wait for a frame before the loop looks at its signals and heartbeat again."""
+PNG_PREVIEW_EVERY_S = 0.5
+
+
+@dataclass
+class DaemonConfig:
+    """The daemon's options (CLI flags of the same names)."""
+
+    name: str = "rl_observation"
+    """Base segment name; slot i uses ``slot_name(name, i)``."""
+    slots: int = 1
+    """Number of slots (one per env of a vector env)."""
+    size: int = 96
+    """Side of the square camera and fused frames (a multiple of 8)."""
+    depth: str = "model"
+    """``model``: depth channel from the network; ``render``: from the camera frame's 4th
+    channel (the env sends RGB + depth)."""
+    threads: int = 1
+    """torch threads for perception."""
+    source: str = "camera"
+    """``camera`` (segments written by envs), ``video:PATH`` or ``device:N``."""
+    preview: Path | None = None
+    """PNG or MP4 preview of slot 0 (camera frame and the fused channels)."""
+    log_every: int = 1000
+    """Log per-stage timings every this many frames (0: never)."""
+    stale_after: float = 2.0
+    """Heartbeat age (s) after which an existing fused segment's writer counts as dead (so
+    its segments may be taken over); the heartbeat is refreshed 4x as often."""
+    weights: Path | None = None
+    """Network weights; default: the shipped ``active_vision/weights/avnet.pt``."""
+    log_level: str = "INFO"
+
+
+class DaemonError(RuntimeError):
+    """The daemon cannot start (the message says why and what to do)."""
+
+
+class _Stop:
+    def __init__(self) -> None:
+        self.signal: int | None = None
+
+    def __call__(self, signum: int, frame: FrameType | None) -> None:
+        self.signal = signum
+
+
+def _lock(name: str) -> socket.socket:
+    """Hold an abstract Unix socket named after ``name``: the kernel releases it when this
+    process dies however it dies, and nothing is left in any file system."""
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    try:
+        sock.bind(f"\0roverav-av-daemon:{name}")
+    except OSError:
+        sock.close()
+        raise
+    return sock
+
+
+def _live_writer(name: str, stale_after: float) -> int | None:
+    """Pid of a live writer of fused segment ``name`` (alive and heartbeat fresh), or None."""
+    try:
+        reader = FrameReader(name, attach_timeout=0.0, stale_after=stale_after)
+    except (SegmentNotFoundError, LayoutError):
+        return None
+    try:
+        return reader.writer_pid if reader.is_writer_alive() else None
+    finally:
+        reader.close()
+
+
+class Daemon:
+    """One running daemon: segments, perception, the serve loop. See the module docstring."""
+
+    def __init__(self, config: DaemonConfig) -> None:
+        self.config = config
+        self.fused: list[FrameWriter] = []
+        self.source: object | None = None
+        self.stop = _Stop()
+        self._lock: socket.socket | None = None
+        self.preview = None
+
+    # --- start-up -----------------------------------------------------------------------
+
+    def _check_not_served(self) -> None:
+        cfg = self.config
+        try:
+            self._lock = _lock(cfg.name)
+        except OSError as exc:
+            raise DaemonError(
+                f"a live av-daemon already serves '{cfg.name}' (it holds the daemon lock for "
+                "that name). Stop it first (SIGTERM), or start this one with another --name."
+            ) from exc
+        for i in range(cfg.slots):
+            seg = slot_name(cfg.name, i)
+            pid = _live_writer(seg, cfg.stale_after)
+            if pid is not None and pid != os.getpid():
+                raise DaemonError(
+                    f"segment '{seg}' is served by a live writer (pid {pid}, heartbeat fresher "
+                    f"than {cfg.stale_after:g} s): another av-daemon serves '{cfg.name}'. "
+                    f"Stop it first (kill {pid}), or start this one with another --name."
+                )
+
+    def start(self) -> None:
+        """Check, load the network, create/take over the segments. Raises DaemonError."""
+        cfg = self.config
+        self._check_not_served()
+        # Perception first: a bad weights file fails before any segment exists.
+        from active_vision.models import WeightsError
+        from active_vision.perception import Perception, PerceptionConfig
+
+        try:
+            self.perception = Perception(PerceptionConfig(
+                size=cfg.size, depth=cfg.depth, threads=cfg.threads, weights=cfg.weights,
+                max_batch=cfg.slots))  # type: ignore[arg-type]
+        except WeightsError as exc:
+            raise DaemonError(str(exc)) from exc
+        from active_vision.sources import CameraSegmentSource, OpenCVSource, SourceError
+
+        try:
+            for i in range(cfg.slots):
+                w = FrameWriter(slot_name(cfg.name, i), shape=(cfg.size, cfg.size, 3),
+                                dtype=np.float32, create=True, replace=True)
+                self.fused.append(w)
+                if not w.created:
+                    logger.info("took over segment %s left by a dead daemon", w.name)
+            if cfg.source == "camera":
+                channels = 4 if cfg.depth == "render" else 3
+                self.source = CameraSegmentSource(cfg.name, cfg.slots, cfg.size, channels)
+            else:
+                if cfg.depth == "render":
+                    raise DaemonError(f"--depth render needs --source camera (frames with a "
+                                      f"depth channel); {cfg.source} has RGB only")
+                self.source = OpenCVSource(cfg.source, cfg.slots, cfg.size)
+        except (ShmError, SourceError, OSError) as exc:
+            self.shutdown()
+            raise DaemonError(str(exc)) from exc
+        except BaseException:
+            self.shutdown()
+            raise
+        if cfg.preview is not None:
+            from active_vision.preview import PreviewWriter
+
+            self.preview = PreviewWriter(cfg.preview)
+
+    def segment_names(self) -> list[str]:
+        names = [w.name for w in self.fused]
+        names += list(getattr(self.source, "names", []))
+        return names
+
+    # --- serving ------------------------------------------------------------------------
+
+    def serve(self) -> None:
+        """Serve until SIGINT/SIGTERM (or the end of a non-looping source)."""
+        cfg = self.config
+        source = self.source
+        assert source is not None
+        perception = self.perception
+        fused = self.fused
+        hb_every = cfg.stale_after / 4.0
+        last_hb = time.monotonic()
+        publish_s = 0.0
+        frames_since_log = 0
+        t_log = time.perf_counter()
+        next_png = 0.0
+        channels = 4 if cfg.depth == "render" else 3
+        batch = np.empty((cfg.slots, cfg.size, cfg.size, channels), dtype=np.uint8)
+        seqs = [0] * cfg.slots
+        slots = [0] * cfg.slots
+        while self.stop.signal is None:
+            new = source.poll(IDLE_POLL_S)  # type: ignore[attr-defined]
+            now = time.monotonic()
+            if not new:
+                if now - last_hb >= hb_every:
+                    for w in fused:
+                        w.heartbeat()
+                    last_hb = now
+                if getattr(source, "finished", False):
+                    logger.info("source finished; shutting down")
+                    return
+                continue
+            n = len(new)
+            for j, f in enumerate(new):
+                batch[j] = f.data
+                seqs[j] = f.seq
+                slots[j] = f.slot
+            out = perception(batch[:n])
+            t0 = time.perf_counter()
+            for j in range(n):
+                fused[slots[j]].publish(out[j], source_seq=seqs[j])
+            publish_s += time.perf_counter() - t0
+            last_hb = now
+            if self.preview is not None and slots[0] == 0:
+                if self.preview.video or now >= next_png:
+                    self.preview.write(batch[0], out[0])
+                    next_png = now + PNG_PREVIEW_EVERY_S
+            frames_since_log += n
+            if cfg.log_every and frames_since_log >= cfg.log_every:
+                tm = perception.timings
+                ms = tm.per_frame_ms()
+                pub = 1e3 * publish_s / max(tm.frames, 1)
+                wall = time.perf_counter() - t_log
+                logger.info(
+                    "%d frames in %d batches (%.2f/batch): gray %.3f ms/frame, heatmap+depth "
+                    "%.3f, publish %.3f, total %.3f; %.1f frames/s",
+                    tm.frames, tm.batches, tm.frames / max(tm.batches, 1), ms["gray"],
+                    ms["heatmap+depth"], pub, ms["gray"] + ms["heatmap+depth"] + pub,
+                    tm.frames / wall if wall > 0 else 0.0,
+                )
+                tm.reset()
+                publish_s = 0.0
+                frames_since_log = 0
+                t_log = time.perf_counter()
+
+    # --- shutdown -----------------------------------------------------------------------
+
+    def shutdown(self) -> None:
+        """Flag shutting-down and unlink every segment this daemon holds. Idempotent."""
+        if self.preview is not None:
+            self.preview.close()
+        source, self.source = self.source, None
+        if source is not None:
+            close = source.close  # type: ignore[attr-defined]
+            if hasattr(source, "names"):
+                close(unlink=True)
+            else:
+                close()
+        for w in self.fused:
+            try:
+                w.close(unlink=True)
+            except ShmError as exc:
+                logger.warning("closing %s: %s", w.name, exc)
+        self.fused = []
+        if self._lock is not None:
+            self._lock.close()
+            self._lock = None
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    return v
+
+
+def _size(text: str) -> int:
+    v = _positive_int(text)
+    if v % 8:
+        raise argparse.ArgumentTypeError(f"must be a multiple of 8 (the network halves the "
+                                         f"frame three times), got {v}")
+    return v
+
+
+def _source(text: str) -> str:
+    if text == "camera" or text.startswith(("video:", "device:")):
+        return text
+    raise argparse.ArgumentTypeError(f"expected camera, video:PATH or device:N, got {text!r}")
+
+
+def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
+    d = DaemonConfig()
+    p = argparse.ArgumentParser(
+        prog="av-daemon",
+        description="Active Vision daemon: camera frames in, fused observations out (shared "
+                    "memory). Prints a line with 'ready' when a peer can attach.")
+    p.add_argument("--name", default=d.name, help="base segment name (default %(default)s)")
+    p.add_argument("--slots", type=_positive_int, default=d.slots,
+                   help="slots served (one per env of a vector env)")
+    p.add_argument("--size", type=_size, default=d.size, help="frame side in pixels")
+    p.add_argument("--depth", choices=("model", "render"), default=d.depth,
+                   help="depth channel from the network, or from the camera frame's 4th "
+                        "channel (renderer's depth)")
+    p.add_argument("--threads", type=_positive_int, default=d.threads, help="torch threads")
+    p.add_argument("--source", type=_source, default=d.source,
+                   help="camera (segments written by envs), video:PATH or device:N")
+    p.add_argument("--preview", type=Path, default=None,
+                   help="write a PNG (or .mp4) of slot 0: camera + fused channels")
+    p.add_argument("--log-every", type=int, default=d.log_every,
+                   help="log per-stage timings every N frames (0: never)")
+    p.add_argument("--stale-after", type=float, default=d.stale_after,
+                   help="heartbeat age (s) after which an existing daemon counts as dead")
+    p.add_argument("--weights", type=Path, default=None, help="network weights file")
+    p.add_argument("--log-level", default=d.log_level,
+                   choices=("DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning",
+                            "error"))
+    a = p.parse_args(argv)
+    try:
+        validate_name(a.name)
+        camera_name(slot_name(a.name, a.slots - 1))
+    except ValueError as exc:
+        p.error(f"--name: {exc}")
+    if not a.stale_after > 0:
+        p.error("--stale-after must be > 0")
+    return DaemonConfig(name=a.name, slots=a.slots, size=a.size, depth=a.depth,
+                        threads=a.threads, source=a.source, preview=a.preview,
+                        log_every=max(0, a.log_every), stale_after=a.stale_after,
+                        weights=a.weights, log_level=a.log_level.upper())
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    cfg = parse_args(argv)
+    logging.basicConfig(level=cfg.log_level, stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    daemon = Daemon(cfg)
+    stop = daemon.stop
+    old = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            daemon.start()
+        except DaemonError as exc:
+            print(f"av-daemon: {exc}", file=sys.stderr, flush=True)
+            return EXIT_FAILURE
+        if stop.signal is None:
+            names = daemon.segment_names()
+            print(f"av-daemon ready: name={cfg.name} slots={cfg.slots} size={cfg.size} "
+                  f"depth={cfg.depth} source={cfg.source} pid={os.getpid()} "
+                  f"segments={','.join(names)}", flush=True)
+            daemon.serve()
+        if stop.signal is not None:
+            logger.info("signal %d: shutting down", stop.signal)
+        return EXIT_OK
+    finally:
+        daemon.shutdown()
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
