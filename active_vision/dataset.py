@@ -1,0 +1,403 @@
+"""Training and held-out frames for the perception network, rendered from our own worlds.
+
+``python -m active_vision.dataset --out DIR --frames N --seed S`` renders N camera frames
+through :class:`rover_env.simulation.RoverSim` and writes ``DIR/av_<worlds>_s<S>_n<N>.npz``
+(compressed) with:
+
+====================  ===================  =============================================
+key                   shape / dtype        meaning
+====================  ===================  =============================================
+``rgb``               (N, S, S, 3) uint8   the rover's camera frame
+``depth``             (N, S, S) float16    metric depth in metres (far clip: nothing)
+``mask``              (N, S, S) bool       pedestrian pixels (segmentation rendering)
+``world``             (N,) int8            index into ``worlds``
+``worlds``            (W,) str             world names
+``kind``              (N,) int8            0 empty, 1 walking, 2 placed (see below)
+``seed``              () int64             the seed the file was made from
+====================  ===================  =============================================
+
+Every frame draws its own random generator from ``(seed, frame index)``, so a file is a pure
+function of ``(seed, frames, worlds, size)``. Frames cycle through the worlds (frame i in
+world ``i % W``). Per frame the script varies:
+
+- the rover pose: a free point (0.4 m clearance) near the pedestrian area or anywhere in
+  bounds, random heading - so walls, rocks, panels and open ground all appear;
+- the pedestrians (see :class:`FrameRenderer`): walking figures seen from 0.8-9 m
+  (uniform in log distance), standing figures pinned in view (1-3, some straddling the frame
+  edge, random headings and clothes), and ``p_empty`` of the frames with none in view;
+- the lighting: every light's diffuse/ambient/specular and the headlight scaled by random
+  factors (dim dusk to bright noon), with a random colour cast.
+
+The held-out split is by seed (``HELDOUT_SEED`` vs ``TRAIN_SEED``: no shared frame) and is
+reported by world (``evaluate`` prints figures per world; ``--worlds`` renders a subset so a
+network can be trained without one world and evaluated on it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import os
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+WORLDS: tuple[str, ...] = ("inspect", "moon", "maze")
+TRAIN_SEED = 0
+HELDOUT_SEED = 1_000_003
+KIND_EMPTY, KIND_WALKING, KIND_PLACED = 0, 1, 2
+_GROUND_CHECK_M = 3.0
+_GROUND_MIN_M = 0.12
+_POSE_TRIES = 8
+DEFAULT_DATA_DIR = (
+    Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "roverav" / "active_vision"
+)
+"""Where rendered datasets are cached (``$XDG_CACHE_HOME/roverav/active_vision``)."""
+
+
+@dataclass
+class DatasetConfig:
+    """What :func:`render_dataset` renders."""
+
+    frames: int = 3000
+    """Number of frames (cycled over ``worlds``)."""
+    seed: int = TRAIN_SEED
+    """Base seed; frame i uses ``np.random.default_rng([seed, i])``."""
+    worlds: tuple[str, ...] = WORLDS
+    """Worlds to render from."""
+    size: int = 96
+    """Camera resolution (square) - the fused resolution."""
+    p_empty: float = 0.3
+    """Probability of a frame with no pedestrian placed in view."""
+    max_visible: int = 3
+    """Most pedestrians placed in view in one frame."""
+    min_distance: float = 0.8
+    """Nearest pedestrian distance from the camera (m)."""
+    max_distance: float = 9.0
+    """Farthest pedestrian distance from the camera (m)."""
+
+
+@dataclass
+class Dataset:
+    """Frames and ground truth loaded from (or about to be written to) an ``.npz`` file."""
+
+    rgb: np.ndarray
+    depth: np.ndarray
+    mask: np.ndarray
+    world: np.ndarray
+    worlds: tuple[str, ...]
+    kind: np.ndarray
+    seed: int
+
+    def __len__(self) -> int:
+        return int(self.rgb.shape[0])
+
+    def save(self, path: Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(
+            tmp,
+            rgb=self.rgb,
+            depth=self.depth.astype(np.float16),
+            mask=self.mask,
+            world=self.world.astype(np.int8),
+            worlds=np.array(self.worlds),
+            kind=self.kind.astype(np.int8),
+            seed=np.int64(self.seed),
+        )
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: Path | str) -> Dataset:
+        with np.load(Path(path)) as z:
+            return cls(
+                rgb=z["rgb"],
+                depth=z["depth"].astype(np.float32),
+                mask=z["mask"].astype(bool),
+                world=z["world"].astype(np.int64),
+                worlds=tuple(str(w) for w in z["worlds"]),
+                kind=z["kind"].astype(np.int64),
+                seed=int(z["seed"]),
+            )
+
+    def subset(self, index: np.ndarray) -> Dataset:
+        return Dataset(self.rgb[index], self.depth[index], self.mask[index], self.world[index],
+                       self.worlds, self.kind[index], self.seed)
+
+
+def dataset_path(out_dir: Path, config: DatasetConfig) -> Path:
+    """The file :func:`build` writes for ``config`` in ``out_dir``."""
+    tag = "-".join(config.worlds)
+    return Path(out_dir) / f"av_{tag}_s{config.seed}_n{config.frames}_{config.size}px.npz"
+
+
+class _Lighting:
+    """Random scaling of a model's lights; remembers the originals to restore them."""
+
+    def __init__(self, model: Any) -> None:
+        self.model = model
+        self.diffuse = model.light_diffuse.copy()
+        self.ambient = model.light_ambient.copy()
+        self.specular = model.light_specular.copy()
+        self.head_diffuse = model.vis.headlight.diffuse.copy()
+        self.head_ambient = model.vis.headlight.ambient.copy()
+
+    def randomise(self, rng: np.random.Generator) -> None:
+        m = self.model
+        level = rng.uniform(0.35, 1.35)
+        tint = 1.0 + rng.uniform(-0.15, 0.15, size=3)
+        amb = rng.uniform(0.5, 1.6)
+        m.light_diffuse[:] = np.clip(self.diffuse * level * tint, 0.0, 1.0)
+        m.light_ambient[:] = np.clip(self.ambient * amb * tint, 0.0, 1.0)
+        m.light_specular[:] = np.clip(self.specular * rng.uniform(0.3, 1.2), 0.0, 1.0)
+        m.vis.headlight.diffuse[:] = np.clip(self.head_diffuse * level * tint, 0.0, 1.0)
+        m.vis.headlight.ambient[:] = np.clip(self.head_ambient * amb * tint, 0.0, 1.0)
+
+    def restore(self) -> None:
+        m = self.model
+        m.light_diffuse[:] = self.diffuse
+        m.light_ambient[:] = self.ambient
+        m.light_specular[:] = self.specular
+        m.vis.headlight.diffuse[:] = self.head_diffuse
+        m.vis.headlight.ambient[:] = self.head_ambient
+
+
+def _camera_fov(sim: Any) -> float:
+    """Horizontal field of view of the rover camera (rad); square frames: equals fovy."""
+    from rover_env import rover
+
+    return math.radians(float(rover.CAMERA_FOVY))
+
+
+class FrameRenderer:
+    """Renders dataset frames for one world (one :class:`RoverSim`, reused).
+
+    Three kinds of frame (chosen per frame from its generator):
+
+    - ``walking`` (40 %): the pedestrians walk their episode paths (legs swinging); the rover
+      is put at a random distance and bearing from one of them, facing it within the field
+      of view (others may be in view too);
+    - ``placed`` (30 %): the rover at a random free pose, 1-3 pedestrians pinned standing in
+      view at random distances, the rest behind the rover;
+    - ``empty`` (the remaining 30 %, ``p_empty``): the rover at a random free pose and every
+      pedestrian behind it, out of view.
+    """
+
+    def __init__(self, world: str, config: DatasetConfig) -> None:
+        from rover_env import rover
+        from rover_env.simulation import RoverSim  # rendering only; not needed to train
+
+        self.config = config
+        self.sim = RoverSim(world=world, camera_size=(config.size, config.size))
+        self.world = self.sim.world
+        self.fov = _camera_fov(self.sim)
+        self.clearance = float(rover.SPAWN_CLEARANCE)
+        self.lighting = _Lighting(self.sim.model)
+        self.n_peds = int(self.sim.pedestrian_positions.shape[0])
+        self._scenery = np.zeros(6, np.uint8)
+        self._scenery[0] = 1  # geom group 0: ground, terrain, rocks, walls
+        self._geom = np.zeros(1, np.int32)
+        near = self.world.pedestrian_area.expanded(3.0).intersect(self.world.bounds)
+        self._areas = (near, self.world.bounds.expanded(-1.0))
+
+    def close(self) -> None:
+        self.sim.close()
+
+    def _ground_z(self, x: float, y: float) -> float:
+        """Height of the rendered terrain at (x, y): a ray cast down onto the scenery."""
+        import mujoco
+
+        dist = mujoco.mj_ray(self.sim.model, self.sim.data, np.array([x, y, 100.0]),
+                             np.array([0.0, 0.0, -1.0]), self._scenery, 1, -1, self._geom)
+        return 100.0 - dist if dist >= 0 else self.world.ground_height(x, y)
+
+    def _set_pose(self, x: float, y: float, yaw: float) -> None:
+        """Put the rover at (x, y, yaw) resting on the terrain as rendered.
+
+        On a height field the rest height comes from rays cast onto the rendered terrain
+        under the wheels rather than from ``WorldSpec.ground_height``, which reads the
+        terrain lower than MuJoCo draws it (by 0.1-0.5 m on moon), so the camera would sit
+        inside a slope.
+        """
+        if self.world.heightfield is None:
+            self.sim.set_rover_pose(x, y, yaw)
+            return
+        from rover_env import rover
+
+        c, s = math.cos(yaw), math.sin(yaw)
+        ground = max(self._ground_z(x + c * wx - s * wy, y + s * wx + c * wy)
+                     for wx in (-rover.WHEEL_X, 0.0, rover.WHEEL_X)
+                     for wy in (-rover.WHEEL_Y, 0.0, rover.WHEEL_Y))
+        self.sim.set_rover_pose(x, y, yaw, z=ground + rover.REST_HEIGHT + 0.02)
+
+    def _random_pose(self, rng: np.random.Generator) -> None:
+        area = self._areas[0] if rng.random() < 0.6 else self._areas[1]
+        x, y = self.world.sample_free(rng, area, self.clearance)
+        self._set_pose(x, y, float(rng.uniform(-math.pi, math.pi)))
+
+    def _bearing_in_view(self, rng: np.random.Generator) -> float:
+        # a little beyond the half field of view, so some figures straddle the frame edge
+        return float(rng.uniform(-0.55, 0.55) * self.fov)
+
+    def _distance(self, rng: np.random.Generator) -> float:
+        cfg = self.config
+        # uniform in log distance: as many near figures as far ones
+        return float(np.exp(rng.uniform(np.log(cfg.min_distance), np.log(cfg.max_distance))))
+
+    def _pin_behind(self, rng: np.random.Generator, indices: Sequence[int]) -> None:
+        sim = self.sim
+        x, y, _ = sim.position
+        yaw = sim.yaw
+        for i in indices:
+            dist = float(rng.uniform(2.5, 8.0))
+            bearing = math.pi + float(rng.uniform(-0.6, 0.6))
+            sim.place_pedestrian(i, x + dist * math.cos(yaw + bearing),
+                                 y + dist * math.sin(yaw + bearing),
+                                 float(rng.uniform(-math.pi, math.pi)))
+
+    def _walking(self, rng: np.random.Generator) -> bool:
+        sim, world = self.sim, self.world
+        sim.advance(float(rng.uniform(0.05, 0.6)))  # somewhere along the path, mid-stride
+        target = sim.pedestrian_positions[int(rng.integers(self.n_peds))]
+        for _ in range(20):
+            dist = self._distance(rng)
+            phi = float(rng.uniform(-math.pi, math.pi))  # direction rover -> pedestrian
+            x = float(target[0]) - dist * math.cos(phi)
+            y = float(target[1]) - dist * math.sin(phi)
+            if world.in_bounds(x, y) and world.is_free(x, y, self.clearance):
+                self._set_pose(x, y, phi - self._bearing_in_view(rng))
+                return True
+        return False
+
+    def _placed(self, rng: np.random.Generator) -> None:
+        sim, world, cfg = self.sim, self.world, self.config
+        self._random_pose(rng)
+        x, y, _ = sim.position
+        yaw = sim.yaw
+        k = int(rng.integers(1, min(cfg.max_visible, self.n_peds) + 1))
+        for i in range(k):
+            for _ in range(10):  # prefer a free spot (not inside a wall or a rock)
+                dist = self._distance(rng)
+                ang = yaw + self._bearing_in_view(rng)
+                px, py = x + dist * math.cos(ang), y + dist * math.sin(ang)
+                if world.is_free(px, py, 0.2):
+                    break
+            sim.place_pedestrian(i, px, py, float(rng.uniform(-math.pi, math.pi)))
+        self._pin_behind(rng, range(k, self.n_peds))
+
+    def _compose(self, rng: np.random.Generator) -> int:
+        sim = self.sim
+        sim.reset(rng)
+        u = rng.random()
+        if self.n_peds and u < 0.4 and self._walking(rng):
+            return KIND_WALKING
+        if self.n_peds and u < 1.0 - self.config.p_empty:
+            self._placed(rng)
+            return KIND_PLACED
+        self._random_pose(rng)
+        self._pin_behind(rng, range(self.n_peds))
+        return KIND_EMPTY
+
+    def render(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """One frame: (rgb, metric depth, pedestrian mask, kind of frame).
+
+        A pose whose camera does not see the ground just below it as from a rover standing on
+        it (the median of the depth image's bottom rows outside ``_GROUND_MIN_M`` to
+        ``_GROUND_CHECK_M``: the camera is inside or against the terrain, or over a drop) is
+        drawn again, up to ``_POSE_TRIES`` times.
+        """
+        for _ in range(_POSE_TRIES):
+            kind = self._compose(rng)
+            self.lighting.randomise(rng)
+            try:
+                frame = self.sim.render_camera(depth=True, segmentation=True)
+            finally:
+                self.lighting.restore()
+            s = self.config.size
+            bottom = frame.depth[-max(1, s // 16):, s // 3: 2 * s // 3]
+            if _GROUND_MIN_M < float(np.median(bottom)) < _GROUND_CHECK_M:
+                break
+            logger.debug("%s: camera does not see the ground below it; new pose",
+                         self.world.name)
+        return frame.rgb, frame.depth, frame.pedestrian_mask, kind
+
+
+def render_dataset(config: DatasetConfig, progress_every: int = 500) -> Dataset:
+    """Render ``config.frames`` frames (see the module docstring)."""
+    n, s = config.frames, config.size
+    rgb = np.zeros((n, s, s, 3), np.uint8)
+    depth = np.zeros((n, s, s), np.float32)
+    mask = np.zeros((n, s, s), bool)
+    world = np.zeros(n, np.int64)
+    kind = np.zeros(n, np.int64)
+    renderers: dict[str, FrameRenderer] = {}
+    t0 = time.perf_counter()
+    try:
+        for i in range(n):
+            w = i % len(config.worlds)
+            name = config.worlds[w]
+            if name not in renderers:
+                renderers[name] = FrameRenderer(name, config)
+            rng = np.random.default_rng([config.seed, i])
+            rgb[i], depth[i], mask[i], kind[i] = renderers[name].render(rng)
+            world[i] = w
+            if progress_every and (i + 1) % progress_every == 0:
+                logger.info("rendered %d/%d frames (%.1f s)", i + 1, n,
+                            time.perf_counter() - t0)
+    finally:
+        for r in renderers.values():
+            r.close()
+    return Dataset(rgb, depth, mask, world, tuple(config.worlds), kind, config.seed)
+
+
+def build(out_dir: Path, config: DatasetConfig, *, reuse: bool = True) -> Path:
+    """Render ``config`` into ``out_dir`` (or reuse the file already there); its path."""
+    path = dataset_path(out_dir, config)
+    if reuse and path.is_file():
+        logger.info("reusing %s", path)
+        return path
+    data = render_dataset(config)
+    data.save(path)
+    logger.info("wrote %s (%d frames, %.1f MB)", path, len(data), path.stat().st_size / 1e6)
+    return path
+
+
+def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m active_vision.dataset", description=__doc__
+                                .split("\n")[0])
+    p.add_argument("--out", type=Path, default=DEFAULT_DATA_DIR, help="output directory")
+    p.add_argument("--frames", type=int, default=DatasetConfig.frames)
+    p.add_argument("--seed", type=int, default=TRAIN_SEED,
+                   help=f"base seed (training {TRAIN_SEED}, held-out {HELDOUT_SEED})")
+    p.add_argument("--worlds", default=",".join(WORLDS),
+                   help="comma-separated worlds (default: all three)")
+    p.add_argument("--size", type=int, default=96)
+    p.add_argument("--force", action="store_true", help="re-render even if the file exists")
+    p.add_argument("--log-level", default="INFO")
+    return p.parse_args(argv)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parse(argv)
+    logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
+    worlds = tuple(w.strip() for w in args.worlds.split(",") if w.strip())
+    config = DatasetConfig(frames=args.frames, seed=args.seed, worlds=worlds, size=args.size)
+    path = build(args.out, config, reuse=not args.force)
+    data = Dataset.load(path)
+    empty = float(np.mean(~data.mask.reshape(len(data), -1).any(axis=1)))
+    print(f"{path}: {len(data)} frames, worlds {','.join(data.worlds)}, "
+          f"{100 * empty:.0f}% without a visible pedestrian")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,233 @@
+"""Quality of the perception network on the held-out split.
+
+``python -m active_vision.evaluate [--weights PATH] [--data FILE] [--json]`` runs the shipped
+(or given) network through :class:`~active_vision.perception.Perception` - exactly what the
+daemon runs - on held-out frames (rendered with ``dataset.HELDOUT_SEED`` when no file is
+given) and prints the figures overall and per world. With ``--json`` the last line is one
+JSON object with the keys ``iou``, ``recall``, ``false_positive_rate``, ``abs_rel``,
+``delta1`` (plus counts and per-world figures).
+
+Definitions (``THRESHOLD`` = 0.5, ``MIN_PEDESTRIAN_PX`` = 30, ``MIN_BLOB_PX`` = 5):
+
+- **heatmap IoU**: pixels with heatmap >= 0.5 against the ground-truth pedestrian mask,
+  ``sum(pred & gt) / sum(pred | gt)`` summed over every pixel of every frame (frames without
+  pedestrians add their false pixels to the union).
+- **detection blob**: an 8-connected component of ``heatmap >= 0.5`` with at least
+  ``MIN_BLOB_PX`` pixels.
+- **pedestrian** (for recall): an 8-connected component of the ground-truth mask covering at
+  least ``MIN_PEDESTRIAN_PX`` pixels (people overlapping in the image count as one).
+- **pedestrian-present recall**: the fraction of such pedestrians that some detection blob
+  overlaps by at least one pixel.
+- **false-positive rate**: among frames whose ground-truth mask is empty (no pedestrian
+  pixel at all), the fraction with at least one detection blob.
+- **depth AbsRel** and **delta1**: over pixels whose true depth is below ``DEPTH_MAX_M``
+  (10 m; farther pixels and the sky are 0 in the depth channel and carry no metric depth),
+  with the predicted metric depth ``channel_to_depth(channel)`` clipped to at least 0.05 m:
+  ``mean(|d_pred - d| / d)`` and ``mean(max(d_pred / d, d / d_pred) < 1.25)``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from active_vision._wire import DEPTH_MAX_M, channel_to_depth
+from active_vision.dataset import (
+    DEFAULT_DATA_DIR,
+    HELDOUT_SEED,
+    WORLDS,
+    Dataset,
+    DatasetConfig,
+    build,
+)
+from active_vision.models import AVNet, load_model
+from active_vision.perception import (
+    CHANNEL_DEPTH,
+    CHANNEL_HEATMAP,
+    Perception,
+    PerceptionConfig,
+)
+
+logger = logging.getLogger(__name__)
+
+THRESHOLD = 0.5
+MIN_PEDESTRIAN_PX = 30
+MIN_BLOB_PX = 5
+MIN_DEPTH_M = 0.05
+HELDOUT_FRAMES = 600
+TARGETS = {"iou": 0.6, "recall": 0.95, "false_positive_rate": 0.02, "abs_rel": 0.15,
+           "delta1": 0.85}
+
+
+@dataclass
+class _Counts:
+    inter: int = 0
+    union: int = 0
+    peds: int = 0
+    peds_hit: int = 0
+    empty_frames: int = 0
+    fp_frames: int = 0
+    depth_px: int = 0
+    abs_rel_sum: float = 0.0
+    delta1_hits: int = 0
+
+    def add(self, other: _Counts) -> None:
+        for k in asdict(self):
+            setattr(self, k, getattr(self, k) + getattr(other, k))
+
+
+@dataclass
+class Metrics:
+    """Figures of one evaluation (see the module docstring for the definitions)."""
+
+    iou: float
+    recall: float
+    false_positive_rate: float
+    abs_rel: float
+    delta1: float
+    frames: int
+    pedestrians: int
+    empty_frames: int
+    per_world: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, float]:
+        return {k: getattr(self, k) for k in TARGETS}
+
+    def meets_targets(self) -> dict[str, bool]:
+        s = self.summary()
+        return {k: (s[k] <= t if k in ("false_positive_rate", "abs_rel") else s[k] >= t)
+                for k, t in TARGETS.items()}
+
+
+def _blobs(binary: np.ndarray, min_px: int) -> np.ndarray:
+    """Label image of the 8-connected components of ``binary`` with >= min_px pixels."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary.astype(np.uint8), connectivity=8)
+    keep = np.zeros(n, bool)
+    keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= min_px
+    return np.where(keep[labels], labels, 0)
+
+
+def frame_counts(heat: np.ndarray, depth_ch: np.ndarray, gt_mask: np.ndarray,
+                 gt_depth: np.ndarray) -> _Counts:
+    """Counts for one frame (heatmap and depth channel predicted; mask and metres true)."""
+    c = _Counts()
+    pred = heat >= THRESHOLD
+    c.inter = int(np.count_nonzero(pred & gt_mask))
+    c.union = int(np.count_nonzero(pred | gt_mask))
+    det = _blobs(pred, MIN_BLOB_PX) > 0
+    if not gt_mask.any():
+        c.empty_frames = 1
+        c.fp_frames = int(det.any())
+    else:
+        peds = _blobs(gt_mask, MIN_PEDESTRIAN_PX)
+        ids = np.unique(peds[peds > 0])
+        c.peds = int(ids.size)
+        if ids.size:
+            hit = np.unique(peds[det & (peds > 0)])
+            c.peds_hit = int(hit.size)
+    valid = np.isfinite(gt_depth) & (gt_depth > 0) & (gt_depth < DEPTH_MAX_M)
+    if valid.any():
+        d = gt_depth[valid].astype(np.float64)
+        p = np.maximum(channel_to_depth(depth_ch[valid]).astype(np.float64), MIN_DEPTH_M)
+        c.depth_px = int(d.size)
+        c.abs_rel_sum = float(np.sum(np.abs(p - d) / d))
+        c.delta1_hits = int(np.count_nonzero(np.maximum(p / d, d / p) < 1.25))
+    return c
+
+
+def _figures(c: _Counts) -> dict[str, float]:
+    nan = float("nan")
+    return {
+        "iou": c.inter / c.union if c.union else nan,
+        "recall": c.peds_hit / c.peds if c.peds else nan,
+        "false_positive_rate": c.fp_frames / c.empty_frames if c.empty_frames else nan,
+        "abs_rel": c.abs_rel_sum / c.depth_px if c.depth_px else nan,
+        "delta1": c.delta1_hits / c.depth_px if c.depth_px else nan,
+    }
+
+
+def evaluate(model: AVNet, data: Dataset, *, batch: int = 32, threads: int | None = None
+             ) -> Metrics:
+    """Run ``model`` through :class:`Perception` on ``data`` and compute :class:`Metrics`."""
+    perception = Perception(PerceptionConfig(size=data.rgb.shape[1], threads=threads,
+                                             max_batch=batch), model=model)
+    total = _Counts()
+    per_world = {w: _Counts() for w in data.worlds}
+    for start in range(0, len(data), batch):
+        fused = perception(data.rgb[start:start + batch])
+        for j in range(fused.shape[0]):
+            i = start + j
+            c = frame_counts(fused[j, :, :, CHANNEL_HEATMAP], fused[j, :, :, CHANNEL_DEPTH],
+                             data.mask[i], data.depth[i])
+            total.add(c)
+            per_world[data.worlds[int(data.world[i])]].add(c)
+    f = _figures(total)
+    return Metrics(**f, frames=len(data), pedestrians=total.peds,
+                   empty_frames=total.empty_frames,
+                   per_world={w: _figures(c) for w, c in per_world.items()})
+
+
+def heldout(data_dir: Path = DEFAULT_DATA_DIR, frames: int = HELDOUT_FRAMES,
+            worlds: Sequence[str] = WORLDS) -> Dataset:
+    """The held-out split (rendered on first use, then reused from ``data_dir``)."""
+    cfg = DatasetConfig(frames=frames, seed=HELDOUT_SEED, worlds=tuple(worlds))
+    return Dataset.load(build(data_dir, cfg))
+
+
+def format_metrics(m: Metrics) -> str:
+    ok = m.meets_targets()
+    lines = [f"held-out frames {m.frames}, pedestrians >= {MIN_PEDESTRIAN_PX} px: "
+             f"{m.pedestrians}, frames without pedestrians: {m.empty_frames}"]
+    s = m.summary()
+    for k, t in TARGETS.items():
+        cmp = "<=" if k in ("false_positive_rate", "abs_rel") else ">="
+        lines.append(f"  {k:<20} {s[k]:.4f}   target {cmp} {t}  {'ok' if ok[k] else 'MISSED'}")
+    lines.append("  per world: " + "  ".join(
+        f"{w}: " + ", ".join(f"{k} {v:.3f}" for k, v in f.items()) for w, f in m.per_world.items()))
+    return "\n".join(lines)
+
+
+def _json_safe(obj: object) -> object:
+    """NaN (a figure with nothing to measure) as null, so the line is strict JSON."""
+    if isinstance(obj, dict):
+        return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, float) and obj != obj:
+        return None
+    return obj
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m active_vision.evaluate",
+                                description="Heatmap and depth quality on the held-out split.")
+    p.add_argument("--weights", type=Path, default=None, help="default: the shipped weights")
+    p.add_argument("--data", type=Path, default=None,
+                   help="a dataset .npz (default: render/reuse the held-out split)")
+    p.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR)
+    p.add_argument("--frames", type=int, default=HELDOUT_FRAMES,
+                   help="held-out frames to render when --data is not given")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--json", action="store_true", help="end with one JSON line of the figures")
+    p.add_argument("--log-level", default="WARNING")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
+    data = Dataset.load(args.data) if args.data else heldout(args.data_dir, args.frames)
+    model = load_model(args.weights)
+    m = evaluate(model, data, threads=args.threads)
+    print(format_metrics(m))
+    if args.json:
+        print(json.dumps(_json_safe({**m.summary(), "frames": m.frames,
+                                     "pedestrians": m.pedestrians,
+                                     "empty_frames": m.empty_frames,
+                                     "per_world": m.per_world})))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,235 @@
+"""Train the perception network on frames rendered from our worlds.
+
+    python -m active_vision.train both [--data FILE] [--frames N] [--epochs E] [--threads 2]
+
+One network (:class:`~active_vision.models.AVNet`) serves both fused channels, so ``both``
+trains it on the sum of the two losses. ``heatmap`` and ``depth`` are accepted too and train
+the same joint model (the daemon needs both heads from one file); they say so in a log line.
+
+Without ``--data`` the training split (``dataset.TRAIN_SEED``) is rendered into
+``--data-dir`` on first use and reused afterwards. CPU only, ``--threads`` torch threads
+(default 2), a few minutes. Writes ``active_vision/weights/avnet.pt`` (or ``--out``) with
+the held-out figures of the result stored in its ``meta``.
+
+Losses:
+
+- heatmap: binary cross-entropy on the logits, plus a soft Dice term over the batch (keeps
+  small pedestrians from drowning in background pixels), plus a hard-negative term: the
+  ``HARD_NEGATIVES`` highest background logits of each frame pushed towards 0 (false
+  detections are a few confident pixels that the mean cross-entropy barely sees);
+- depth: L1 on the depth channel, weighted per pixel by ``DEPTH_MAX_M / max(d, 0.25)`` for
+  pixels nearer than the far limit (so it is the channel-space form of AbsRel), and weight
+  1 for far/sky pixels (channel 0).
+
+Augmentation: horizontal flip (image, mask and depth together), brightness, contrast,
+per-channel gain and pixel noise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from active_vision._wire import DEPTH_MAX_M
+from active_vision.dataset import (
+    DEFAULT_DATA_DIR,
+    TRAIN_SEED,
+    WORLDS,
+    Dataset,
+    DatasetConfig,
+    build,
+)
+from active_vision.models import DEFAULT_WEIGHTS, HEAD_DEPTH, HEAD_HEATMAP, AVNet, AVNetConfig
+from active_vision.models import save_weights as _save
+
+logger = logging.getLogger(__name__)
+
+TASKS = ("both", "heatmap", "depth")
+HARD_NEGATIVES = 32
+
+
+@dataclass
+class TrainConfig:
+    """Training options (CLI flags of the same names)."""
+
+    task: str = "both"
+    """``both`` (the joint model); ``heatmap`` and ``depth`` train the same joint model."""
+    data: Path | None = None
+    """Training ``.npz``; None renders/reuses the training split in ``data_dir``."""
+    data_dir: Path = DEFAULT_DATA_DIR
+    """Where rendered datasets are cached."""
+    frames: int = 3000
+    """Training frames to render when ``data`` is None."""
+    worlds: tuple[str, ...] = WORLDS
+    """Worlds to render the training split from."""
+    epochs: int = 30
+    """Passes over the training data."""
+    batch: int = 32
+    """Frames per optimiser step."""
+    lr: float = 4e-3
+    """Peak learning rate (one-cycle schedule)."""
+    threads: int = 2
+    """torch threads."""
+    seed: int = 0
+    """torch seed (initial weights, batch order, augmentation)."""
+    max_minutes: float = 6.0
+    """Stop early (keeping the schedule's shape) when training takes longer than this."""
+    out: Path = DEFAULT_WEIGHTS
+    """Weights file to write."""
+    widths: tuple[int, int, int] = AVNetConfig.widths
+    """Network widths."""
+    evaluate: bool = True
+    """Evaluate on the held-out split after training and store the figures in the file."""
+
+
+def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
+             gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    n = x.shape[0]
+    flip = torch.rand(n, generator=gen) < 0.5
+    x = torch.where(flip.view(n, 1, 1, 1), x.flip(-1), x)
+    mask = torch.where(flip.view(n, 1, 1, 1), mask.flip(-1), mask)
+    depth = torch.where(flip.view(n, 1, 1, 1), depth.flip(-1), depth)
+    bright = (torch.rand(n, 1, 1, 1, generator=gen) - 0.5) * 0.3
+    contrast = 0.7 + 0.6 * torch.rand(n, 1, 1, 1, generator=gen)
+    gain = 0.9 + 0.2 * torch.rand(n, 3, 1, 1, generator=gen)
+    mean = x.mean(dim=(1, 2, 3), keepdim=True)
+    x = (x - mean) * contrast + mean + bright
+    x = x * gain + 0.02 * torch.randn(x.shape, generator=gen)
+    # the daemon sees uint8 frames: quantise like them
+    x = torch.round(x.clamp(0.0, 1.0) * 255.0) / 255.0
+    return x, mask, depth
+
+
+def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor
+           ) -> tuple[torch.Tensor, torch.Tensor]:
+    """(heatmap loss, depth loss) for logits ``(N, 2, H, W)``, mask and metres ``(N,1,H,W)``."""
+    heat_logit = logits[:, HEAD_HEATMAP:HEAD_HEATMAP + 1]
+    bce = F.binary_cross_entropy_with_logits(heat_logit, mask)
+    prob = torch.sigmoid(heat_logit)
+    dice = 1.0 - (2.0 * (prob * mask).sum() + 1.0) / (prob.sum() + mask.sum() + 1.0)
+    # hard negatives: the HARD_NEGATIVES highest background logits of each frame (pixels
+    # more than 2 px from a pedestrian), pushed to 0 - what a false detection is made of
+    near = F.max_pool2d(mask, 5, stride=1, padding=2) > 0
+    bg_logits = heat_logit.masked_fill(near, float("-inf")).flatten(1)
+    hard = F.softplus(bg_logits.topk(HARD_NEGATIVES, dim=1).values).mean()
+    heat = bce + 0.5 * dice + 0.5 * hard
+    target = torch.clamp(1.0 - depth_m / DEPTH_MAX_M, 0.0, 1.0)
+    near = depth_m < DEPTH_MAX_M
+    weight = torch.where(near, DEPTH_MAX_M / depth_m.clamp(min=0.25), torch.ones_like(depth_m))
+    pred = torch.sigmoid(logits[:, HEAD_DEPTH:HEAD_DEPTH + 1])
+    depth = (weight * (pred - target).abs()).mean()
+    return heat, depth
+
+
+def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[str, float]]:
+    """Train a fresh network on ``data`` (or ``cfg``'s dataset); returns it (eval mode, unfused)
+    and a dict of training facts."""
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    if data is None:
+        path = cfg.data or build(cfg.data_dir, DatasetConfig(frames=cfg.frames, seed=TRAIN_SEED,
+                                                            worlds=cfg.worlds))
+        data = Dataset.load(path)
+    if cfg.task != "both":
+        logger.info("'%s': the heatmap and depth heads share one network; training the joint "
+                    "model (both losses), as 'both' does", cfg.task)
+    rgb = torch.from_numpy(data.rgb).permute(0, 3, 1, 2).contiguous()  # uint8 N,3,H,W
+    mask = torch.from_numpy(data.mask).unsqueeze(1).float()
+    depth_m = torch.from_numpy(np.nan_to_num(data.depth, nan=1e3, posinf=1e3)).unsqueeze(1)
+    depth_m = depth_m.clamp(min=1e-3)
+    n = rgb.shape[0]
+    model = AVNet(AVNetConfig(widths=tuple(cfg.widths)))
+    model.train()
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
+    steps_per_epoch = math.ceil(n / cfg.batch)
+    total_steps = cfg.epochs * steps_per_epoch
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr, total_steps=total_steps,
+                                                pct_start=0.15)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    t0 = time.perf_counter()
+    step = 0
+    hist = {"heat": 0.0, "depth": 0.0}
+    for epoch in range(cfg.epochs):
+        order = torch.randperm(n, generator=gen)
+        sums = {"heat": 0.0, "depth": 0.0}
+        for b in range(steps_per_epoch):
+            idx = order[b * cfg.batch:(b + 1) * cfg.batch]
+            x = rgb[idx].float() / 255.0
+            x, m, d = _augment(x, mask[idx], depth_m[idx], gen)
+            heat, dep = losses(model(x), m, d)
+            loss = heat + dep
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            step += 1
+            sums["heat"] += float(heat.detach())
+            sums["depth"] += float(dep.detach())
+        hist = {k: v / steps_per_epoch for k, v in sums.items()}
+        elapsed = time.perf_counter() - t0
+        logger.info("epoch %d/%d  heatmap loss %.4f  depth loss %.4f  (%.0f s)", epoch + 1,
+                    cfg.epochs, hist["heat"], hist["depth"], elapsed)
+        if elapsed > 60.0 * cfg.max_minutes and epoch + 1 < cfg.epochs:
+            logger.warning("stopping after %d epochs: over --max-minutes %.1f", epoch + 1,
+                           cfg.max_minutes)
+            break
+    model.eval()
+    facts = {"epochs": float(epoch + 1), "seconds": time.perf_counter() - t0,
+             "frames": float(n), "heat_loss": hist["heat"], "depth_loss": hist["depth"],
+             "dataset_seed": float(data.seed)}
+    return model, facts
+
+
+def _parse(argv: Sequence[str] | None) -> TrainConfig:
+    d = TrainConfig()
+    p = argparse.ArgumentParser(prog="python -m active_vision.train",
+                                description=__doc__.split("\n")[0])
+    p.add_argument("task", choices=TASKS, help="both = the joint model; heatmap/depth: same")
+    p.add_argument("--data", type=Path, default=None, help="training .npz (default: render)")
+    p.add_argument("--data-dir", type=Path, default=d.data_dir)
+    p.add_argument("--frames", type=int, default=d.frames)
+    p.add_argument("--worlds", default=",".join(d.worlds))
+    p.add_argument("--epochs", type=int, default=d.epochs)
+    p.add_argument("--batch", type=int, default=d.batch)
+    p.add_argument("--lr", type=float, default=d.lr)
+    p.add_argument("--threads", type=int, default=d.threads)
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--max-minutes", type=float, default=d.max_minutes)
+    p.add_argument("--out", type=Path, default=d.out)
+    p.add_argument("--no-evaluate", action="store_true", help="skip the held-out evaluation")
+    p.add_argument("--log-level", default="INFO")
+    a = p.parse_args(argv)
+    logging.basicConfig(level=a.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
+    return TrainConfig(task=a.task, data=a.data, data_dir=a.data_dir, frames=a.frames,
+                       worlds=tuple(w for w in a.worlds.split(",") if w), epochs=a.epochs,
+                       batch=a.batch, lr=a.lr, threads=a.threads, seed=a.seed,
+                       max_minutes=a.max_minutes, out=a.out, evaluate=not a.no_evaluate)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    cfg = _parse(argv)
+    model, facts = train(cfg)
+    meta: dict[str, float | str] = {**facts, "task": cfg.task}
+    if cfg.evaluate:
+        from active_vision.evaluate import evaluate, format_metrics, heldout
+
+        m = evaluate(model, heldout(cfg.data_dir), threads=cfg.threads)
+        print(format_metrics(m))
+        meta.update({f"heldout_{k}": float(v) for k, v in m.summary().items()})
+    path = _save(model, cfg.out, meta)
+    print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB) after {facts['epochs']:.0f} "
+          f"epochs in {facts['seconds']:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
