@@ -234,10 +234,11 @@ class FrameReader:
             fence()
             np.copyto(dst, payload)
             fence()
+            flags, crc = t.flags, t.checksum  # inside the bracket: the checksum of frame s1
             if self._recheck and (h.valid != 1 or h.timestamp != ts or t.seq != s1):
                 self._tears += 1
                 continue
-            if t.flags & FLAG_CHECKSUM and zlib.crc32(dst, s1 & U32_MAX) != t.checksum:
+            if flags & FLAG_CHECKSUM and zlib.crc32(dst, s1 & U32_MAX) != crc:
                 self._tears += 1
                 continue
             self._last_seq = s1
