@@ -222,6 +222,11 @@ class RoverEnvFused(RoverEnvBase):
             fused.close()
             raise
         self._fused, self._camera = fused, camera
+        # Fused frames already in the segment answer camera frames of an earlier link (a
+        # daemon restarted with a new camera segment restarts its frame numbers while the
+        # fused segment keeps its source_seq): never take one of those as ours.
+        newest = fused.latest()
+        self._stale_seq = newest.seq if newest is not None else 0
         self._camera_ino = os.stat(camera.path).st_ino
         h, w, ch = camera.shape
         self._render_depth = ch == 4
@@ -264,6 +269,8 @@ class RoverEnvFused(RoverEnvBase):
         t0 = time.perf_counter()
         seq = self._camera.publish(buf)
         fused = self._fused.wait_for(source_seq=seq, timeout=self.frame_timeout)
+        while fused.seq <= self._stale_seq:
+            fused = self._fused.wait_next(timeout=self.frame_timeout)
         self._frame_latency_ms = (time.perf_counter() - t0) * 1e3
         obs = self._state_observation()
         obs["fused_image"] = fused.data  # a fresh copy owned by this observation
