@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from typing import NamedTuple
 
 import mujoco
@@ -36,8 +37,9 @@ CHASE_MAX_SIZE = (640, 480)  # (width, height): the largest render_chase frame
 # Clip planes relative to the model extent (fixed at _EXTENT): near 2 cm, far 120 m.
 _EXTENT = 10.0
 _ZNEAR, _ZFAR = 0.002, 12.0
-_CHASE_DISTANCE = 2.6
+_CHASE_DISTANCE = 3.6
 _CHASE_ELEVATION = -22.0
+_CHASE_LEAD = 1.0
 _GOAL_BODY = "goal_marker"
 _OBSTACLE, _PEDESTRIAN = 1, 2  # contact codes of geoms (0: ground or the rover itself)
 
@@ -113,13 +115,48 @@ def build_mjcf(world: WorldSpec, camera_size: tuple[int, int], physics_dt: float
     )
 
 
+_GL_PID: int | None = None  # the process that created this module's first GL context
+
+
+def _check_not_forked_after_gl() -> None:
+    """Raise instead of hanging when OpenGL was started before this process was forked.
+
+    EGL/Mesa state (driver threads, locks) does not survive ``fork()``: a child that
+    renders after its parent rendered blocks forever.
+    """
+    if _GL_PID is not None and _GL_PID != os.getpid():
+        raise RuntimeError(
+            f"OpenGL rendering was started in process {_GL_PID} before it forked this one "
+            f"({os.getpid()}); rendering here would hang. Start subprocess envs with the "
+            "'forkserver' or 'spawn' method (gymnasium.vector.AsyncVectorEnv(..., "
+            "context='forkserver'); SB3's SubprocVecEnv does by default), or render only "
+            "in the worker processes."
+        )
+
+
+def _gl_context_class() -> type:
+    """The OpenGL context for ``MUJOCO_GL`` as it is now (rover_env sets ``egl`` unless
+    told otherwise), even when mujoco was imported before rover_env chose it."""
+    backend = os.environ.get("MUJOCO_GL", "").lower()
+    if backend == "egl":
+        from mujoco.egl import GLContext
+    elif backend == "osmesa":
+        from mujoco.osmesa import GLContext
+    else:
+        GLContext = mujoco.GLContext
+    return GLContext
+
+
 class _GLRenderer:
     """Offscreen OpenGL rendering of a model: one context, one scene, reused buffers."""
 
     def __init__(self, model: mujoco.MjModel, pedestrian_geoms: np.ndarray) -> None:
         self._model = model
         width, height = model.vis.global_.offwidth, model.vis.global_.offheight
-        self._gl = mujoco.GLContext(width, height)
+        global _GL_PID
+        _check_not_forked_after_gl()
+        self._gl = _gl_context_class()(width, height)
+        _GL_PID = os.getpid()
         self._gl.make_current()
         self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
@@ -470,9 +507,12 @@ class RoverSim:
         """uint8 (height, width, 3) view from behind and above the rover (videos)."""
         cam = self._chase
         q = self._qpos
+        yaw = self.yaw
         cam.lookat[:] = self.data.qpos[q : q + 3]
-        cam.lookat[2] += 0.2
-        cam.azimuth = math.degrees(self.yaw)
+        cam.lookat[0] += _CHASE_LEAD * math.cos(yaw)  # look a little ahead of the rover
+        cam.lookat[1] += _CHASE_LEAD * math.sin(yaw)
+        cam.lookat[2] += 0.4
+        cam.azimuth = math.degrees(yaw)
         r = self._gl()
         return r.render(self.data, cam, r.chase_option, width, height).rgb
 

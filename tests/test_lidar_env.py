@@ -276,10 +276,32 @@ def test_registered_and_renders_a_chase_view() -> None:
     env.close()
 
 
+@pytest.mark.parametrize("world", WORLD_NAMES)
+def test_spawns_and_goals_never_overlap_obstacles(world: str) -> None:
+    env = RoverEnv(world_n=world)
+    env.reset(seed=0)
+    spec = env.world
+    for _ in range(300):
+        obs, info = env.reset()
+        x, y = obs["pose"][:2]
+        assert spec.clearance(x, y) > 0.4 and spec.spawn.contains(x, y)
+        gx, gy = info["goal"]
+        assert spec.clearance(gx, gy) > 0.3 and spec.goal.contains(gx, gy)
+        assert info["distance_to_goal"] >= 1.0
+    env.close()
+
+
+def _maze_env() -> RoverEnv:
+    return RoverEnv(world_n="maze", render_mode="rgb_array", render_size=(64, 48))
+
+
+def _moon_env() -> RoverEnv:
+    return RoverEnv(world_n="moon", render_mode="rgb_array", render_size=(64, 48))
+
+
 def test_async_vector_env_with_two_workers() -> None:
-    envs = gym.vector.AsyncVectorEnv(
-        [lambda: RoverEnv(world_n="maze"), lambda: RoverEnv(world_n="moon")]
-    )
+    # forkserver: this test process has rendered already (see the next test).
+    envs = gym.vector.AsyncVectorEnv([_maze_env, _moon_env], context="forkserver")
     try:
         obs, info = envs.reset(seed=[1, 2])
         assert obs["lidar"].shape == (2, 32)
@@ -289,5 +311,37 @@ def test_async_vector_env_with_two_workers() -> None:
             )
         assert reward.shape == (2,) and np.all(np.isfinite(reward))
         assert list(info["steps"]) == [5, 5]
+        frames = envs.render()  # each worker creates its own renderer
+        assert len(frames) == 2 and frames[0].shape == (48, 64, 3)
     finally:
         envs.close()
+
+
+def test_forked_after_rendering_raises_instead_of_hanging() -> None:
+    env = RoverEnv(world_n="maze", render_mode="rgb_array", render_size=(64, 48))
+    env.reset(seed=0)
+    env.render()  # OpenGL now lives in this process
+    env.close()
+    envs = gym.vector.AsyncVectorEnv([_maze_env], context="fork")
+    try:
+        envs.reset(seed=0)  # physics and LIDAR need no OpenGL: fine after fork
+        with pytest.raises(RuntimeError, match="forkserver"):
+            envs.render()
+    finally:
+        envs.close(terminate=True)
+
+
+def test_sb3_subproc_vec_env() -> None:
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    venv = SubprocVecEnv([_maze_env, _moon_env])
+    try:
+        venv.seed(3)
+        obs = venv.reset()
+        assert obs["pose"].shape == (2, 3)
+        obs, reward, done, infos = venv.step(np.zeros((2, 2), dtype=np.float32))
+        assert reward.shape == (2,) and infos[0]["steps"] == 1
+        frames = venv.get_images()
+        assert frames[1].shape == (48, 64, 3)
+    finally:
+        venv.close()

@@ -13,7 +13,7 @@ import math
 
 from rover_env.constants import WORLD_RECTANGLES
 from rover_env.worlds import _mjcf
-from rover_env.worlds.spec import Box, Obstacle, Rect, WorldSpec
+from rover_env.worlds.spec import GROUP_VISUAL, Box, Obstacle, Rect, WorldSpec
 
 NAME = "inspect"
 _CONCRETE = "0.62 0.62 0.6 1"
@@ -49,7 +49,7 @@ def _panel_row(i: int, x: float, y: float, half_len: float) -> tuple[str, Obstac
         f'<geom name="panel_frame{i}" type="box" pos="{x} {y + 0.005} {zc - 0.01:.4f}" '
         f'size="{half_len + 0.03} {_ROW_HALF_DEPTH + 0.03} {hz / 2}" '
         f'euler="{math.degrees(PANEL_TILT):.3f} 0 0" rgba="{_FRAME}" contype="0" '
-        'conaffinity="0"/>'
+        f'conaffinity="0" group="{GROUP_VISUAL}"/>'
     )
     # The footprint covers the whole panel's shadow, not only the plinth.
     footprint = Box(x, y, half_len, _ROW_HALF_DEPTH * math.cos(PANEL_TILT))

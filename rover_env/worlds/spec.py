@@ -5,8 +5,9 @@ groups 0 and 1 only):
 
 - 0: scenery standing on the ground (walls, rocks, panels): collides, scanned, rendered
 - 1: pedestrians: collide with the rover, scanned, rendered
-- 2: ground (plane or height field) and rover visuals: rendered, not scanned (a level
-  2D scan never meets flat ground, and ray casting a height field costs ~7 us a ray)
+- 2: rendered, not scanned: the ground (plane or height field: a level 2D scan never
+  meets flat ground, and ray casting a height field costs ~7 us a ray), the rover's
+  visuals, and visual-only scenery (panel frames)
 - 3: rover collision shapes: invisible
 - 4: markers (goal): drawn in the chase view only
 """
@@ -21,6 +22,7 @@ import numpy as np
 
 GROUP_SCENERY = 0
 GROUP_PEDESTRIAN = 1
+GROUP_VISUAL = 2  # rendered, not scanned, no collision
 GROUP_GROUND = 2
 GROUP_ROVER_VISUAL = 2
 GROUP_ROVER_COLLISION = 3

@@ -1,0 +1,143 @@
+"""RoverEnv speed per world on one CPU core, against the seed's wall-clock ROS/Gazebo env.
+
+Measured per world (``inspect``, ``moon``, ``maze``), in this process pinned to one core:
+
+- steps/s: ``env.step`` with uniformly random actions (drawn up front), episodes reset
+  when they end (resets not counted in the step time);
+- reset: ``env.reset()`` wall time, median and 95th percentile;
+- x real time: simulated seconds per wall second (steps/s x control_dt);
+- vs seed: the seed steps at real time (one 0.05 s control period per 0.05 s, so
+  ``x real time`` is also the speed-up) and its reset alone sleeps at least 11 s
+  (100 x 0.1 s ROS spins + 1 s), so reset speed-up = 11 s / our reset.
+
+A second table times the forward camera (96x96) the fused envs render every step: RGB,
+RGB + metric depth, RGB + depth + pedestrian mask.
+
+    python benchmarks/env_speed.py            # about 30 s
+    python benchmarks/env_speed.py --quick    # about 8 s
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import numpy as np  # noqa: E402
+
+from rover_env import WORLD_NAMES, RoverEnv  # noqa: E402  (sets MUJOCO_GL=egl first)
+
+SEED_RESET_S = 100 * 0.1 + 1.0  # the seed's reset: 100 spins of 0.1 s, then sleep(1)
+SEED_REAL_TIME = 1.0  # the seed's steps run at wall-clock speed
+
+
+@dataclass
+class Args:
+    """What one run measures."""
+
+    steps: int = 20000
+    """Env steps timed per world."""
+    resets: int = 300
+    """Resets timed per world."""
+    frames: int = 300
+    """Camera frames timed per world and mode."""
+    cpu: int = 0
+    """Core to pin this process to (-1: do not pin)."""
+    seed: int = 0
+
+
+def pin(cpu: int) -> str:
+    if cpu < 0 or not hasattr(os, "sched_setaffinity"):
+        return "not pinned"
+    os.sched_setaffinity(0, {cpu})
+    return f"pinned to CPU {cpu}"
+
+
+def time_steps(env: RoverEnv, n: int, seed: int) -> float:
+    rng = np.random.default_rng(seed)
+    low, high = env.action_space.low, env.action_space.high
+    actions = rng.uniform(low, high, size=(n, 2)).astype(np.float32)
+    env.reset(seed=seed)
+    stepping = 0.0
+    for action in actions:
+        t0 = time.perf_counter()
+        _, _, terminated, truncated, _ = env.step(action)
+        stepping += time.perf_counter() - t0
+        if terminated or truncated:
+            env.reset()
+    return n / stepping
+
+
+def time_resets(env: RoverEnv, n: int, seed: int) -> np.ndarray:
+    env.reset(seed=seed)
+    times = np.empty(n)
+    for i in range(n):
+        t0 = time.perf_counter()
+        env.reset()
+        times[i] = time.perf_counter() - t0
+    return times
+
+
+def time_camera(env: RoverEnv, n: int) -> tuple[float, float, float]:
+    sim = env.sim
+    sim.render_camera()  # creates the renderer
+    out = []
+    for kwargs in ({}, {"depth": True}, {"depth": True, "segmentation": True}):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            sim.render_camera(**kwargs)
+        out.append((time.perf_counter() - t0) / n * 1e3)
+    return out[0], out[1], out[2]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="fewer steps and resets")
+    parser.add_argument("--cpu", type=int, default=Args.cpu)
+    args_ns = parser.parse_args(argv)
+    args = Args(cpu=args_ns.cpu)
+    if args_ns.quick:
+        args = Args(steps=4000, resets=100, frames=100, cpu=args_ns.cpu)
+    where = pin(args.cpu)
+    print(f"# RoverEnv speed: {platform.processor() or platform.machine()}, "
+          f"{os.cpu_count()} CPUs, {where}; python {platform.python_version()}")  # fmt: skip
+
+    rows, cams = [], []
+    for world in WORLD_NAMES:
+        env = RoverEnv(world_n=world, size=(96, 96))
+        sps = time_steps(env, args.steps, args.seed)
+        resets = time_resets(env, args.resets, args.seed)
+        cams.append((world, *time_camera(env, args.frames)))
+        rows.append((world, sps, resets, env.control_dt))
+        env.close()
+
+    print()
+    print("| world | steps/s | x real time | reset median | reset p95 | "
+          "reset vs seed (>= 11 s) |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|")
+    for world, sps, resets, dt in rows:
+        med, p95 = np.median(resets) * 1e3, np.percentile(resets, 95) * 1e3
+        print(
+            f"| {world} | {sps:,.0f} | {sps * dt / SEED_REAL_TIME:,.0f}x | {med:.2f} ms | "
+            f"{p95:.2f} ms | {SEED_RESET_S / (med / 1e3):,.0f}x |"
+        )
+    print()
+    print("| world | camera 96x96 RGB | + depth | + depth + pedestrian mask |")
+    print("|---|---:|---:|---:|")
+    for world, rgb, depth, seg in cams:
+        print(f"| {world} | {rgb:.2f} ms | {depth:.2f} ms | {seg:.2f} ms |")
+    print()
+    print(f"{args.steps} steps (random actions, control_dt {rows[0][3]} s) and "
+          f"{args.resets} resets per world; camera: {args.frames} frames per mode, "
+          f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}.")  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
