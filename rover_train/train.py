@@ -65,6 +65,8 @@ class TrainArgs:
     """Seconds to wait for the daemon's segments before giving up (fused envs)."""
     n_steps: int = 512
     """PPO rollout length per env."""
+    vec_env: str = "auto"
+    """auto (subprocesses for several fused envs, one process otherwise), subproc or dummy."""
     threads: int = 1
     """Torch intra-op threads of the trainer (small nets on CPU run best on one; the
     daemon and the env workers need the other cores)."""
@@ -89,6 +91,7 @@ def parse_args(argv: Sequence[str] | None = None) -> TrainArgs:
     p.add_argument("--connect-timeout", type=float, default=d.connect_timeout)
     p.add_argument("--n-steps", type=int, default=d.n_steps)
     p.add_argument("--threads", type=int, default=d.threads)
+    p.add_argument("--vec-env", choices=["auto", "subproc", "dummy"], default=d.vec_env)
     ns = p.parse_args(argv)
     args = TrainArgs(**vars(ns))
     problem = validate(args)
@@ -150,7 +153,12 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path) -> Any:
         )
         for i in range(args.n_envs)
     ]
-    if args.n_envs == 1:
+    # A LIDAR env steps in well under a millisecond: in-process beats subprocess round trips.
+    # A fused env waits on the daemon each step: subprocesses overlap those waits.
+    subproc = args.vec_env == "subproc" or (
+        args.vec_env == "auto" and args.n_envs > 1 and args.env in FUSED_KINDS
+    )
+    if not subproc:
         return DummyVecEnv(thunks)
     return SubprocVecEnv(thunks, start_method="forkserver")
 
@@ -290,9 +298,8 @@ def save_learning_curve(episodes: list[dict[str, Any]], path: Path, title: str) 
 
 def train(args: TrainArgs) -> dict[str, Any]:
     """Run one training job; returns the metrics written to ``metrics.json``."""
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
-
     import torch
+    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
     torch.set_num_threads(max(args.threads, 1))
     args.logdir.mkdir(parents=True, exist_ok=True)
