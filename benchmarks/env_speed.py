@@ -3,7 +3,8 @@
 Measured per world (``inspect``, ``moon``, ``maze``), in this process pinned to one core:
 
 - steps/s: ``env.step`` with uniformly random actions (drawn up front), episodes reset
-  when they end (resets not counted in the step time);
+  when they end (resets not counted in the step time); the raw ``RoverEnv``, and through
+  ``gym.make`` (which adds Gymnasium's checker and order-enforcing wrappers);
 - reset: ``env.reset()`` wall time, median and 95th percentile;
 - x real time: simulated seconds per wall second (steps/s x control_dt);
 - vs seed: the seed steps at real time (one 0.05 s control period per 0.05 s, so
@@ -30,6 +31,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
 from rover_env import WORLD_NAMES, RoverEnv  # noqa: E402  (sets MUJOCO_GL=egl first)
@@ -60,7 +62,7 @@ def pin(cpu: int) -> str:
     return f"pinned to CPU {cpu}"
 
 
-def time_steps(env: RoverEnv, n: int, seed: int) -> float:
+def time_steps(env: gym.Env, n: int, seed: int) -> float:
     rng = np.random.default_rng(seed)
     low, high = env.action_space.low, env.action_space.high
     actions = rng.uniform(low, high, size=(n, 2)).astype(np.float32)
@@ -115,18 +117,22 @@ def main(argv: list[str] | None = None) -> None:
         sps = time_steps(env, args.steps, args.seed)
         resets = time_resets(env, args.resets, args.seed)
         cams.append((world, *time_camera(env, args.frames)))
-        rows.append((world, sps, resets, env.control_dt))
         env.close()
+        # The same through gym.make (PassiveEnvChecker and OrderEnforcing wrappers).
+        wrapped = gym.make("roverav/RoverEnv-v0", world_n=world)
+        sps_made = time_steps(wrapped, args.steps // 2, args.seed)
+        wrapped.close()
+        rows.append((world, sps, sps_made, resets, env.control_dt))
 
     print()
-    print("| world | steps/s | x real time | reset median | reset p95 | "
-          "reset vs seed (>= 11 s) |")  # fmt: skip
-    print("|---|---:|---:|---:|---:|---:|")
-    for world, sps, resets, dt in rows:
+    print("| world | steps/s | x real time (= vs seed) | via gym.make | reset median | "
+          "reset p95 | reset vs seed (>= 11 s) |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for world, sps, sps_made, resets, dt in rows:
         med, p95 = np.median(resets) * 1e3, np.percentile(resets, 95) * 1e3
         print(
-            f"| {world} | {sps:,.0f} | {sps * dt / SEED_REAL_TIME:,.0f}x | {med:.2f} ms | "
-            f"{p95:.2f} ms | {SEED_RESET_S / (med / 1e3):,.0f}x |"
+            f"| {world} | {sps:,.0f} | {sps * dt / SEED_REAL_TIME:,.0f}x | {sps_made:,.0f} | "
+            f"{med:.2f} ms | {p95:.2f} ms | {SEED_RESET_S / (med / 1e3):,.0f}x |"
         )
     print()
     print("| world | camera 96x96 RGB | + depth | + depth + pedestrian mask |")
@@ -134,7 +140,7 @@ def main(argv: list[str] | None = None) -> None:
     for world, rgb, depth, seg in cams:
         print(f"| {world} | {rgb:.2f} ms | {depth:.2f} ms | {seg:.2f} ms |")
     print()
-    print(f"{args.steps} steps (random actions, control_dt {rows[0][3]} s) and "
+    print(f"{args.steps} steps (random actions, control_dt {rows[0][4]} s) and "
           f"{args.resets} resets per world; camera: {args.frames} frames per mode, "
           f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}.")  # fmt: skip
 
