@@ -274,6 +274,17 @@ def test_registered_and_renders_a_chase_view() -> None:
     assert frame.shape == (360, 480, 3) and frame.dtype == np.uint8
     assert env.metadata["render_fps"] == 20
     env.close()
+    # What RecordVideo relies on: one same-shaped frame per reset and step.
+    video = gym.wrappers.RenderCollection(
+        RoverEnv(world_n="moon", render_mode="rgb_array", render_size=(80, 60))
+    )
+    video.reset(seed=0)
+    for _ in range(3):
+        video.step(np.array([0.5, 0.0], dtype=np.float32))
+    frames = video.render()
+    assert len(frames) == 4 and all(f.shape == (60, 80, 3) for f in frames)
+    assert not np.array_equal(frames[0], frames[-1])  # the camera follows the rover
+    video.close()
 
 
 @pytest.mark.parametrize("world", WORLD_NAMES)
