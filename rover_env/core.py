@@ -90,6 +90,17 @@ class RoverEnvBase(gym.Env):
     (reward = that penalty alone, as in the seed); ``truncated`` after ``length`` steps.
     The checks run after the physics step, so the step that causes a failure reports it
     (the seed checked at the top of the next step).
+
+    :param world_n: ``inspect``, ``moon`` (``island``) or ``maze``.
+    :param length: steps before ``truncated``.
+    :param lidar_points: LIDAR points (also used by the default ``_collision``).
+    :param max_lidar_range: LIDAR range in metres.
+    :param camera_size: forward camera (height, width).
+    :param control_dt: simulated seconds per step (the PID's dt).
+    :param physics_dt: largest physics step; the one used divides ``control_dt`` evenly.
+    :param reward_config: reward and termination constants (default ``RewardConfig()``).
+    :param render_mode: None or ``"rgb_array"`` (chase camera).
+    :param render_size: (width, height) of ``render()`` frames.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / c.CONTROL_DT))}

@@ -61,12 +61,6 @@ class Rect:
         x, y = self.x, self.y
         return Rect((x[0] - margin, x[1] + margin), (y[0] - margin, y[1] + margin))
 
-    def intersect(self, other: Rect) -> Rect:
-        return Rect(
-            (max(self.x[0], other.x[0]), min(self.x[1], other.x[1])),
-            (max(self.y[0], other.y[0]), min(self.y[1], other.y[1])),
-        )
-
 
 @dataclass(frozen=True)
 class Circle:
