@@ -67,6 +67,7 @@ def run(
             args = TrainArgs(
                 env=kind, world=world, timesteps=steps, seed=seed, logdir=Path(tmp),
                 checkpoint_every=0, progress=False, shm_name=shm, length=1000,
+                n_envs=4 if kind == "lidar" else 1,
             )  # fmt: skip
             train(args)
             wall = time.perf_counter() - t0
@@ -86,7 +87,7 @@ def run(
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--world", default="maze")
-    p.add_argument("--lidar-steps", type=int, default=100_000)
+    p.add_argument("--lidar-steps", type=int, default=400_000)
     p.add_argument("--fused-steps", type=int, default=20_000)
     p.add_argument("--seeds", type=int, default=3)
     p.add_argument("--fused-seeds", type=int, default=2)

@@ -63,7 +63,7 @@ class TrainArgs:
     """Episode length override (default: the env's own, 2000 lidar / 6000 fused)."""
     connect_timeout: float = 10.0
     """Seconds to wait for the daemon's segments before giving up (fused envs)."""
-    n_steps: int = 512
+    n_steps: int = 1024
     """PPO rollout length per env."""
     vec_env: str = "auto"
     """auto (subprocesses for several fused envs, one process otherwise), subproc or dummy."""
@@ -189,7 +189,14 @@ def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
     }
     if args.algo == "ppo":
         return cls(
-            n_steps=args.n_steps, batch_size=128, n_epochs=5, gamma=0.99, ent_coef=0.005, **common
+            n_steps=args.n_steps,
+            batch_size=256,
+            n_epochs=10,
+            gamma=0.99,
+            gae_lambda=0.95,
+            ent_coef=0.0,
+            learning_rate=3e-4,
+            **common,
         )
     if args.algo == "sac":
         return cls(buffer_size=100_000, learning_starts=1_000, **common)
