@@ -19,6 +19,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from rover_train import evaluate  # noqa: E402
@@ -34,6 +36,22 @@ def evaluate_policy(
         act = evaluate.load_policy(
             model, None if model else "random", env, "ppo" if model else None
         )
+        results = [
+            evaluate.run_episode(env, act, 5000 + i, max_steps, None) for i in range(episodes)
+        ]
+    finally:
+        env.close()
+    return evaluate.summarise(results)
+
+
+def evaluate_greedy(world: str, episodes: int, max_steps: int) -> dict:
+    """A hand-written reference: full speed towards the goal's bearing, no obstacle sense."""
+    env = make_env("lidar", world=world)
+    try:
+
+        def act(obs: dict) -> np.ndarray:
+            return np.array([1.0, obs["target"][1]], np.float32)
+
         results = [
             evaluate.run_episode(env, act, 5000 + i, max_steps, None) for i in range(episodes)
         ]
@@ -101,6 +119,13 @@ def main() -> int:
     print(header, flush=True)
     rows = []
     if a.lidar_steps > 0:
+        g = evaluate_greedy(a.world, a.episodes, a.max_steps)
+        greedy = (
+            f"greedy reference (1 m/s towards the goal bearing, lidar, {a.world}): "
+            f"success {g['success_rate']:.0%}, return {g['mean_return']:.1f}, "
+            f"SPL {g['spl']:.2f}, collision rate {g['collision_rate']:.0%}"
+        )
+        print(greedy, flush=True)
         rows += run("lidar", a.world, a.lidar_steps, a.seeds, a.episodes, a.max_steps, "")
     if a.fused_steps > 0:
         name = f"bench_learning_{os.getpid()}"
@@ -113,6 +138,8 @@ def main() -> int:
             daemon.send_signal(signal.SIGTERM)
             daemon.wait(10)
     print("\n" + header + "\n" + "\n".join(rows))
+    if a.lidar_steps > 0:
+        print("\n" + greedy)
     return 0
 
 
