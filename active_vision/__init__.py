@@ -9,6 +9,15 @@ memory by the ``av-daemon`` (:mod:`active_vision.daemon`).
 - ``python -m active_vision.dataset | train | evaluate``: data, training, quality figures.
 """
 
+import os as _os
+
+# torch's OpenMP worker threads spin while they wait. On a machine shared with other work
+# (2 cores, another busy process) a 2-thread training step measured 10x slower than a
+# 1-thread one because of that spinning; with passive waiting 2 threads were as fast as 1
+# or faster. Only a default: an OMP_WAIT_POLICY set by the user wins. It must be set before
+# OpenMP starts, hence here, before torch is imported through the modules below.
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
 from active_vision.models import AVNet, AVNetConfig, WeightsError, load_model, save_weights
 from active_vision.perception import Perception, PerceptionConfig, StageTimes
 

@@ -1,27 +1,16 @@
-"""The wire-format constants active_vision uses, from their one home in ``shm_protocol``."""
+"""The wire-format names active_vision uses, from their one home in ``shm_protocol``."""
 
 from __future__ import annotations
 
-try:
-    from shm_protocol import (
-        CHANNEL_DEPTH,
-        CHANNEL_GRAY,
-        CHANNEL_HEATMAP,
-        DEPTH_MAX_M,
-        FUSED_SHAPE,
-        channel_to_depth,
-        depth_to_channel,
-    )
-except ImportError:  # pragma: no cover - while shm_protocol/__init__.py is being written
-    from shm_protocol.layout import (
-        CHANNEL_DEPTH,
-        CHANNEL_GRAY,
-        CHANNEL_HEATMAP,
-        DEPTH_MAX_M,
-        FUSED_SHAPE,
-        channel_to_depth,
-        depth_to_channel,
-    )
+from shm_protocol import (
+    CHANNEL_DEPTH,
+    CHANNEL_GRAY,
+    CHANNEL_HEATMAP,
+    DEPTH_MAX_M,
+    FUSED_SHAPE,
+    channel_to_depth,
+    depth_to_channel,
+)
 
 __all__ = [
     "CHANNEL_DEPTH",

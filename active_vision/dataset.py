@@ -55,6 +55,7 @@ HELDOUT_SEED = 1_000_003
 KIND_EMPTY, KIND_WALKING, KIND_PLACED = 0, 1, 2
 _GROUND_CHECK_M = 3.0
 _GROUND_MIN_M = 0.12
+_SETTLE_S = 0.3
 _POSE_TRIES = 8
 DEFAULT_DATA_DIR = (
     Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "roverav" / "active_vision"
@@ -195,6 +196,7 @@ class FrameRenderer:
     def __init__(self, world: str, config: DatasetConfig) -> None:
         from rover_env import rover
         from rover_env.simulation import RoverSim  # rendering only; not needed to train
+        from rover_env.worlds.spec import Rect
 
         self.config = config
         self.sim = RoverSim(world=world, camera_size=(config.size, config.size))
@@ -206,8 +208,10 @@ class FrameRenderer:
         self._scenery = np.zeros(6, np.uint8)
         self._scenery[0] = 1  # geom group 0: ground, terrain, rocks, walls
         self._geom = np.zeros(1, np.int32)
-        near = self.world.pedestrian_area.expanded(3.0).intersect(self.world.bounds)
-        self._areas = (near, self.world.bounds.expanded(-1.0))
+        ped, bounds = self.world.pedestrian_area.expanded(3.0), self.world.bounds
+        near = Rect((max(ped.x[0], bounds.x[0]), min(ped.x[1], bounds.x[1])),
+                    (max(ped.y[0], bounds.y[0]), min(ped.y[1], bounds.y[1])))
+        self._areas = (near, bounds.expanded(-1.0))
 
     def close(self) -> None:
         self.sim.close()
@@ -226,7 +230,7 @@ class FrameRenderer:
         On a height field the rest height comes from rays cast onto the rendered terrain
         under the wheels rather than from ``WorldSpec.ground_height``, which reads the
         terrain lower than MuJoCo draws it (by 0.1-0.5 m on moon), so the camera would sit
-        inside a slope.
+        inside a slope; then ``_SETTLE_S`` of physics lets the rover tilt with the slope.
         """
         if self.world.heightfield is None:
             self.sim.set_rover_pose(x, y, yaw)
@@ -238,6 +242,8 @@ class FrameRenderer:
                      for wx in (-rover.WHEEL_X, 0.0, rover.WHEEL_X)
                      for wy in (-rover.WHEEL_Y, 0.0, rover.WHEEL_Y))
         self.sim.set_rover_pose(x, y, yaw, z=ground + rover.REST_HEIGHT + 0.02)
+        # let it settle onto the slope (tilted with the terrain, as it drives there)
+        self.sim.advance(_SETTLE_S)
 
     def _random_pose(self, rng: np.random.Generator) -> None:
         area = self._areas[0] if rng.random() < 0.6 else self._areas[1]

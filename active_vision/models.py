@@ -14,11 +14,14 @@ Layout (widths ``w1, w2, w3``, default 12/24/48)::
     enc3   3×3 s2 -> w3, 3×3 dil 2, 3×3 (12²)   │            │
     up     1×1 -> w2, ×2 nearest, + skip, 3×3 (24²)          │
     up     1×1 -> w1, ×2 nearest, + skip, 3×3 (48²) ─────────┘
-    heads  1×1 -> 2 logits (heatmap, depth), ×2 bilinear (96²)
+    heads  1×1 -> 2 maps (heatmap logit, log depth), ×2 bilinear (96²)
 
-The row coordinate channel lets the depth head learn the ground plane's depth-by-row
-prior. Batch norm is used while training and folded into the convolutions for inference
-(:meth:`AVNet.fuse_for_inference`).
+The depth head predicts the natural log of metric depth; :meth:`AVNet.predict` turns it into
+the depth channel (``1 - exp(log_d) / DEPTH_MAX_M`` clipped to [0, 1]). Log depth keeps
+relative precision everywhere: 25 % of 0.3 m is 0.0075 in channel units, which a sigmoid on
+the channel hardly resolves. The row coordinate channel lets the depth head learn the
+ground plane's depth-by-row prior. Batch norm is used while training and folded into the
+convolutions for inference (:meth:`AVNet.fuse_for_inference`).
 
 Weights are a plain dict of tensors and primitives (see :func:`save_weights`) and load
 with ``torch.load(..., weights_only=True)``.
@@ -27,6 +30,7 @@ with ``torch.load(..., weights_only=True)``.
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -34,6 +38,8 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from active_vision._wire import DEPTH_MAX_M
 
 logger = logging.getLogger(__name__)
 
@@ -46,6 +52,12 @@ WEIGHTS_VERSION = 1
 #: Index of each head in the output of :meth:`AVNet.forward` / :meth:`AVNet.predict`.
 HEAD_HEATMAP = 0
 HEAD_DEPTH = 1
+
+
+def log_depth_to_channel(log_d: torch.Tensor) -> torch.Tensor:
+    """Depth channel ``clip(1 - exp(log_d) / DEPTH_MAX_M, 0, 1)`` of log metric depth."""
+    far = math.log(DEPTH_MAX_M)
+    return (1.0 - torch.exp(log_d.clamp(max=far)) / DEPTH_MAX_M).clamp_(0.0, 1.0)
 
 
 class WeightsError(RuntimeError):
@@ -85,6 +97,8 @@ class AVNet(nn.Module):
         self.lat2 = nn.Conv2d(w2, w1, 1)
         self.dec1 = _conv_bn(w1, w1)
         self.head = nn.Conv2d(w1, 2, 1)
+        with torch.no_grad():
+            self.head.bias[HEAD_DEPTH] = math.log(2.0)  # start near a typical depth
         self._coord_cache: dict[tuple[int, int, torch.device], torch.Tensor] = {}
 
     def _coords(self, x: torch.Tensor) -> torch.Tensor:
@@ -98,7 +112,8 @@ class AVNet(nn.Module):
         return coord.expand(n, 1, h, w)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Logits ``(N, 2, H, W)``: index ``HEAD_HEATMAP`` and ``HEAD_DEPTH``.
+        """Raw maps ``(N, 2, H, W)``: heatmap logit (``HEAD_HEATMAP``) and log metric depth
+        (``HEAD_DEPTH``).
 
         :param x: ``(N, 3, H, W)`` float RGB in [0, 1]; H and W divisible by 8.
         """
@@ -113,7 +128,10 @@ class AVNet(nn.Module):
 
     def predict(self, x: torch.Tensor) -> torch.Tensor:
         """Heatmap and depth channel in [0, 1], ``(N, 2, H, W)``."""
-        return torch.sigmoid(self.forward(x))
+        raw = self.forward(x)
+        heat = torch.sigmoid(raw[:, HEAD_HEATMAP:HEAD_HEATMAP + 1])
+        depth = log_depth_to_channel(raw[:, HEAD_DEPTH:HEAD_DEPTH + 1])
+        return torch.cat((heat, depth), dim=1)  # HEAD_HEATMAP, HEAD_DEPTH
 
     @torch.no_grad()
     def fuse_for_inference(self) -> AVNet:

@@ -17,9 +17,10 @@ Losses:
   small pedestrians from drowning in background pixels), plus a hard-negative term: the
   ``HARD_NEGATIVES`` highest background logits of each frame pushed towards 0 (false
   detections are a few confident pixels that the mean cross-entropy barely sees);
-- depth: L1 on the depth channel, weighted per pixel by ``DEPTH_MAX_M / max(d, 0.25)`` for
-  pixels nearer than the far limit (so it is the channel-space form of AbsRel), and weight
-  1 for far/sky pixels (channel 0).
+- depth: the head predicts log metric depth; L1 on ``log d`` for pixels nearer than the far
+  limit (for small errors that is AbsRel, and it is symmetric in the depth ratio that
+  delta1 tests), and a hinge ``max(0, log DEPTH_MAX_M - log_d)`` for far/sky pixels, which
+  only need to read as "at or beyond the limit" (channel 0).
 
 Augmentation: horizontal flip (image, mask and depth together), brightness, contrast,
 per-channel gain and pixel noise.
@@ -55,6 +56,8 @@ logger = logging.getLogger(__name__)
 
 TASKS = ("both", "heatmap", "depth")
 HARD_NEGATIVES = 32
+HARD_NEGATIVE_WEIGHT = 0.2
+MIN_DEPTH_M = 0.05
 
 
 @dataclass
@@ -81,7 +84,7 @@ class TrainConfig:
     """torch threads."""
     seed: int = 0
     """torch seed (initial weights, batch order, augmentation)."""
-    max_minutes: float = 6.0
+    max_minutes: float = 10.0
     """Stop early (keeping the schedule's shape) when training takes longer than this."""
     out: Path = DEFAULT_WEIGHTS
     """Weights file to write."""
@@ -121,12 +124,13 @@ def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor
     near = F.max_pool2d(mask, 5, stride=1, padding=2) > 0
     bg_logits = heat_logit.masked_fill(near, float("-inf")).flatten(1)
     hard = F.softplus(bg_logits.topk(HARD_NEGATIVES, dim=1).values).mean()
-    heat = bce + 0.5 * dice + 0.5 * hard
-    target = torch.clamp(1.0 - depth_m / DEPTH_MAX_M, 0.0, 1.0)
+    heat = bce + 0.5 * dice + HARD_NEGATIVE_WEIGHT * hard
+    log_d = logits[:, HEAD_DEPTH:HEAD_DEPTH + 1]
     near = depth_m < DEPTH_MAX_M
-    weight = torch.where(near, DEPTH_MAX_M / depth_m.clamp(min=0.25), torch.ones_like(depth_m))
-    pred = torch.sigmoid(logits[:, HEAD_DEPTH:HEAD_DEPTH + 1])
-    depth = (weight * (pred - target).abs()).mean()
+    far_log = math.log(DEPTH_MAX_M)
+    per_px = torch.where(near, (log_d - torch.log(depth_m.clamp(min=MIN_DEPTH_M))).abs(),
+                         F.relu(far_log - log_d))
+    depth = per_px.mean()
     return heat, depth
 
 
@@ -219,13 +223,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = _parse(argv)
     model, facts = train(cfg)
     meta: dict[str, float | str] = {**facts, "task": cfg.task}
+    path = _save(model, cfg.out, meta)  # first without figures: evaluation may fail
     if cfg.evaluate:
         from active_vision.evaluate import evaluate, format_metrics, heldout
 
         m = evaluate(model, heldout(cfg.data_dir), threads=cfg.threads)
         print(format_metrics(m))
         meta.update({f"heldout_{k}": float(v) for k, v in m.summary().items()})
-    path = _save(model, cfg.out, meta)
+        path = _save(model, cfg.out, meta)
     print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB) after {facts['epochs']:.0f} "
           f"epochs in {facts['seconds']:.0f} s")
     return 0
