@@ -50,6 +50,7 @@ from types import FrameType
 import numpy as np
 
 from shm_protocol import (
+    FUSED_SHAPE,
     FrameReader,
     FrameWriter,
     LayoutError,
@@ -78,8 +79,8 @@ class DaemonConfig:
     """Base segment name; slot i uses ``slot_name(name, i)``."""
     slots: int = 1
     """Number of slots (one per env of a vector env)."""
-    size: int = 96
-    """Side of the square camera and fused frames (a multiple of 8)."""
+    size: int = FUSED_SHAPE[0]
+    """Side of the square camera and fused frames (a multiple of 8; the seed's 96)."""
     depth: str = "model"
     """``model``: depth channel from the network; ``render``: from the camera frame's 4th
     channel (the env sends RGB + depth)."""

@@ -175,16 +175,22 @@ class CameraSegmentSource:
     (``FrameReader.latest`` into a preallocated buffer, compared with the last frame number
     handed out); when none has a new frame, the call sleeps on one slot's futex
     (``wait_next``), rotating over the slots that have a live writer, in slices of at most
-    ``slice_s`` (1 slot: the whole timeout), then looks at every slot again. Slots whose env
+    ``slice_s`` (1 slot: the whole timeout), then looks at every slot again. After
+    ``IDLE_AFTER_S`` without any frame the slices grow to ``idle_slice_s`` (a woken slot
+    still answers at once; a frame on another slot waits at most one slice). Slots whose env
     has gone (closed or died) are only looked at, never waited on, until a frame arrives.
     """
 
+    IDLE_AFTER_S = 1.0
+
     def __init__(self, name: str, slots: int, size: int, channels: int,
-                 slice_s: float = 0.002) -> None:
+                 slice_s: float = 0.002, idle_slice_s: float = 0.02) -> None:
         self.slots = slots
         self.channels = channels
         self.names = [camera_name(slot_name(name, i)) for i in range(slots)]
         self.slice_s = slice_s
+        self.idle_slice_s = idle_slice_s
+        self._last_frame = time.monotonic()
         self.writers: list[FrameWriter] = []
         self.readers: list[FrameReader] = []
         try:
@@ -216,7 +222,9 @@ class CameraSegmentSource:
 
     def poll(self, timeout: float) -> list[SourceFrame]:
         frames = self._collect()
+        now = time.monotonic()
         if frames:
+            self._last_frame = now
             return frames
         live = [i for i in range(self.slots) if not self._writer_gone[i]]
         if not live:
@@ -224,9 +232,12 @@ class CameraSegmentSource:
             return self._collect()
         self._turn = (self._turn + 1) % len(live)
         i = live[self._turn]
-        wait = timeout if self.slots == 1 else min(timeout, self.slice_s)
+        idle = now - self._last_frame > self.IDLE_AFTER_S
+        wait = timeout if self.slots == 1 else min(
+            timeout, self.idle_slice_s if idle else self.slice_s)
         try:
             self.readers[i].wait_next(timeout=wait, out=self._buf[i])
+            self._last_frame = time.monotonic()
         except FrameTimeoutError:
             pass
         except WriterGoneError as exc:
