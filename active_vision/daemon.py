@@ -80,7 +80,7 @@ class DaemonConfig:
     slots: int = 1
     """Number of slots (one per env of a vector env)."""
     size: int = FUSED_SHAPE[0]
-    """Side of the square camera and fused frames (a multiple of 8; the seed's 96)."""
+    """Side of the square camera and fused frames (a multiple of 16; the seed's 96)."""
     depth: str = "model"
     """``model``: depth channel from the network; ``render``: from the camera frame's 4th
     channel (the env sends RGB + depth)."""
@@ -315,9 +315,9 @@ def _positive_int(text: str) -> int:
 
 def _size(text: str) -> int:
     v = _positive_int(text)
-    if v % 8:
-        raise argparse.ArgumentTypeError(f"must be a multiple of 8 (the network halves the "
-                                         f"frame three times), got {v}")
+    if v % 16:
+        raise argparse.ArgumentTypeError(f"must be a multiple of 16 (the network halves the "
+                                         f"frame four times), got {v}")
     return v
 
 

@@ -56,6 +56,7 @@ KIND_EMPTY, KIND_WALKING, KIND_PLACED = 0, 1, 2
 _GROUND_CHECK_M = 3.0
 _GROUND_MIN_M = 0.12
 _SETTLE_S = 0.3
+_MAX_TILT_RAD = 0.5
 _POSE_TRIES = 8
 DEFAULT_DATA_DIR = (
     Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "roverav" / "active_vision"
@@ -318,8 +319,9 @@ class FrameRenderer:
 
         A pose whose camera does not see the ground just below it as from a rover standing on
         it (the median of the depth image's bottom rows outside ``_GROUND_MIN_M`` to
-        ``_GROUND_CHECK_M``: the camera is inside or against the terrain, or over a drop) is
-        drawn again, up to ``_POSE_TRIES`` times.
+        ``_GROUND_CHECK_M``: the camera is inside or against the terrain, or over a drop), or
+        where the rover settled tilted more than ``_MAX_TILT_RAD`` (tipping over: an episode
+        would end there) is drawn again, up to ``_POSE_TRIES`` times.
         """
         for _ in range(_POSE_TRIES):
             kind = self._compose(rng)
@@ -330,9 +332,11 @@ class FrameRenderer:
                 self.lighting.restore()
             s = self.config.size
             bottom = frame.depth[-max(1, s // 16):, s // 3: 2 * s // 3]
-            if _GROUND_MIN_M < float(np.median(bottom)) < _GROUND_CHECK_M:
+            pitch, roll, _ = self.sim.orientation
+            upright = max(abs(pitch), abs(roll)) < _MAX_TILT_RAD
+            if upright and _GROUND_MIN_M < float(np.median(bottom)) < _GROUND_CHECK_M:
                 break
-            logger.debug("%s: camera does not see the ground below it; new pose",
+            logger.debug("%s: rover tipped over or camera not above the ground; new pose",
                          self.world.name)
         return frame.rgb, frame.depth, frame.pedestrian_mask, kind
 

@@ -6,15 +6,21 @@ size, the pedestrian heatmap (sigmoid, 1 = pedestrian) and the depth channel in 
 ``shm_protocol`` depth convention (``1 - d / DEPTH_MAX_M`` clipped to [0, 1]: near is bright,
 0 at or beyond the far limit).
 
-Layout (widths ``w1, w2, w3``, default 12/24/48)::
+Layout (widths ``w1, w2, w3, w4``, default 12/24/48/64)::
 
     RGB + row coordinate (4 ch, 96²)
-    stem   3×3 s2 -> w1 (48²)  ─────────────────────────────┐ skip
-    enc2   3×3 s2 -> w2, 3×3 (24²) ─────────────┐ skip       │
-    enc3   3×3 s2 -> w3, 3×3 dil 2, 3×3 (12²)   │            │
-    up     1×1 -> w2, ×2 nearest, + skip, 3×3 (24²)          │
-    up     1×1 -> w1, ×2 nearest, + skip, 3×3 (48²) ─────────┘
+    stem   3×3 s2 -> w1 (48²)  ───────────────────────────────────────┐ skip
+    enc2   3×3 s2 -> w2, 3×3 (24²)  ─────────────────────────┐ skip    │
+    enc3   3×3 s2 -> w3, 3×3 dil 2, 3×3 (12²)  ───┐ skip      │         │
+    enc4   3×3 s2 -> w4, 3×3 dil 2 (6²), + 1×1(global mean)   │         │
+    up     1×1 -> w3, ×2 nearest, + skip, 3×3 (12²)           │         │
+    up     1×1 -> w2, ×2 nearest, + skip, 3×3 (24²)  ─────────┘         │
+    up     1×1 -> w1, ×2 nearest, + skip, 3×3 (48²)  ───────────────────┘
     heads  1×1 -> 2 maps (heatmap logit, log depth), ×2 bilinear (96²)
+
+The 1/16 level and the global context give the depth head a view of the whole frame (the
+horizon, a figure's full height), which a pedestrian's distance and a tilted rover's ground
+plane need.
 
 The depth head predicts the natural log of metric depth; :meth:`AVNet.predict` turns it into
 the depth channel (``1 - exp(log_d) / DEPTH_MAX_M`` clipped to [0, 1]). Log depth keeps
@@ -47,17 +53,21 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "avnet.pt"
 REGENERATE_COMMAND = "python -m active_vision.train both"
 WEIGHTS_FORMAT = "roverav.avnet"
-WEIGHTS_VERSION = 1
+WEIGHTS_VERSION = 2  # 2: four encoder levels + global context, log-depth head
 
 #: Index of each head in the output of :meth:`AVNet.forward` / :meth:`AVNet.predict`.
 HEAD_HEATMAP = 0
 HEAD_DEPTH = 1
 
 
-def log_depth_to_channel(log_d: torch.Tensor) -> torch.Tensor:
-    """Depth channel ``clip(1 - exp(log_d) / DEPTH_MAX_M, 0, 1)`` of log metric depth."""
-    far = math.log(DEPTH_MAX_M)
-    return (1.0 - torch.exp(log_d.clamp(max=far)) / DEPTH_MAX_M).clamp_(0.0, 1.0)
+def log_depth_to_channel(log_d: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    """Depth channel ``clip(1 - exp(log_d) / DEPTH_MAX_M, 0, 1)`` of log metric depth.
+
+    :param out: tensor of ``log_d``'s shape (any strides) to write into instead of a new one.
+    """
+    out = torch.clamp(log_d, max=math.log(DEPTH_MAX_M), out=out)
+    out.exp_().mul_(-1.0 / DEPTH_MAX_M).add_(1.0)
+    return out.clamp_(0.0, 1.0)
 
 
 class WeightsError(RuntimeError):
@@ -68,8 +78,8 @@ class WeightsError(RuntimeError):
 class AVNetConfig:
     """Shape of the network (stored inside the weights file)."""
 
-    widths: tuple[int, int, int] = (12, 24, 48)
-    """Channels at 1/2, 1/4 and 1/8 of the input resolution."""
+    widths: tuple[int, int, int, int] = (12, 24, 48, 64)
+    """Channels at 1/2, 1/4, 1/8 and 1/16 of the input resolution."""
 
 
 def _conv_bn(c_in: int, c_out: int, stride: int = 1, dilation: int = 1) -> nn.Sequential:
@@ -86,12 +96,16 @@ class AVNet(nn.Module):
     def __init__(self, config: AVNetConfig | None = None) -> None:
         super().__init__()
         self.config = config or AVNetConfig()
-        w1, w2, w3 = self.config.widths
+        w1, w2, w3, w4 = self.config.widths
         self.stem = _conv_bn(4, w1, stride=2)
         self.enc2 = nn.Sequential(_conv_bn(w1, w2, stride=2), _conv_bn(w2, w2))
         self.enc3 = nn.Sequential(
             _conv_bn(w2, w3, stride=2), _conv_bn(w3, w3, dilation=2), _conv_bn(w3, w3)
         )
+        self.enc4 = nn.Sequential(_conv_bn(w3, w4, stride=2), _conv_bn(w4, w4, dilation=2))
+        self.context = nn.Sequential(nn.Conv2d(w4, w4, 1), nn.ReLU(inplace=True))
+        self.lat4 = nn.Conv2d(w4, w3, 1)
+        self.dec3 = _conv_bn(w3, w3)
         self.lat3 = nn.Conv2d(w3, w2, 1)
         self.dec2 = _conv_bn(w2, w2)
         self.lat2 = nn.Conv2d(w2, w1, 1)
@@ -115,14 +129,17 @@ class AVNet(nn.Module):
         """Raw maps ``(N, 2, H, W)``: heatmap logit (``HEAD_HEATMAP``) and log metric depth
         (``HEAD_DEPTH``).
 
-        :param x: ``(N, 3, H, W)`` float RGB in [0, 1]; H and W divisible by 8.
+        :param x: ``(N, 3, H, W)`` float RGB in [0, 1]; H and W divisible by 16.
         """
-        if x.shape[-1] % 8 or x.shape[-2] % 8:
-            raise ValueError(f"AVNet needs H and W divisible by 8, got {tuple(x.shape[-2:])}")
+        if x.shape[-1] % 16 or x.shape[-2] % 16:
+            raise ValueError(f"AVNet needs H and W divisible by 16, got {tuple(x.shape[-2:])}")
         x1 = self.stem(torch.cat((x, self._coords(x)), dim=1))
         x2 = self.enc2(x1)
         x3 = self.enc3(x2)
-        y = self.dec2(F.interpolate(self.lat3(x3), scale_factor=2.0, mode="nearest") + x2)
+        x4 = self.enc4(x3)
+        x4 = x4 + self.context(x4.mean(dim=(2, 3), keepdim=True))
+        y = self.dec3(F.interpolate(self.lat4(x4), scale_factor=2.0, mode="nearest") + x3)
+        y = self.dec2(F.interpolate(self.lat3(y), scale_factor=2.0, mode="nearest") + x2)
         y = self.dec1(F.interpolate(self.lat2(y), scale_factor=2.0, mode="nearest") + x1)
         return F.interpolate(self.head(y), scale_factor=2.0, mode="bilinear", align_corners=False)
 

@@ -28,7 +28,13 @@ import numpy as np
 import torch
 
 from active_vision._wire import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
-from active_vision.models import HEAD_DEPTH, HEAD_HEATMAP, AVNet, load_model
+from active_vision.models import (
+    HEAD_DEPTH,
+    HEAD_HEATMAP,
+    AVNet,
+    load_model,
+    log_depth_to_channel,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -89,8 +95,8 @@ class Perception:
         self.config = config or PerceptionConfig()
         if self.config.depth not in ("model", "render"):
             raise ValueError(f"depth must be 'model' or 'render', got {self.config.depth!r}")
-        if self.config.size % 8:
-            raise ValueError(f"size must be a multiple of 8, got {self.config.size}")
+        if self.config.size % 16:
+            raise ValueError(f"size must be a multiple of 16, got {self.config.size}")
         if self.config.threads is not None:
             torch.set_num_threads(int(self.config.threads))
         self.model = model if model is not None else load_model(self.config.weights)
@@ -161,10 +167,11 @@ class Perception:
             out[..., CHANNEL_DEPTH] *= 1.0 / 255.0
         rgb.mul_(1.0 / 255.0)
         t1 = time.perf_counter()
-        pred = self.model.predict(rgb.permute(0, 3, 1, 2))
-        out[..., CHANNEL_HEATMAP] = pred[:, HEAD_HEATMAP]
+        raw = self.model(rgb.permute(0, 3, 1, 2))
+        # straight into the (strided) channels of the output buffer: no temporaries
+        torch.sigmoid(raw[:, HEAD_HEATMAP], out=out[..., CHANNEL_HEATMAP])
         if self.config.depth == "model":
-            out[..., CHANNEL_DEPTH] = pred[:, HEAD_DEPTH]
+            log_depth_to_channel(raw[:, HEAD_DEPTH], out=out[..., CHANNEL_DEPTH])
         t2 = time.perf_counter()
         self.timings.gray += t1 - t0
         self.timings.network += t2 - t1

@@ -107,12 +107,22 @@ def daemon2() -> Iterator[Daemon]:
         _cleanup(name)
 
 
-def _heat_on_off(fused: np.ndarray, mask: np.ndarray) -> tuple[float, int]:
-    """Mean heatmap on the pedestrian, and pixels >= 0.5 away from it (evaluate.py counts 5
-    such pixels in one blob as a detection)."""
+def _heat_on_off(fused: np.ndarray, mask: np.ndarray) -> tuple[float, float, int]:
+    """On the pedestrian: the heatmap's 90th percentile and the fraction of pixels >= 0.5;
+    away from it (more than 3 px): the pixels >= 0.5 (evaluate.py counts a blob of 5 as a
+    detection)."""
     heat = fused[..., CHANNEL_HEATMAP]
     grown = cv2.dilate(mask.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
-    return float(heat[mask].mean()), int(np.count_nonzero(heat[~grown] >= 0.5))
+    on = heat[mask]
+    return (float(np.percentile(on, 90)), float(np.mean(on >= 0.5)),
+            int(np.count_nonzero(heat[~grown] >= 0.5)))
+
+
+def _assert_pedestrian_found(fused: np.ndarray, mask: np.ndarray) -> None:
+    high, covered, off = _heat_on_off(fused, mask)
+    assert high > 0.8, f"heatmap on the pedestrian peaks at {high:.2f} (90th percentile)"
+    assert covered > 0.25, f"only {covered:.0%} of the pedestrian is >= 0.5"
+    assert off < 5, f"{off} pixels >= 0.5 away from the pedestrian"
 
 
 def test_ready_line_and_segment_layouts(daemon2: Daemon) -> None:
@@ -141,9 +151,7 @@ def test_camera_frame_comes_back_fused_with_the_pedestrian(daemon2: Daemon, fram
         fused.close()
     assert out.source_seq == seq
     np.testing.assert_allclose(out.data[..., CHANNEL_GRAY], gray_of(frames["ped"]), atol=1e-5)
-    on, off = _heat_on_off(out.data, frames["mask"])
-    assert on > 0.6, f"heatmap on the pedestrian {on:.2f}"
-    assert off < 5, f"{off} pixels >= 0.5 away from the pedestrian"
+    _assert_pedestrian_found(out.data, frames["mask"])
     depth = out.data[..., CHANNEL_DEPTH]
     assert 0.55 < float(np.median(depth[frames["mask"]])) < 0.9  # 3 m -> 0.7
 
@@ -167,7 +175,7 @@ def test_two_slots_are_independent(daemon2: Daemon, frames) -> None:
         for r in readers:
             r.close()
     assert out0.source_seq == s0 and out1.source_seq == s1
-    assert _heat_on_off(out0.data, frames["mask"])[0] > 0.6
+    _assert_pedestrian_found(out0.data, frames["mask"])
     assert np.count_nonzero(out1.data[..., CHANNEL_HEATMAP] >= 0.5) < 5
 
 
@@ -267,6 +275,7 @@ def test_video_source_and_png_preview(tmp_path, frames) -> None:
             first = fused.wait_next(timeout=10.0)
             later = fused.wait_next(timeout=10.0)
         assert later.source_seq > first.source_seq >= 1
+        # the video frame went through mp4 compression and two resizes: high on it is enough
         assert _heat_on_off(later.data, frames["mask"])[0] > 0.5
         deadline = time.monotonic() + 10
         while not preview.exists() and time.monotonic() < deadline:

@@ -62,7 +62,7 @@ def test_foreign_torch_file_is_rejected(tmp_path) -> None:
 
 
 def test_save_load_round_trip_and_bn_folding(tmp_path, random_model: AVNet) -> None:
-    model = AVNet(AVNetConfig(widths=(8, 16, 24)))
+    model = AVNet(AVNetConfig(widths=(8, 16, 24, 32)))
     # non-trivial batch-norm statistics, so folding is actually exercised
     model.train()
     with torch.no_grad():
@@ -75,7 +75,7 @@ def test_save_load_round_trip_and_bn_folding(tmp_path, random_model: AVNet) -> N
         ref = model.predict(x)
         unfused = load_model(path, fuse=False).predict(x)
         fused = load_model(path).predict(x)
-    assert load_model(path).config.widths == (8, 16, 24)
+    assert load_model(path).config.widths == (8, 16, 24, 32)
     # weights are stored as float16: small differences only
     assert torch.allclose(ref, unfused, atol=2e-2)
     assert torch.allclose(unfused, fused, atol=1e-4)
@@ -131,3 +131,23 @@ def test_bad_frames_are_rejected(random_model: AVNet, bad: np.ndarray) -> None:
     p = Perception(PerceptionConfig(threads=1), model=random_model)
     with pytest.raises(ValueError, match="uint8 frames"):
         p(bad)
+
+
+def test_log_depth_head_maps_to_the_shm_depth_convention() -> None:
+    from active_vision.models import log_depth_to_channel
+    from shm_protocol import depth_to_channel
+
+    metres = torch.tensor([0.1, 0.5, 2.0, 9.99, 10.0, 50.0])
+    got = log_depth_to_channel(torch.log(metres))
+    np.testing.assert_allclose(got.numpy(), depth_to_channel(metres.numpy()), atol=1e-6)
+    out = torch.empty(6)
+    assert log_depth_to_channel(torch.log(metres), out=out) is out
+
+
+def test_weights_of_another_version_are_rejected(tmp_path, random_model: AVNet) -> None:
+    path = save_weights(random_model, tmp_path / "w.pt")
+    payload = torch.load(path, weights_only=True)
+    payload["version"] = 1
+    torch.save(payload, path)
+    with pytest.raises(WeightsError, match="version 1"):
+        load_model(path)

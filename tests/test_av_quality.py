@@ -83,7 +83,7 @@ def test_untrained_network_does_not(heldout: ds.Dataset) -> None:
 def test_train_and_evaluate_clis_run_end_to_end(tmp_path, heldout: ds.Dataset, capsys) -> None:
     data = heldout.save(tmp_path / "tiny.npz")
     cfg = TrainConfig(data=data, epochs=1, batch=16, threads=1, evaluate=False,
-                      widths=(4, 8, 8), out=tmp_path / "w.pt")
+                      widths=(4, 8, 8, 8), out=tmp_path / "w.pt")
     model, facts = train(cfg)
     assert facts["epochs"] == 1
     path = save_weights(model, cfg.out, facts)
