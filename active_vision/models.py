@@ -141,7 +141,9 @@ class AVNet(nn.Module):
         y = self.dec3(F.interpolate(self.lat4(x4), scale_factor=2.0, mode="nearest") + x3)
         y = self.dec2(F.interpolate(self.lat3(y), scale_factor=2.0, mode="nearest") + x2)
         y = self.dec1(F.interpolate(self.lat2(y), scale_factor=2.0, mode="nearest") + x1)
-        return F.interpolate(self.head(y), scale_factor=2.0, mode="bilinear", align_corners=False)
+        # two channels: bilinear is 3x faster on a contiguous (NCHW) tensor than channels_last
+        head = self.head(y).contiguous()
+        return F.interpolate(head, scale_factor=2.0, mode="bilinear", align_corners=False)
 
     def predict(self, x: torch.Tensor) -> torch.Tensor:
         """Heatmap and depth channel in [0, 1], ``(N, 2, H, W)``."""
