@@ -1,7 +1,8 @@
 """Training and held-out frames for the perception network, rendered from our own worlds.
 
 ``python -m active_vision.dataset --out DIR --frames N --seed S`` renders N camera frames
-through :class:`rover_env.simulation.RoverSim` and writes ``DIR/av_<worlds>_s<S>_n<N>.npz``
+through :class:`rover_env.simulation.RoverSim` and writes
+``DIR/av_<worlds>_s<S>_n<N>_<size>px_v<version>.npz``
 (compressed) with:
 
 ====================  ===================  =============================================
@@ -52,6 +53,8 @@ logger = logging.getLogger(__name__)
 WORLDS: tuple[str, ...] = ("inspect", "moon", "maze")
 TRAIN_SEED = 0
 HELDOUT_SEED = 1_000_003
+DATASET_VERSION = 3
+"""Part of the cache file name: bump it when rendering changes, so stale files are not reused."""
 KIND_EMPTY, KIND_WALKING, KIND_PLACED = 0, 1, 2
 _GROUND_CHECK_M = 3.0
 _GROUND_MIN_M = 0.12
@@ -139,7 +142,8 @@ class Dataset:
 def dataset_path(out_dir: Path, config: DatasetConfig) -> Path:
     """The file :func:`build` writes for ``config`` in ``out_dir``."""
     tag = "-".join(config.worlds)
-    return Path(out_dir) / f"av_{tag}_s{config.seed}_n{config.frames}_{config.size}px.npz"
+    return Path(out_dir) / (f"av_{tag}_s{config.seed}_n{config.frames}_{config.size}px"
+                            f"_v{DATASET_VERSION}.npz")
 
 
 class _Lighting:
