@@ -6,8 +6,9 @@ and the original pipeline's detector (YOLO11n at 640x640, five frames per output
 What runs:
 
 1. ``Perception`` (the daemon's code path, shipped weights, all three channels, depth from
-   the network) on uint8 96x96 frames: the median over ``--repeats`` runs of ``--iters``
-   calls, split into the stages the daemon logs (gray = uint8->float + luminance,
+   the network) on uint8 96x96 frames: the median over ``repeats`` runs of ``iters``
+   calls (and the best run, which is what the code costs when the shared machine is quiet),
+   split into the stages the daemon logs (gray = uint8->float + luminance,
    heatmap+depth = the network and the copy into the fused buffer).
 2. The daemon end to end: ``python -m active_vision`` in a subprocess; this process plays the
    env (publishes camera frames, waits for each fused frame by ``source_seq``), with 1 slot
@@ -84,7 +85,9 @@ def bench_perception(threads: int, batch: int, args: Args) -> dict[str, float]:
             p(frames)
         total = 1e3 * (time.perf_counter() - t0) / (iters * batch)
         runs.append({**p.timings.per_frame_ms(), "total": total})
-    return {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+    out = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+    out["best"] = min(r["total"] for r in runs)
+    return out
 
 
 # --- daemon end to end ----------------------------------------------------------------------
@@ -342,7 +345,7 @@ def bench_yolo(threads: int, args: Args) -> dict[str, float] | str:
             model(x)
             runs.append(time.perf_counter() - t0)
     per_output = 1e3 * statistics.median(runs)
-    return {"per_output": per_output, "per_frame": per_output / 5}
+    return {"per_output": per_output, "per_frame": per_output / 5, "best": 1e3 * min(runs)}
 
 
 # --- report ---------------------------------------------------------------------------------
@@ -361,14 +364,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"machine: {os.cpu_count()} CPUs, load average {load:.2f} at start; torch "
           f"{torch.__version__}")
     print()
-    print("| configuration | gray | heatmap+depth | total ms/frame | frames/s |")
+    print("| configuration | gray | heatmap+depth | total ms/frame (best run) | frames/s |")
     print("|---|---:|---:|---:|---:|")
     for threads in (1, 2):
         for batch in (1, 8):
             r = bench_perception(threads, batch, args)
             print(f"| Perception batch {batch}, {threads} thread{'s' if threads > 1 else ''} "
                   f"| {r['gray']:.3f} | {r['heatmap+depth']:.3f} | {r['total']:.3f} "
-                  f"| {1e3 / r['total']:.0f} |")
+                  f"({r['best']:.3f}) | {1e3 / r['total']:.0f} |")
     if args.daemon:
         for slots in (1, 8):
             d = bench_daemon(slots, args)
@@ -382,8 +385,9 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"| YOLO11n-shaped: skipped ({y}) | | | | |")
                 continue
             print(f"| YOLO11n-shaped 640x640, 5 frames per output, {threads} thread"
-                  f"{'s' if threads > 1 else ''} (heatmap only) | | {y['per_output']:.1f} "
-                  f"per output | {y['per_output']:.1f} | {1e3 / y['per_output']:.1f} |")
+                  f"{'s' if threads > 1 else ''} (heatmap only) | | | {y['per_output']:.1f} "
+                  f"({y['best']:.1f}) per output, {y['per_frame']:.1f} per frame "
+                  f"| {1e3 / y['per_output']:.1f} outputs |")
     print()
     print(f"load average at end {os.getloadavg()[0]:.2f}")
     return 0
