@@ -66,7 +66,7 @@ logger = logging.getLogger("active_vision.daemon")
 EXIT_OK = 0
 EXIT_FAILURE = 1
 EXIT_USAGE = 2
-IDLE_POLL_S = 0.05
+IDLE_POLL_S = 0.2
 """Longest wait for a frame before the loop looks at its signals and heartbeat again."""
 PNG_PREVIEW_EVERY_S = 0.5
 

@@ -184,7 +184,7 @@ class CameraSegmentSource:
     IDLE_AFTER_S = 1.0
 
     def __init__(self, name: str, slots: int, size: int, channels: int,
-                 slice_s: float = 0.002, idle_slice_s: float = 0.02) -> None:
+                 slice_s: float = 0.002, idle_slice_s: float = 0.05) -> None:
         self.slots = slots
         self.channels = channels
         self.names = [camera_name(slot_name(name, i)) for i in range(slots)]
