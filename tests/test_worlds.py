@@ -87,3 +87,28 @@ def test_moon_has_terrain_steep_enough_to_flip() -> None:
     # ... while the spawn square stays gentle.
     h = [world.ground_height(x, y) for x in np.linspace(-4, 4, 9) for y in np.linspace(-4, 4, 9)]
     assert max(h) - min(h) < 1.0
+
+
+def test_moon_ground_height_matches_the_terrain_mujoco_collides_with() -> None:
+    """Spawn heights, rock placement and dataset poses use WorldSpec.ground_height: it must
+    describe the same surface MuJoCo builds from the height field (rows were once mirrored
+    in y, which put the rover up to half a metre inside the hills)."""
+    import mujoco
+
+    from rover_env.simulation import RoverSim
+
+    sim = RoverSim("moon")
+    m, d = sim.model, sim.data
+    terrain = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "terrain")
+    rng = np.random.default_rng(0)
+    errors = []
+    geom = np.zeros(1, np.int32)
+    for _ in range(200):
+        x, y = rng.uniform(-15, 8), rng.uniform(-18, 18)
+        dist = mujoco.mj_ray(m, d, np.array([x, y, 50.0]), np.array([0.0, 0.0, -1.0]),
+                             None, 1, -1, geom)  # fmt: skip
+        if geom[0] == terrain:
+            errors.append(abs(sim.world.ground_height(x, y) - (50.0 - dist)))
+    assert len(errors) > 150
+    # bilinear lookup against MuJoCo's two triangles per 1 m cell: centimetres, not metres
+    assert np.median(errors) < 0.05 and max(errors) < 0.3

@@ -92,7 +92,9 @@ def build() -> WorldSpec:
     elevation = h / z_top
     hf = HeightField(_CENTRE, _RADIUS[0], _RADIUS[1], z_top, _BASE, elevation)
     rocks_xml, obstacles = _rocks(rng, hf)
-    data = " ".join(f"{v:.5f}" for v in elevation.reshape(-1))
+    # MuJoCo reads the elevation rows from +y down (like an image); HeightField (and so
+    # spawn heights, rock placement, the dataset's poses) counts rows along +y: flip them.
+    data = " ".join(f"{v:.5f}" for v in elevation[::-1].reshape(-1))
     asset = _mjcf.floor_assets("0.56 0.56 0.54", "0.5 0.5 0.48") + (
         f'<hfield name="terrain" nrow="{nrow}" ncol="{ncol}" '
         f'size="{_RADIUS[0]} {_RADIUS[1]} {z_top:.5f} {_BASE}" elevation="{data}"/>'
