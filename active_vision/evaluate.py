@@ -38,7 +38,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from active_vision._wire import DEPTH_MAX_M, channel_to_depth
 from active_vision.dataset import (
     DEFAULT_DATA_DIR,
     HELDOUT_SEED,
@@ -54,6 +53,7 @@ from active_vision.perception import (
     Perception,
     PerceptionConfig,
 )
+from shm_protocol import DEPTH_MAX_M, channel_to_depth
 
 logger = logging.getLogger(__name__)
 

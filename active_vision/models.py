@@ -45,7 +45,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from active_vision._wire import DEPTH_MAX_M
+from shm_protocol import DEPTH_MAX_M
 
 logger = logging.getLogger(__name__)
 

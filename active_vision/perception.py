@@ -27,7 +27,6 @@ import cv2
 import numpy as np
 import torch
 
-from active_vision._wire import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
 from active_vision.models import (
     HEAD_DEPTH,
     HEAD_HEATMAP,
@@ -35,6 +34,7 @@ from active_vision.models import (
     load_model,
     log_depth_to_channel,
 )
+from shm_protocol import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
 
 logger = logging.getLogger(__name__)
 

@@ -41,7 +41,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from active_vision._wire import DEPTH_MAX_M
 from active_vision.dataset import (
     DEFAULT_DATA_DIR,
     TRAIN_SEED,
@@ -52,6 +51,7 @@ from active_vision.dataset import (
 )
 from active_vision.models import DEFAULT_WEIGHTS, HEAD_DEPTH, HEAD_HEATMAP, AVNet, AVNetConfig
 from active_vision.models import save_weights as _save
+from shm_protocol import DEPTH_MAX_M
 
 logger = logging.getLogger(__name__)
 
