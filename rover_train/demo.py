@@ -31,16 +31,29 @@ def _eval(argv: list[str]) -> str:
 
 
 def save_still(video: Path, png: Path) -> None:
-    """The middle frame of ``video`` as a PNG (for the README)."""
+    """The video frame that shows the most pedestrian heatmap (else the middle one), as PNG.
+
+    Frames are the chase view beside the gray, heatmap and depth panels (equal widths).
+    """
     import cv2
 
     cap = cv2.VideoCapture(str(video))
-    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-    cap.set(cv2.CAP_PROP_POS_FRAMES, max(n // 2, 0))
-    ok, frame = cap.read()
+    best, best_score, frames = None, -1.0, []
+    while True:
+        ok, frame = cap.read()
+        if not ok:
+            break
+        frames.append(frame)
+        w = frame.shape[1] // 4
+        score = float(frame[:, 2 * w : 3 * w].mean())
+        if score > best_score:
+            best, best_score = frame, score
     cap.release()
-    if ok:
-        cv2.imwrite(str(png), frame)
+    if best is None:
+        return
+    if best_score < 1.0:  # no pedestrian anywhere: the middle frame
+        best = frames[len(frames) // 2]
+    cv2.imwrite(str(png), best)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -64,7 +77,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return code
     common = ["--env", args.env, "--world", args.world, "--episodes", str(args.episodes),
               "--max-steps", str(args.max_steps)]  # fmt: skip
-    trained = _eval([str(out / "model.zip"), *common, "--video", str(out / "eval.mp4")])
+    trained = _eval([str(out / "model.zip"), *common, "--video", str(out / "eval.mp4"),
+                     "--video-episodes", str(args.episodes)])  # fmt: skip
     random = _eval(["--policy", "random", *common])
     report = trained + "\n" + random
     (out / "eval.txt").write_text(report)
