@@ -231,3 +231,25 @@ def test_killed_daemon_raises_promptly_and_restart_recovers() -> None:
     finally:
         d.stop()
         d.remove_leftovers()
+
+
+def test_stalled_daemon_is_a_frame_timeout_and_the_env_recovers() -> None:
+    from shm_protocol import FrameTimeoutError
+
+    d = Daemon(f"test_fusedstall_{uuid.uuid4().hex[:8]}").start()
+    try:
+        with RoverEnvFused(rl_obs_name=d.name, world_n="maze", frame_timeout=0.5) as env:
+            env.reset(seed=0)
+            assert d.proc is not None
+            d.proc.send_signal(signal.SIGSTOP)  # alive, but computes nothing
+            try:
+                with pytest.raises(FrameTimeoutError, match=d.name):
+                    env.step(np.zeros(2, np.float32))
+            finally:
+                d.proc.send_signal(signal.SIGCONT)
+            env.reset(seed=0)
+            obs, *_ = env.step(np.zeros(2, np.float32))
+            assert obs["fused_image"].shape == (96, 96, 3)
+    finally:
+        d.stop()
+        d.remove_leftovers()
