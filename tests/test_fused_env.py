@@ -90,7 +90,8 @@ def test_registered_ids_make_the_envs(daemon: Daemon) -> None:
         assert env.unwrapped.world_name == "moon"
         obs, info = env.reset(seed=3)
         obs, *_, info = env.step(27)
-        assert info["frame_latency_ms"] > 0
+        latency = info["frame_latency_ms"]  # reported by default (wall clock, not asserted on)
+        assert isinstance(latency, float) and latency > 0
         assert {"pedestrian_collision", "personal_space_intrusion", "heatmap_center"} <= info.keys()
     finally:
         env.close()
