@@ -154,19 +154,12 @@ class RoverEnvBase(gym.Env):
         self.orientation = np.zeros(3)
         self.odometry = np.zeros(2)
         self.distance_to_goal = 0.0
-        self.distance_delta = 0.0
         self._previous_distance = 0.0
-        self.goal_reached = False
-        self.collided = False
-        self.goals_reached = 0
-        self.collision_count = 0
-        self._steps = 0
         self._total_steps = 0
-        self._episode_reward = 0.0
         self._positions: deque[tuple[float, float]] = deque(
             maxlen=self.reward_config.stuck_window + 1
         )
-        self._reward_terms: dict[str, float] = {}
+        self._clear_episode()
         self._needs_reset = True
 
     # --- hooks --------------------------------------------------------------------------------
@@ -259,6 +252,18 @@ class RoverEnvBase(gym.Env):
         return float(np.hypot(peds[:, 0] - self.position[0], peds[:, 1] - self.position[1]).min())
 
     # --- state --------------------------------------------------------------------------------
+    def _clear_episode(self) -> None:
+        """Zero the per-episode counters (construction and every reset)."""
+        self.goals_reached = 0
+        self.collision_count = 0
+        self.goal_reached = False
+        self.collided = False
+        self.distance_delta = 0.0
+        self._steps = 0
+        self._episode_reward = 0.0
+        self._positions.clear()
+        self._reward_terms: dict[str, float] = {}
+
     def _read_state(self) -> None:
         sim = self.sim
         self.position = sim.position
@@ -336,16 +341,8 @@ class RoverEnvBase(gym.Env):
             self.set_goal(*options["goal"])
         else:
             self._sample_goal()
-        self.goals_reached = 0
-        self.collision_count = 0
-        self.goal_reached = False
-        self.collided = False
-        self.distance_delta = 0.0
-        self._steps = 0
-        self._episode_reward = 0.0
-        self._positions.clear()
+        self._clear_episode()
         self._positions.append((float(self.position[0]), float(self.position[1])))
-        self._reward_terms = {}
         self._needs_reset = False
         self._on_reset()
         obs = self._observe()

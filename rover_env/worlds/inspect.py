@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import math
 
-from rover_env.constants import WORLD_RECTANGLES
 from rover_env.worlds import _mjcf
-from rover_env.worlds.spec import GROUP_VISUAL, Box, Obstacle, Rect, WorldSpec
+from rover_env.worlds.spec import GROUP_VISUAL, Box, Obstacle, Rect, WorldSpec, seed_areas
 
 NAME = "inspect"
 _CONCRETE = "0.62 0.62 0.6 1"
@@ -57,7 +56,6 @@ def _panel_row(i: int, x: float, y: float, half_len: float) -> tuple[str, Obstac
 
 
 def build() -> WorldSpec:
-    r = WORLD_RECTANGLES[NAME]
     parts: list[str] = [_mjcf.floor((-21.0, -23.0), 12.0)]
     obstacles: list[Obstacle] = []
     for i, row in enumerate(_ROWS):
@@ -75,9 +73,7 @@ def build() -> WorldSpec:
         obstacles.append(fp)
     return WorldSpec(
         name=NAME,
-        spawn=Rect(r["rand_x_range"], r["rand_y_range"]),
-        goal=Rect(r["rand_goal_x_range"], r["rand_goal_y_range"]),
-        bounds=Rect(r["too_far_away_x"], r["too_far_away_y"]),
+        **seed_areas(NAME),
         obstacles=tuple(obstacles),
         pedestrian_area=Rect((-28.0, -14.0), (-28.0, -18.0)),
         asset_xml=_mjcf.floor_assets("0.66 0.63 0.56", "0.6 0.57 0.5"),

@@ -8,9 +8,8 @@ them.
 
 from __future__ import annotations
 
-from rover_env.constants import WORLD_RECTANGLES
 from rover_env.worlds import _mjcf
-from rover_env.worlds.spec import Obstacle, Rect, WorldSpec
+from rover_env.worlds.spec import Obstacle, Rect, WorldSpec, seed_areas
 
 NAME = "maze"
 WALL_HEIGHT = 1.0
@@ -32,7 +31,6 @@ _INNER_WALLS = (
 
 
 def build() -> WorldSpec:
-    r = WORLD_RECTANGLES[NAME]
     o = _OUTER
     parts = [_mjcf.floor((0.0, 0.0), 10.0)]
     obstacles: list[Obstacle] = []
@@ -47,9 +45,7 @@ def build() -> WorldSpec:
         obstacles.append(fp)
     return WorldSpec(
         name=NAME,
-        spawn=Rect(r["rand_x_range"], r["rand_y_range"]),
-        goal=Rect(r["rand_goal_x_range"], r["rand_goal_y_range"]),
-        bounds=Rect(r["too_far_away_x"], r["too_far_away_y"]),
+        **seed_areas(NAME),
         obstacles=tuple(obstacles),
         pedestrian_area=Rect((-5.8, 5.8), (-5.8, 5.8)),
         asset_xml=_mjcf.floor_assets("0.5 0.52 0.55", "0.45 0.47 0.5"),

@@ -11,9 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from rover_env.constants import WORLD_RECTANGLES
 from rover_env.worlds import _mjcf
-from rover_env.worlds.spec import GROUP_GROUND, Circle, HeightField, Obstacle, Rect, WorldSpec
+from rover_env.worlds.spec import (
+    GROUP_GROUND,
+    Circle,
+    HeightField,
+    Obstacle,
+    Rect,
+    WorldSpec,
+    seed_areas,
+)
 
 NAME = "moon"
 _LAYOUT_SEED = 2024
@@ -79,7 +86,6 @@ def _rocks(rng: np.random.Generator, hf: HeightField) -> tuple[str, list[Obstacl
 
 
 def build() -> WorldSpec:
-    r = WORLD_RECTANGLES[NAME]
     rng = np.random.default_rng(_LAYOUT_SEED)
     ncol = int(round(2 * _RADIUS[0] / _CELL)) + 1
     nrow = int(round(2 * _RADIUS[1] / _CELL)) + 1
@@ -105,9 +111,7 @@ def build() -> WorldSpec:
     )
     return WorldSpec(
         name=NAME,
-        spawn=Rect(r["rand_x_range"], r["rand_y_range"]),
-        goal=Rect(r["rand_goal_x_range"], r["rand_goal_y_range"]),
-        bounds=Rect(r["too_far_away_x"], r["too_far_away_y"]),
+        **seed_areas(NAME),
         obstacles=tuple(obstacles),
         pedestrian_area=Rect((-6.0, 6.0), (-6.0, 6.0)),
         asset_xml=asset,

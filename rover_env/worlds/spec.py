@@ -20,6 +20,8 @@ from functools import cached_property
 
 import numpy as np
 
+from rover_env.constants import WORLD_RECTANGLES
+
 GROUP_SCENERY = 0
 GROUP_PEDESTRIAN = 1
 GROUP_VISUAL = 2  # rendered, not scanned, no collision
@@ -241,3 +243,14 @@ class WorldSpec:
         xs = a[0] + t * (b[0] - a[0])
         ys = a[1] + t * (b[1] - a[1])
         return bool(np.all(self.clearance_many(xs, ys) > clearance))
+
+
+def seed_areas(name: str) -> dict[str, Rect]:
+    """The seed's ``spawn``, ``goal`` and ``bounds`` rectangles of world ``name``, as
+    keyword arguments for :class:`WorldSpec`."""
+    r = WORLD_RECTANGLES[name]
+    return {
+        "spawn": Rect(r["rand_x_range"], r["rand_y_range"]),
+        "goal": Rect(r["rand_goal_x_range"], r["rand_goal_y_range"]),
+        "bounds": Rect(r["too_far_away_x"], r["too_far_away_y"]),
+    }
