@@ -2,7 +2,8 @@
 
 Each field of an arguments dataclass becomes ``--field-name`` with the field's type, its
 default, and the docstring written under it as help text. ``bool`` fields become
-``--x/--no-x``; ``choices`` and hidden old spellings come from the field's metadata::
+``--x/--no-x``; ``choices``, ``nargs``/``const`` (an option whose value may be left out)
+and hidden old spellings come from the field's metadata::
 
     @dataclass
     class Args:
@@ -96,6 +97,9 @@ def build_parser(cls: type, prog: str, description: str, epilog: str | None = No
                                   "help": docs.get(f.name, f.metadata.get("help", ""))}
         if "choices" in f.metadata:
             kwargs["choices"] = tuple(f.metadata["choices"])
+        if "nargs" in f.metadata:  # e.g. an optional value: --ray [ADDRESS]
+            kwargs["nargs"] = f.metadata["nargs"]
+            kwargs["const"] = f.metadata.get("const")
         if tp is bool:
             kwargs["action"] = argparse.BooleanOptionalAction
         else:

@@ -70,6 +70,15 @@ class TrainArgs:
     """Seconds to wait for the daemon's segments before giving up (fused envs)."""
     vec_env: str = field(default="auto", metadata={"choices": ("auto", "subproc", "dummy")})
     """auto (subprocesses for several fused envs, one process otherwise), subproc or dummy."""
+    ray: str | None = field(default=None, metadata={"nargs": "?", "const": "",
+                                                   "metavar": "ADDRESS"})  # fmt: skip
+    """Step the envs in Ray actors: ADDRESS of a cluster's head (host:6379, auto), or no
+    ADDRESS to start a local one. Each worker runs its own av-daemon (fused envs). Needs
+    pip install 'roverav[ray]'."""
+    workers: int = 2
+    """With --ray: env worker actors, spread over the cluster's nodes."""
+    envs_per_worker: int = 1
+    """With --ray: envs per worker (its daemon serves that many slots)."""
     threads: int = 1
     """Torch intra-op threads of the trainer (small nets on CPU run best on one; the daemon
     and the env workers need the other cores)."""
@@ -152,6 +161,14 @@ def validate(args: TrainArgs) -> str | None:
         return "--algo sac needs continuous actions: use --env lidar|fused, or --algo ppo/dqn"
     if args.slots < 1 or args.timesteps < 1:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
+    if args.ray is not None:
+        if args.workers < 1 or args.envs_per_worker < 1:
+            return (f"--workers and --envs-per-worker must be at least 1, got {args.workers} "
+                    f"and {args.envs_per_worker}")  # fmt: skip
+        import importlib.util
+
+        if importlib.util.find_spec("ray") is None:
+            return "--ray needs Ray, which is not installed: pip install 'roverav[ray]'"
     if args.device.startswith("cuda"):
         import torch
 
@@ -162,7 +179,7 @@ def validate(args: TrainArgs) -> str | None:
 
 def check_daemon(args: TrainArgs) -> str | None:
     """For fused envs: None when every slot's segments exist, else what to do about it."""
-    if args.env not in FUSED_KINDS:
+    if args.env not in FUSED_KINDS or args.ray is not None:  # Ray workers run their own
         return None
     from shm_protocol import FrameReader, slot_name
     from shm_protocol.errors import ShmError
@@ -184,6 +201,11 @@ def check_daemon(args: TrainArgs) -> str | None:
 
 def build_vec_env(args: TrainArgs, monitor_dir: Path) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+    if args.ray is not None:
+        from rover_train.ray_vec_env import make_ray_vec_env
+
+        return make_ray_vec_env(args)
 
     thunks = [
         env_factory(
@@ -351,7 +373,7 @@ def train(args: TrainArgs) -> dict[str, Any]:
         metrics_cb = make_metrics_callback()
         callbacks = [metrics_cb]
         if args.checkpoint_every > 0:
-            every = max(args.checkpoint_every // args.n_envs, 1)
+            every = max(args.checkpoint_every // venv.num_envs, 1)
             callbacks.append(
                 CheckpointCallback(every, str(args.logdir / "checkpoints"), name_prefix=args.algo)
             )
