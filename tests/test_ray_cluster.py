@@ -25,6 +25,9 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[1]
 SHM = Path("/dev/shm")
 NODE_MB = 100 * 2**20
+# Not "test_": the suite's session fixture removes new "test_*" segments when a session
+# ends, and on a shared machine another session would unlink a running worker's segments.
+TEST_PREFIX = "rraytest"
 
 
 def _segments(prefix: str) -> list[str]:
@@ -85,7 +88,7 @@ def _venv(workers: int, m: int, nodes: list[str], **kw: Any) -> Any:
 
     cfg = WorkerConfig(kind="fused", world="maze", envs_per_worker=m, length=400)
     return RayVecEnv(cfg, workers, worker_options=[{"resources": {n: 1}} for n in nodes],
-                     prefix=f"test_ray{uuid.uuid4().hex[:6]}", **kw)  # fmt: skip
+                     prefix=f"{TEST_PREFIX}{uuid.uuid4().hex[:6]}", **kw)  # fmt: skip
 
 
 def test_fused_ppo_across_nodes_survives_a_killed_worker(cluster: Any) -> None:
