@@ -26,6 +26,7 @@ import argparse
 import os
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 from collections.abc import Callable
@@ -97,9 +98,10 @@ def run_local(n: int, seconds: float, warmup: int, train_steps: int) -> list[tup
 
     name = f"bench_ray_local_{uuid.uuid4().hex[:6]}"
     rows = []
-    with spawn_daemon(name, n, extra_args=["--threads", "1"]) as daemon:
+    with spawn_daemon(name, n, extra_args=["--threads", "1"]) as daemon, \
+            tempfile.TemporaryDirectory() as monitor_dir:  # fmt: skip
         args = TrainArgs(env="fused", world=WORLD, slots=n, name=name, connect_timeout=30.0)
-        venv = build_vec_env(args, Path("/tmp") / f"{name}_monitor")
+        venv = build_vec_env(args, Path(monitor_dir))
         try:
             pids = [daemon.pid] + [p.pid for p in getattr(venv, "processes", [])]
             rows.append((f"local {n} envs (rover-pair)", measure(venv, seconds, warmup, pids)))
