@@ -82,13 +82,15 @@ def _node_of(resource: str) -> str:
     return next(n["NodeID"] for n in ray.nodes() if n["Alive"] and resource in n["Resources"])
 
 
-def _venv(workers: int, m: int, nodes: list[str], **kw: Any) -> Any:
+def _venv(workers: int, m: int, nodes: list[str] | None = None, **kw: Any) -> Any:
+    """A fused RayVecEnv; worker w pinned to the node with custom resource ``nodes[w]``."""
     from rover_train.ray_vec_env import RayVecEnv
     from rover_train.ray_worker import WorkerConfig
 
     cfg = WorkerConfig(kind="fused", world="maze", envs_per_worker=m, length=400)
-    return RayVecEnv(cfg, workers, worker_options=[{"resources": {n: 1}} for n in nodes],
-                     prefix=f"{TEST_PREFIX}{uuid.uuid4().hex[:6]}", **kw)  # fmt: skip
+    if nodes is not None:
+        kw["worker_options"] = [{"resources": {n: 1}} for n in nodes]
+    return RayVecEnv(cfg, workers, prefix=f"{TEST_PREFIX}{uuid.uuid4().hex[:6]}", **kw)
 
 
 def test_fused_ppo_across_nodes_survives_a_killed_worker(cluster: Any) -> None:
@@ -195,3 +197,32 @@ def test_rover_train_cli_on_the_cluster_then_ctrl_c(cluster: Any, tmp_path: Path
     out, _ = proc.communicate(timeout=120)
     assert proc.returncode != 0 and "KeyboardInterrupt" in out
     assert set(_segments("rray")) <= ours, out
+
+
+def test_a_worker_whose_node_is_lost_comes_back_on_another_node(cluster: Any) -> None:
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    node_c = cluster.add_node(num_cpus=1, resources={"node_c": 1}, object_store_memory=NODE_MB)
+    cluster.wait_for_nodes()
+    # prefers node_c while it lives; Ray may restart it on any node once node_c is gone
+    soft = NodeAffinitySchedulingStrategy(_node_of("node_c"), soft=True)
+    venv = _venv(1, 1, worker_options=[{"scheduling_strategy": soft}])
+    try:
+        (d,) = venv.describe_workers()
+        assert d["node_id"] == _node_of("node_c")
+        venv.reset()
+        actions = np.zeros((1, 2), dtype=np.float32)
+        for _ in range(3):
+            venv.step(actions)
+        cluster.remove_node(node_c)
+        _obs, _rew, dones, infos = venv.step(actions)
+        assert dones[0] and infos[0]["worker_restarted"] and infos[0]["TimeLimit.truncated"]
+        (d2,) = venv.describe_workers()
+        assert d2["node_id"] != d["node_id"] and venv.worker_deaths == [1]
+        _obs, _rew, dones, infos = venv.step(actions)
+        assert "worker_restarted" not in infos[0]
+        # the lost node's worker died with its raylet; its daemon unlinked its segments
+        assert not _wait_gone(_segments(d["name"]))
+    finally:
+        venv.close()
+    assert _segments(venv.prefix) == []
