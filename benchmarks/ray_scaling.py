@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -129,53 +130,72 @@ def run_ray(w: int, m: int, seconds: float, warmup: int, train_steps: int
     return rows
 
 
+def _interrupt(signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="5 s per row, 512 PPO steps")
     p.add_argument("--seconds", type=float, default=15.0, help="measured seconds per row")
     p.add_argument("--train-steps", type=int, default=1536, help="PPO steps per train row")
+    p.add_argument("--rows", default="local,ray2x1,ray1x2,ray1x1,ray4x1",
+                   help="which set-ups, comma-separated (to split a run over quiet windows)")
     args = p.parse_args()
     seconds = 5.0 if args.quick else args.seconds
     train_steps = 512 if args.quick else args.train_steps
     warmup = 20
     load = os.getloadavg()
+    signal.signal(signal.SIGTERM, _interrupt)  # a timeout's SIGTERM still closes the workers
     import ray
 
     from rover_train.ray_vec_env import connect
 
     connect(None, num_cpus=4)
     rows: list[tuple[str, dict]] = []
-    plan: list[Callable[[], list[tuple[str, dict]]]] = [
-        lambda: run_local(2, seconds, warmup, train_steps),
-        lambda: run_ray(2, 1, seconds, warmup, train_steps),
-        lambda: run_ray(1, 2, seconds, warmup, 0),
-        lambda: run_ray(1, 1, seconds, warmup, 0),
-        lambda: run_ray(4, 1, seconds, warmup, 0),
-    ]
+    plan: dict[str, Callable[[], list[tuple[str, dict]]]] = {
+        "local": lambda: run_local(2, seconds, warmup, train_steps),
+        "ray2x1": lambda: run_ray(2, 1, seconds, warmup, train_steps),
+        "ray1x2": lambda: run_ray(1, 2, seconds, warmup, 0),
+        "ray1x1": lambda: run_ray(1, 1, seconds, warmup, 0),
+        "ray4x1": lambda: run_ray(4, 1, seconds, warmup, 0),
+    }
+    cores = os.cpu_count() or 1
+    print(f"{time.strftime('%Y-%m-%d %H:%M %Z')}, {cores} cores, load average at start "
+          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}, {seconds:.0f} s per row\n")  # fmt: skip
+    print("| set-up | steps/s | worker+daemon CPU ms/step | driver CPU ms/step |")
+    print("|---|---:|---:|---:|", flush=True)
     try:
-        for step in plan:
-            for label, r in step():
+        for key in args.rows.split(","):
+            for label, r in plan[key.strip()]():
                 rows.append((label, r))
-                print(f"  {label}: {r['steps_per_s']:.1f} steps/s", flush=True)
+                print(f"| {label} | {r['steps_per_s']:.1f} | {1e3 * r['worker_cpu']:.2f} | "
+                      f"{1e3 * r['driver_cpu']:.2f} |", flush=True)  # fmt: skip
     finally:
         ray.shutdown()
     res = dict(rows)
-    cores = os.cpu_count() or 1
-    print(f"\n{time.strftime('%Y-%m-%d %H:%M %Z')}, {cores} cores, load average at start "
-          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}, {seconds:.0f} s per row\n")  # fmt: skip
-    print("| set-up | steps/s | worker+daemon CPU ms/step | driver CPU ms/step |")
-    print("|---|---:|---:|---:|")
-    for label, r in rows:
-        print(f"| {label} | {r['steps_per_s']:.1f} | {1e3 * r['worker_cpu']:.2f} | "
-              f"{1e3 * r['driver_cpu']:.2f} |")  # fmt: skip
+    print()
+    summarise(res)
+    subprocess.run(["uptime"], check=False)
+    return 0
+
+
+def summarise(res: dict[str, dict[str, float]]) -> None:
+    """The overhead ratios, the scaling line and the projection, from the rows that ran."""
+    if "local 2 envs (rover-pair)" not in res or "ray 2 x 1" not in res:
+        return
     local, ray2 = res["local 2 envs (rover-pair)"], res["ray 2 x 1"]
     print(f"\nRay overhead ratio, 2 envs, stepping: local / Ray = "
           f"{local['steps_per_s'] / ray2['steps_per_s']:.2f}")  # fmt: skip
     if "local 2 envs, PPO" in res and "ray 2 x 1, PPO" in res:
         print(f"Ray overhead ratio, 2 envs, PPO training: local / Ray = "
               f"{res['local 2 envs, PPO']['steps_per_s'] / res['ray 2 x 1, PPO']['steps_per_s']:.2f}")  # noqa: E501
+    if "ray 1 x 1" not in res:
+        return
     one = res["ray 1 x 1"]
     for w in (1, 2, 4):
+        if f"ray {w} x 1" not in res:
+            continue
         r = res[f"ray {w} x 1"]
         print(f"ray {w} worker(s): {r['steps_per_s']:.1f} steps/s = "
               f"{r['steps_per_s'] / one['steps_per_s']:.2f}x one worker")  # fmt: skip
@@ -186,8 +206,6 @@ def main() -> int:
           f"{1 / per_worker:.0f} x C steps/s (e.g. {8 / per_worker:.0f} steps/s for 8 cores);"
           f" the driver spends {1e3 * driver:.2f} CPU ms per step, which caps one driver at "
           f"about {1 / driver:.0f} steps/s before learning.")  # fmt: skip
-    subprocess.run(["uptime"], check=False)
-    return 0
 
 
 if __name__ == "__main__":

@@ -14,7 +14,9 @@ doubling, capped at 8 s) and stop after ``max_restarts``.
 The daemon is started from that long-lived thread on purpose: ``PR_SET_PDEATHSIG`` fires
 when the *thread* that forked the child ends, so a daemon forked from a short-lived thread
 would be killed early; forked from the keeper thread it lives exactly as long as the host
-process (a ``kill -9`` of the host sends the daemon SIGTERM, and it unlinks its segments).
+process (a ``kill -9`` of the host sends the daemon SIGTERM, and it unlinks its segments;
+under Ray the raylet may SIGKILL a dead worker's children first, which is why Ray workers
+also sweep dead segments).
 """
 
 from __future__ import annotations

@@ -24,9 +24,10 @@ Faults:
   truncated episode (``DaemonRecovery``), as under rover-pair.
 - Segments are named ``<prefix>_w<index>_<incarnation>``; :meth:`RayVecEnv.close` stops the
   workers (their daemons unlink their segments) and then sweeps ``<prefix>_*`` from
-  ``/dev/shm`` on every live node, so nothing is left after a normal end or a Ctrl-C. A
-  killed worker's daemon gets SIGTERM from the kernel (``PR_SET_PDEATHSIG``) and unlinks its
-  own segments.
+  ``/dev/shm`` on every live node, so nothing is left after a normal end, a Ctrl-C or a
+  SIGTERM of ``rover-train``. A killed worker's daemon dies with it (Ray's raylet kills a
+  dead worker's children); its restarted successor removes the segments it left, and any
+  worker starting on a node removes dead ``rray*`` segments of runs killed outright.
 
 Importing this module imports Ray (``pip install 'roverav[ray]'``); nothing else in roverav
 does.
@@ -36,6 +37,8 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
+import threading
 import time
 import uuid
 from collections.abc import Iterable, Sequence
@@ -53,7 +56,7 @@ from stable_baselines3.common.vec_env.base_vec_env import (
 )
 from stable_baselines3.common.vec_env.util import dict_to_obs
 
-from rover_train.ray_worker import EnvWorker, WorkerConfig, sweep_segments
+from rover_train.ray_worker import RUN_PREFIX_STEM, EnvWorker, WorkerConfig, sweep_segments
 from shm_protocol import validate_name
 
 log = logging.getLogger(__name__)
@@ -148,7 +151,7 @@ class RayVecEnv(VecEnv):
         self.max_restarts = max_restarts
         self.restart_timeout = restart_timeout
         self.owns_ray = owns_ray
-        self.prefix = validate_name(prefix or f"rray{uuid.uuid4().hex[:6]}")
+        self.prefix = validate_name(prefix or f"{RUN_PREFIX_STEM}{uuid.uuid4().hex[:6]}")
         """Every segment of this run starts with it (``<prefix>_w<index>_...``)."""
         self.worker_deaths = [0] * workers
         """Deaths of each worker seen by the driver (each one restarted by Ray)."""
@@ -327,9 +330,24 @@ class RayVecEnv(VecEnv):
             ray.shutdown()
 
 
+def _stop_on_sigterm() -> None:
+    """Let SIGTERM stop the driver like Ctrl-C (``KeyboardInterrupt``), so ``finally`` blocks
+    close the workers and sweep the nodes; only where SIGTERM still has its default action."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        return
+
+    def _interrupt(signum: int, _frame: object) -> None:
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    signal.signal(signal.SIGTERM, _interrupt)
+
+
 def make_ray_vec_env(args: Any) -> RayVecEnv:
     """The ``RayVecEnv`` of a ``rover-train --ray`` run (``args`` is its ``TrainArgs``):
     connects to (or starts) the cluster; the env shuts a cluster it started down on close."""
+    _stop_on_sigterm()
     owns = connect(args.ray or None, num_cpus=int(args.workers * WORKER_CPUS))
     cfg = WorkerConfig(
         kind=args.env,

@@ -8,7 +8,9 @@ own. The worker steps its envs in turn and auto-resets them as SB3's ``DummyVecE
 Segment names are unique per worker *and per incarnation*: ``<prefix>_w<index>_<4 hex>``.
 A worker that Ray restarts after a crash therefore never races the dying daemon of its
 previous life for a name; it removes the segments that daemon left (dead writer) on start,
-and the driver sweeps every node for ``<prefix>_*`` when the run ends.
+and the driver sweeps every node for ``<prefix>_*`` when the run ends. (When a worker
+process dies, Ray's raylet kills its child processes with SIGKILL, so a daemon cannot
+always unlink its own segments: these sweeps are what guarantee the clean-up.)
 """
 
 from __future__ import annotations
@@ -28,6 +30,10 @@ from shm_protocol import SHM_DIR, FrameReader, ShmError, validate_name
 from shm_protocol.names import CAMERA_SUFFIX
 
 log = logging.getLogger(__name__)
+
+
+RUN_PREFIX_STEM = "rray"
+"""Default run prefixes are ``rray<6 hex>``; a worker removes dead ``rray*`` segments."""
 
 
 @dataclass
@@ -55,7 +61,8 @@ class WorkerConfig:
 def sweep_segments(prefix: str, only_dead: bool = False) -> list[str]:
     """Unlink the segments in ``/dev/shm`` whose names start with ``prefix`` (and their
     hidden creation temporaries). With ``only_dead``, a fused segment whose writer is alive
-    (a running daemon) is kept together with its camera twin. Returns the removed names."""
+    (a running daemon) is kept together with its camera twin, and creation temporaries are
+    kept. Returns the removed names."""
     validate_name(prefix)
     try:
         names = sorted(os.listdir(SHM_DIR))
@@ -65,9 +72,9 @@ def sweep_segments(prefix: str, only_dead: bool = False) -> list[str]:
     keep: set[str] = set()
     if only_dead:
         for n in ours:
-            if n.startswith(".") or n.endswith(CAMERA_SUFFIX):
-                continue
-            if _writer_alive(n):
+            if n.startswith("."):  # a creation temporary: its daemon is starting right now
+                keep.add(n)
+            elif not n.endswith(CAMERA_SUFFIX) and _writer_alive(n):
                 keep |= {n, n + CAMERA_SUFFIX}
     removed = []
     for n in ours:
@@ -117,9 +124,12 @@ class EnvWorker:
         if cfg.kind in FUSED_KINDS:
             from rover_train.daemon_keeper import DaemonKeeper
 
+            # a dead predecessor of this worker, or any run killed outright on this node
+            # (kill -9 of a driver: Ray kills its workers and their daemons with SIGKILL)
             stale = sweep_segments(f"{prefix}_w{index}_", only_dead=True)
+            stale += sweep_segments(RUN_PREFIX_STEM, only_dead=True)
             if stale:
-                log.warning("worker %d: removed segments of a dead predecessor: %s",
+                log.warning("worker %d: removed segments whose daemon is dead: %s",
                             index, ", ".join(stale))  # fmt: skip
             self.keeper = DaemonKeeper(self.name, cfg.envs_per_worker, cfg.daemon_args,
                                        max_restarts=cfg.daemon_max_restarts,
@@ -219,4 +229,4 @@ class EnvWorker:
         return left
 
 
-__all__ = ["EnvWorker", "WorkerConfig", "sweep_segments"]
+__all__ = ["RUN_PREFIX_STEM", "EnvWorker", "WorkerConfig", "sweep_segments"]

@@ -129,7 +129,7 @@ def test_fused_ppo_across_nodes_survives_a_killed_worker(cluster: Any) -> None:
         after = venv.describe_workers()
         assert after[0]["pid"] != before[0]["pid"] and after[0]["node_id"] == before[0]["node_id"]
         assert after[0]["name"] != before[0]["name"] and after[1] == before[1]
-        # the dead worker's daemon got SIGTERM from the kernel and unlinked its segments
+        # the dead worker's daemon died with it; its segments are gone (its successor swept)
         assert not _wait_gone(_segments(before[0]["name"]))
         assert not _pid_alive(before[0]["daemon_pid"])
     finally:
@@ -221,7 +221,7 @@ def test_a_worker_whose_node_is_lost_comes_back_on_another_node(cluster: Any) ->
         assert d2["node_id"] != d["node_id"] and venv.worker_deaths == [1]
         _obs, _rew, dones, infos = venv.step(actions)
         assert "worker_restarted" not in infos[0]
-        # the lost node's worker died with its raylet; its daemon unlinked its segments
+        # the lost node's worker and daemon died with its raylet; no segment of theirs is left
         assert not _wait_gone(_segments(d["name"]))
     finally:
         venv.close()
