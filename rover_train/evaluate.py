@@ -54,15 +54,24 @@ class EpisodeResult:
     ret: float
 
 
+class PolicyLoadError(RuntimeError):
+    """The policy cannot be loaded, or does not fit the env (the message says why and what
+    to do)."""
+
+
 def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | None) -> Any:
-    """A callable obs -> action: the saved SB3 model, or uniform random actions."""
+    """A callable obs -> action: the saved SB3 model, or uniform random actions.
+
+    :raises PolicyLoadError: no model file, a file no algorithm can load, or a model made
+        for other observation/action spaces than ``env``'s.
+    """
     if policy == "random":
         space = env.action_space
         return lambda _obs: space.sample()
     if model is None:
-        raise SystemExit("rover-eval: give a model .zip or --policy random")
+        raise PolicyLoadError("give a model .zip or --policy random")
     if not model.is_file():
-        raise SystemExit(f"rover-eval: no model file at {model} (train one with rover-train)")
+        raise PolicyLoadError(f"no model file at {model} (train one with rover-train)")
     from stable_baselines3 import DQN, PPO, SAC
 
     classes = {"ppo": PPO, "sac": SAC, "dqn": DQN}
@@ -75,10 +84,37 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
     for name in order:
         try:
             loaded = classes[name].load(model, device="cpu")
-            return lambda obs: loaded.predict(obs, deterministic=True)[0]
         except Exception as exc:  # noqa: BLE001 - try the next algorithm
             errors.append(f"{name}: {exc}")
-    raise SystemExit(f"rover-eval: could not load {model}: " + "; ".join(errors))
+            continue
+        check_spaces(model, loaded, env)
+        return lambda obs: loaded.predict(obs, deterministic=True)[0]
+    raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
+
+
+def check_spaces(path: Path, model: Any, env: Any) -> None:
+    """Raise :class:`PolicyLoadError` when ``model`` was made for other spaces than ``env``'s
+    (say a LIDAR policy evaluated on the fused env), naming both and the fix."""
+    for what in ("observation", "action"):
+        want = getattr(model, f"{what}_space")
+        have = getattr(env, f"{what}_space")
+        if want != have:
+            raise PolicyLoadError(
+                f"{path} was trained for another env: its {what} space is {_describe(want)}, "
+                f"but this env's (--env, --world) is {_describe(have)}. Evaluate it with the "
+                "--env it was trained on (see metrics.json beside the model), or train a "
+                "model for this env with rover-train."
+            )
+
+
+def _describe(space: Any) -> str:
+    from gymnasium import spaces
+
+    if isinstance(space, spaces.Dict):
+        return "Dict(" + ", ".join(f"{k}: {_describe(v)}" for k, v in space.spaces.items()) + ")"
+    if isinstance(space, spaces.Box):
+        return f"Box{tuple(space.shape)}"
+    return str(space)
 
 
 def _video_frame(env: Any, obs: Any) -> np.ndarray:
@@ -227,6 +263,30 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float) -> None:
         writer.release()
 
 
+def validate(args: argparse.Namespace) -> str | None:
+    """What is wrong with rover-eval's arguments, and how to fix it; None if nothing."""
+    from rover_env.worlds import canonical_world_name
+    from shm_protocol import InvalidNameError, camera_name, slot_name
+
+    try:
+        canonical_world_name(args.world)
+    except ValueError as exc:
+        return f"--world: {exc}"
+    for flag, value in (("--episodes", args.episodes), ("--max-steps", args.max_steps)):
+        if value < 1:
+            return f"{flag} must be at least 1, got {value}"
+    if args.slot < 0:
+        return (
+            f"--slot must be >= 0 (a daemon slot: 0..N-1 with av-daemon --slots N), "
+            f"got {args.slot}"
+        )
+    try:
+        camera_name(slot_name(args.shm_name, args.slot))
+    except InvalidNameError as exc:
+        return f"--shm-name: {exc}"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s")
     p = argparse.ArgumentParser(prog="rover-eval", description=__doc__.split("\n")[0])
@@ -250,6 +310,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     if (args.model is None) == (args.policy is None):
         p.error("give exactly one of: a model .zip, or --policy random")
+    problem = validate(args)
+    if problem:
+        p.error(problem)
 
     from shm_protocol.errors import ShmError
 
@@ -269,7 +332,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         return 1
     try:
-        act = load_policy(args.model, args.policy, env, args.algo)
+        try:
+            act = load_policy(args.model, args.policy, env, args.algo)
+        except PolicyLoadError as exc:
+            print(f"rover-eval: {exc}", file=sys.stderr)
+            return 1
         results, frames = [], []
         for i in range(args.episodes):
             record = args.video is not None and i < args.video_episodes

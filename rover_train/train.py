@@ -108,6 +108,39 @@ def validate(args: TrainArgs) -> str | None:
         return "--algo sac needs continuous actions: use --env lidar|fused, or --algo ppo/dqn"
     if args.n_envs < 1 or args.timesteps < 1:
         return "--n-envs and --timesteps must be at least 1"
+    return _validate_values(args) or _validate_device(args)
+
+
+def _validate_values(args: TrainArgs) -> str | None:
+    """World, lengths, segment name and --resume: each message names the value and the fix."""
+    from rover_env.worlds import canonical_world_name
+    from shm_protocol import InvalidNameError, camera_name, slot_name
+
+    try:
+        canonical_world_name(args.world)
+    except ValueError as exc:
+        return f"--world: {exc}"
+    if args.length is not None and args.length < 1:
+        return f"--length must be at least 1 step (or omit it for the env's own), got {args.length}"
+    if args.algo == "ppo" and args.n_steps * args.n_envs < 2:
+        return (
+            f"--n-steps must be at least 2 for PPO (a rollout of n_steps x n_envs > 1 steps), "
+            f"got --n-steps {args.n_steps} with {args.n_envs} env(s)"
+        )
+    if args.env in FUSED_KINDS:
+        try:
+            camera_name(slot_name(args.shm_name, args.n_envs - 1))
+        except InvalidNameError as exc:
+            return f"--shm-name: {exc}"
+    if args.resume is not None:
+        try:
+            resolve_checkpoint(args.resume)
+        except FileNotFoundError as exc:
+            return f"{exc}; give a model .zip or a run directory written by rover-train"
+    return None
+
+
+def _validate_device(args: TrainArgs) -> str | None:
     if args.device.startswith("cuda"):
         import torch
 
