@@ -166,6 +166,13 @@ def _validate_values(args: TrainArgs) -> str | None:
             f"--n-steps must be at least 2 for PPO (a rollout of n_steps x slots > 1 steps), "
             f"got --n-steps {args.n_steps} with {args.slots} env(s)"
         )
+    positive = {"--batch-size": args.batch_size, "--n-epochs": args.n_epochs,
+                "--buffer-size": args.buffer_size, "--learning-rate": args.learning_rate}
+    for flag, value in positive.items():
+        if value is not None and not value > 0:
+            return f"{flag} must be > 0 (or omit it for the algorithm's default), got {value}"
+    if not 0.0 < args.gamma <= 1.0:
+        return f"--gamma is a discount factor in (0, 1], got {args.gamma}"
     if args.env in FUSED_KINDS:
         try:
             camera_name(slot_name(args.name, args.slots - 1))

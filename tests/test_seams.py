@@ -36,8 +36,9 @@ Further bad inputs tried (``fixed`` = gave a traceback or a misleading message b
 15. ``rover-train --resume DIR`` of a directory with no checkpoint: usage error, status 2
     (fixed: traceback after the env was built).
 16. ``rover-train --world mars``: usage error, status 2 (fixed: traceback).
-17. ``rover-train --length 0`` and ``--n-steps 1``: usage error, status 2 (fixed: traceback,
-    SB3's AssertionError for n_steps).
+17. ``rover-train --length 0``, ``--n-steps 1``, ``--batch-size 0``, ``--gamma 1.5``: usage
+    error, status 2 (fixed: the first two gave tracebacks, SB3's AssertionError for n_steps;
+    ``--batch-size 0`` silently trained with the default; ``--gamma 1.5`` was accepted).
 18. ``rover-train --shm-name a/b``: usage error, status 2 (fixed: traceback).
 19. ``rover-eval`` of a missing model file: status 1, "no model file".
 20. ``rover-eval --world mars``: usage error, status 2 (fixed: traceback).
@@ -291,9 +292,11 @@ def test_rover_pair_bad_input() -> None:
         (["--world", "mars"], ["--world", "mars", "maze"]),
         (["--length", "0"], ["--length", "at least 1"]),
         (["--n-steps", "1"], ["--n-steps", "at least 2"]),
+        (["--batch-size", "0"], ["--batch-size", "must be > 0"]),
+        (["--gamma", "1.5"], ["--gamma", "(0, 1]"]),
         (["--env", "fused", "--shm-name", "a/b"], ["name", "must not contain '/'"]),
     ],
-    ids=["resume", "world", "length", "n_steps", "shm_name"],
+    ids=["resume", "world", "length", "n_steps", "batch_size", "gamma", "shm_name"],
 )
 def test_rover_train_bad_input(args: list[str], words: list[str], tmp_path: Path) -> None:
     args = [a.replace("{tmp}", str(tmp_path)) for a in args]
