@@ -233,7 +233,9 @@ class RoverEnvFused(RoverEnvBase):
             )
         except SegmentBusyError as exc:
             fused.close()
-            raise SegmentBusyError(self._slot_busy_message(exc.pid), cam, exc.pid) from None
+            raise SegmentBusyError(
+                self._slot_busy_message(exc.pid, exc.command), cam, exc.pid, exc.command
+            ) from None
         except BaseException:
             fused.close()
             raise
@@ -303,13 +305,11 @@ class RoverEnvFused(RoverEnvBase):
             f"env with size=({shape[0]}, {shape[1]}), or restart the daemon with {side}."
         )
 
-    def _slot_busy_message(self, pid: int) -> str:
-        from shm_protocol.writer import process_description
-
+    def _slot_busy_message(self, pid: int, command: str) -> str:
         who = (
             "this process (another RoverEnvFused here that is not closed)"
             if pid == os.getpid()
-            else f"another process ({process_description(pid)})"
+            else f"another process ({command or 'command line unknown'})"
         )
         base = self._base_name()
         return (

@@ -50,12 +50,14 @@ class SegmentBusyError(ShmError):
 
     :ivar name: the segment name.
     :ivar pid: the live writer's pid (may be this process's own).
+    :ivar command: that process's command line, shortened ("" when unknown).
     """
 
-    def __init__(self, message: str, name: str = "", pid: int = 0) -> None:
+    def __init__(self, message: str, name: str = "", pid: int = 0, command: str = "") -> None:
         super().__init__(message)
         self.name = name
         self.pid = pid
+        self.command = command
 
 
 class NonFiniteError(ShmError, ValueError):

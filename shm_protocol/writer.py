@@ -212,6 +212,7 @@ class FrameWriter:
                     "close that writer first, or write to another segment.",
                     self.name,
                     me,
+                    _command_line(me),
                 )
         info = seg.trailer_info()
         pid, flags = (info.pid, info.flags) if info is not None else (0, 0)
@@ -222,13 +223,15 @@ class FrameWriter:
             and not flags & FLAG_SHUTTING_DOWN
             and pid_alive(pid)
         ):
+            command = _command_line(pid)
             raise SegmentBusyError(
                 f"segment {self.name!r} already has a live writer: pid {pid} "
-                f"({process_description(pid)}), which attached as its writer and has not "
-                "closed it. One writer at a time: close that writer or stop that process "
-                "first, or write to another segment.",
+                f"({command or 'command line unknown'}), which attached as its writer and "
+                "has not closed it. One writer at a time: close that writer or stop that "
+                "process first, or write to another segment.",
                 self.name,
                 pid,
+                command,
             )
 
     def _bind(self, seg: Segment, layout: Layout, check_finite: bool) -> None:
@@ -411,17 +414,15 @@ class FrameWriter:
         return f"FrameWriter({self.name!r}, {describe(self.shape, self.dtype)}, {state})"
 
 
-def process_description(pid: int) -> str:
-    """``pid``'s command line from ``/proc`` (shortened), for messages naming a process."""
+def _command_line(pid: int) -> str:
+    """``pid``'s command line from ``/proc``, shortened ("" when unknown)."""
     try:
         with open(f"/proc/{pid}/cmdline", "rb") as f:
             raw = f.read()
     except OSError:
-        return "command line unknown"
-    cmd = raw.rstrip(b"\0").replace(b"\0", b" ").decode(errors="replace")
-    if len(cmd) > _CMDLINE_CHARS:
-        cmd = cmd[: _CMDLINE_CHARS - 3] + "..."
-    return cmd or "command line unknown"
+        return ""
+    cmd = " ".join(raw.replace(b"\0", b" ").decode(errors="replace").split())
+    return cmd if len(cmd) <= _CMDLINE_CHARS else cmd[: _CMDLINE_CHARS - 3] + "..."
 
 
 def _initialise(seg: Segment, layout: Layout, pid: int) -> None:

@@ -132,6 +132,7 @@ def test_slot_held_by_another_process_names_it_and_a_crashed_holder_does_not_blo
             _fused(daemon.name, slot=1)
         msg = str(err.value)
         assert err.value.pid == holder.pid and f"pid {holder.pid}" in msg
+        assert err.value.command.startswith(PY) and err.value.command in msg
         assert "daemon slot 1" in msg and "another process" in msg and "--slots N" in msg
     finally:
         holder.send_signal(signal.SIGKILL)
