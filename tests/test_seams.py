@@ -11,7 +11,8 @@ The seams the issue named:
    ``--slots N``. A holder that closed or crashed (SIGKILL) does not block a new env.
 2. Env ``size=(96, 96)`` against ``av-daemon --size 64``: ``LayoutError`` naming both sizes
    and the fix, at construction and at ``reset()`` after the daemon was restarted with
-   another size (was numpy's "could not broadcast" error).
+   another size (was numpy's "could not broadcast" error); rover-train's ``DaemonRecovery``
+   raises it at once instead of retrying for a minute.
 3. ``reset()`` / ``step()`` / ``render()`` after ``close()``, LIDAR and fused envs:
    ``EnvClosedError`` (a Gymnasium ``ClosedEnvironmentError`` and a ``RuntimeError``) saying
    to make a new env (was a bare AssertionError, or silently working).
@@ -51,6 +52,7 @@ Further bad inputs tried (``fixed`` = gave a traceback or a misleading message b
 
 from __future__ import annotations
 
+import logging
 import os
 import signal
 import subprocess
@@ -69,6 +71,7 @@ from rover_env.discrete_env import DiscreteRoverEnvFused
 from rover_env.errors import EnvClosedError
 from rover_env.fused_env import RoverEnvFused
 from rover_env.lidar_env import RoverEnv
+from rover_train.envs import DaemonRecovery
 from shm_protocol import InvalidNameError, LayoutError, SegmentBusyError, SegmentNotFoundError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -144,7 +147,9 @@ def test_slot_held_by_another_process_names_it_and_a_crashed_holder_does_not_blo
 
 
 # --- 2. size mismatch -------------------------------------------------------------------------
-def test_size_mismatch_at_attach_and_after_a_daemon_restart() -> None:
+def test_size_mismatch_at_attach_and_after_a_daemon_restart(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     name = f"test_seams_size_{uuid.uuid4().hex[:8]}"
     small = Daemon(name, 1, ("--size", "64")).start()
     try:
@@ -168,6 +173,10 @@ def test_size_mismatch_at_attach_and_after_a_daemon_restart() -> None:
                 env.reset(seed=1)
             msg = str(err.value)
             assert "size=(96, 96)" in msg and "64x64" in msg and "--size 96" in msg
+            # rover-train's recovery wrapper does not retry what a restart cannot fix
+            with caplog.at_level(logging.WARNING), pytest.raises(LayoutError):
+                DaemonRecovery(env, recover_timeout=1.0).reset(seed=1)
+            assert "retrying" not in caplog.text
             big.stop()  # and back to 96: the same env resets again
             big = Daemon(name, 1).start()
             env.reset(seed=2)
