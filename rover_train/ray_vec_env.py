@@ -109,7 +109,7 @@ def sweep_all_nodes(prefix: str, timeout: float = CLOSE_TIMEOUT_S) -> dict[str, 
     try:
         for node_id, removed in ray.get(refs, timeout=timeout):
             out[node_id] = removed
-    except (GetTimeoutError, RayActorError, ray.exceptions.RayError) as exc:
+    except ray.exceptions.RayError as exc:  # a timeout, or a node that went away meanwhile
         log.warning("sweeping /dev/shm for %r on every node did not finish: %s", prefix, exc)
     return out
 
@@ -323,7 +323,7 @@ class RayVecEnv(VecEnv):
                 log.warning("worker %d did not close cleanly: %s", w, exc)
         for wk in self.workers:
             ray.kill(wk, no_restart=True)
-        swept = {n: r for n, r in sweep_all_nodes(self.prefix).items() if r}
+        swept = {n: r for n, r in sweep_all_nodes(f"{self.prefix}_").items() if r}
         if swept:
             log.warning("removed leftover segments: %s", swept)
         if self.owns_ray:
