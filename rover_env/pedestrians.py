@@ -48,9 +48,10 @@ PEDESTRIAN_MODES = ("walk", "crossing")
 # crossing mode: each pedestrian walks across the rover's start-goal line
 CROSSING_FRACTION_RANGE = (0.3, 0.85)  # where along the line it crosses
 CROSSING_HALF_LENGTH_RANGE = (2.5, 4.0)  # m walked on either side of the line
+CROSSING_MIN_HALF_LENGTH = 1.5  # m: cluttered places settle for shorter crossings
 CROSSING_ANGLE_JITTER = math.radians(20.0)  # from perpendicular to the line
 CROSSING_ROVER_SPEED = 0.6  # m/s: a crossing is timed for a rover driving this fast
-_CROSSING_TRIES = 24  # candidate crossings per pedestrian before a normal path
+_CROSSING_TRIES = 48  # candidate crossings per pedestrian before a normal path
 
 # Clothing and skin palettes (RGB). Shirts are saturated hues; the scenery is grey, sand,
 # beige and dark blue, the rover light grey with an orange accent.
@@ -219,7 +220,8 @@ class Pedestrians:
         Pedestrian i crosses the line at a random fraction of its length
         (``CROSSING_FRACTION_RANGE``), walking within ``CROSSING_ANGLE_JITTER`` of
         perpendicular to it from a random side, ``CROSSING_HALF_LENGTH_RANGE`` m either side
-        of the line (then back: the path is out-and-back, so it crosses again). Its start
+        of the line (``CROSSING_MIN_HALF_LENGTH`` where that is too cluttered; then back:
+        the path is out-and-back, so it crosses again). Its start
         point is timed so that it reaches the line when a rover driving straight at
         ``CROSSING_ROVER_SPEED`` would. Paths keep clear of obstacles and start at least
         ``MIN_START_DISTANCE`` from the rover; a pedestrian with no free crossing after
@@ -234,9 +236,12 @@ class Pedestrians:
         crossing = 0
         for i in range(self.n):
             speed = float(rng.uniform(*SPEED_RANGE))
-            for _ in range(_CROSSING_TRIES):
+            lo, hi = CROSSING_HALF_LENGTH_RANGE
+            for attempt in range(_CROSSING_TRIES):
+                if attempt == _CROSSING_TRIES // 2:  # cluttered: settle for shorter walks
+                    lo, hi = CROSSING_MIN_HALF_LENGTH, CROSSING_HALF_LENGTH_RANGE[0]
                 frac = float(rng.uniform(*CROSSING_FRACTION_RANGE))
-                half = float(rng.uniform(*CROSSING_HALF_LENGTH_RANGE))
+                half = float(rng.uniform(lo, hi))
                 side = 1.0 if rng.random() < 0.5 else -1.0
                 walk = (
                     line

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from rover_train.envs import ENV_IDS, default_shm_name, make_env
+from rover_train.envs import ENV_IDS, PEDESTRIAN_MODES, default_shm_name, make_env
 
 PERSONAL_SPACE_M = 1.2
 VIDEO_PANEL = 256  # pixels per side of each video panel
@@ -237,6 +237,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--env", choices=sorted(ENV_IDS), default="lidar")
     p.add_argument("--world", default="maze")
+    p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default="walk")
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--seed", type=int, default=1000, help="episode i uses seed + i")
     p.add_argument(
@@ -257,6 +258,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         env = make_env(
             args.env,
             world=args.world,
+            pedestrian_mode=args.pedestrian_mode,
             slot=args.slot,
             shm_name=args.shm_name,
             render_mode="rgb_array" if args.video else None,

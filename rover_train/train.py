@@ -23,7 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from rover_train.envs import ENV_IDS, FUSED_KINDS, default_shm_name, env_factory
+from rover_train.envs import (
+    DISCRETE_KINDS,
+    ENV_IDS,
+    FUSED_KINDS,
+    PEDESTRIAN_MODES,
+    default_shm_name,
+    env_factory,
+)
 
 log = logging.getLogger("rover_train")
 
@@ -36,9 +43,12 @@ class TrainArgs:
     """Arguments of one training run."""
 
     env: str = "lidar"
-    """Which env: lidar (RoverEnv), fused (RoverEnvFused) or discrete (its Discrete(60) twin)."""
+    """Which env: lidar (RoverEnv), fused (RoverEnvFused), discrete (its Discrete(60) twin),
+    fused-gaze or fused-gaze-discrete (the same, also turning the camera)."""
     world: str = "maze"
     """World: inspect, moon (island) or maze."""
+    pedestrian_mode: str = "walk"
+    """walk, or crossing (pedestrians cross the rover's path from the sides)."""
     algo: str = "ppo"
     """ppo (all envs), sac (lidar, fused) or dqn (discrete)."""
     timesteps: int = 100_000
@@ -77,6 +87,7 @@ def parse_args(argv: Sequence[str] | None = None) -> TrainArgs:
     p = argparse.ArgumentParser(prog="rover-train", description=__doc__.split("\n")[0])
     p.add_argument("--env", choices=sorted(ENV_IDS), default=d.env)
     p.add_argument("--world", default=d.world, help="inspect, moon (island) or maze")
+    p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=d.pedestrian_mode)
     p.add_argument("--algo", choices=ALGOS, default=d.algo)
     p.add_argument("--timesteps", type=int, default=d.timesteps)
     p.add_argument("--n-envs", type=int, default=d.n_envs)
@@ -102,10 +113,16 @@ def parse_args(argv: Sequence[str] | None = None) -> TrainArgs:
 
 def validate(args: TrainArgs) -> str | None:
     """A message naming what is wrong with ``args`` and how to fix it, or None."""
-    if args.algo == "dqn" and args.env != "discrete":
-        return "--algo dqn needs a discrete action space: use --env discrete (or --algo ppo/sac)"
-    if args.algo == "sac" and args.env == "discrete":
-        return "--algo sac needs continuous actions: use --env lidar|fused, or --algo ppo/dqn"
+    if args.algo == "dqn" and args.env not in DISCRETE_KINDS:
+        return (
+            "--algo dqn needs a discrete action space: use --env discrete|fused-gaze-discrete "
+            "(or --algo ppo/sac)"
+        )
+    if args.algo == "sac" and args.env in DISCRETE_KINDS:
+        return (
+            "--algo sac needs continuous actions: use --env lidar|fused|fused-gaze, "
+            "or --algo ppo/dqn"
+        )
     if args.n_envs < 1 or args.timesteps < 1:
         return "--n-envs and --timesteps must be at least 1"
     if args.device.startswith("cuda"):
@@ -146,6 +163,7 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path) -> Any:
             args.env,
             monitor_dir=str(monitor_dir),
             world=args.world,
+            pedestrian_mode=args.pedestrian_mode,
             slot=i,
             shm_name=args.shm_name,
             length=args.length,
