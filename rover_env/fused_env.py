@@ -265,6 +265,9 @@ class RoverEnvFused(RoverEnvBase):
         if self._camera is None or not self._link_is_current():
             log.info("re-attaching to the daemon's segments for '%s'", self.rl_obs_name)
             self._connect(self.connection_check_timeout)
+        # reset()'s info describes the new episode, not the last step of the previous one
+        self._heatmap_center = 0.0
+        self._pedestrian_collision = False
 
     def _observe(self) -> dict[str, np.ndarray]:
         assert self._camera is not None and self._fused is not None

@@ -45,9 +45,9 @@ _CHASE_LEAD = 1.0
 _GOAL_BODY = "goal_marker"
 # The chase view's gaze cone: where the forward camera looks, drawn on the ground.
 VIEW_CONE_LENGTH = 4.0  # m from the camera along each edge of the field of view
-_VIEW_CONE_WIDTH = 0.025  # m, radius of the drawn lines
+_VIEW_CONE_WIDTH = 0.04  # m, radius of the drawn lines
 _VIEW_CONE_RGBA = np.array([1.0, 0.85, 0.1, 0.9], dtype=np.float32)
-_VIEW_CONE_LIFT = 0.03  # m above the ground below the rover
+_VIEW_CONE_LIFT = 0.05  # m above the ground below the rover
 _OBSTACLE, _PEDESTRIAN = 1, 2  # contact codes of geoms (0: ground or the rover itself)
 
 
