@@ -264,6 +264,7 @@ def test_bad_actions_are_clear_errors(daemon: Daemon) -> None:
             env.step(180)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["fused-gaze", "fused-gaze-discrete"])
 def test_ppo_trains_a_few_steps_on_two_daemon_slots(daemon: Daemon, kind: str) -> None:
     from stable_baselines3 import PPO
