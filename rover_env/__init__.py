@@ -4,8 +4,8 @@ Importing this package sets ``MUJOCO_GL=egl`` (unless already set) before MuJoCo
 so rendering works headless, and registers the ``roverav/`` env ids:
 
 - ``roverav/RoverEnv-v0``: :class:`RoverEnv` (LIDAR)
-- ``roverav/RoverEnvFused-v0``: ``rover_env.fused_env:RoverEnvFused``
-- ``roverav/RoverEnvFusedDiscrete-v0``: ``rover_env.discrete_env:DiscreteRoverEnvFused``
+- ``roverav/RoverEnvFused-v0``: :class:`RoverEnvFused` (needs the av-daemon)
+- ``roverav/RoverEnvFusedDiscrete-v0``: :class:`DiscreteRoverEnvFused`
 - ``roverav/RoverEnvFusedGaze-v0``: :class:`RoverEnvFusedGaze` (drive and pan the camera)
 - ``roverav/RoverEnvFusedGazeDiscrete-v0``: :class:`DiscreteRoverEnvFusedGaze` (Discrete(180))
 
@@ -20,6 +20,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from gymnasium.envs.registration import register, registry  # noqa: E402
 
 from rover_env.core import RoverEnvBase  # noqa: E402
+from rover_env.discrete_env import DiscreteRoverEnvFused  # noqa: E402
+from rover_env.errors import EnvClosedError  # noqa: E402
+from rover_env.fused_env import RoverEnvFused  # noqa: E402
 from rover_env.gaze_discrete_env import DiscreteRoverEnvFusedGaze  # noqa: E402
 from rover_env.gaze_env import RoverEnvFusedGaze  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
@@ -42,10 +45,13 @@ __all__ = [
     "WORLD_NAMES",
     "CameraFrame",
     "Contacts",
+    "DiscreteRoverEnvFused",
     "DiscreteRoverEnvFusedGaze",
+    "EnvClosedError",
     "RewardConfig",
     "RoverEnv",
     "RoverEnvBase",
+    "RoverEnvFused",
     "RoverEnvFusedGaze",
     "RoverSim",
     "WorldSpec",

@@ -177,8 +177,8 @@ class RoverEnvFusedGaze(RoverEnvFused):
 
     def render(self) -> np.ndarray | None:
         """``rgb_array``: a chase-camera frame with the camera's view cone on the ground."""
-        if self.render_mode != "rgb_array":
-            return super().render()
+        if self.render_mode != "rgb_array" or self.closed:
+            return super().render()  # warns, or raises EnvClosedError
         return self.sim.render_chase(*self.render_size, view_cone=True)
 
 
