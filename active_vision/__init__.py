@@ -5,6 +5,8 @@ Camera frames (from the env's camera segment, a video, or a camera device) becom
 memory by the ``av-daemon`` (:mod:`active_vision.daemon`).
 
 - :class:`Perception` / :class:`PerceptionConfig`: batched frames -> fused frames.
+- ``BACKENDS`` / :class:`BackendError`: the network runs in ONNX Runtime or eager torch
+  (``PerceptionConfig.backend``, ``av-daemon --backend``; :mod:`active_vision.backends`).
 - :class:`AVNet`, :func:`load_model`, :class:`WeightsError`: the network and its weights.
 - ``python -m active_vision.dataset | train | evaluate``: data, training, quality figures.
 """
@@ -18,12 +20,15 @@ import os as _os
 # OpenMP starts, hence here, before torch is imported through the modules below.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from active_vision.backends import BACKENDS, BackendError
 from active_vision.models import AVNet, AVNetConfig, WeightsError, load_model, save_weights
 from active_vision.perception import Perception, PerceptionConfig, StageTimes
 
 __all__ = [
+    "BACKENDS",
     "AVNet",
     "AVNetConfig",
+    "BackendError",
     "Perception",
     "PerceptionConfig",
     "StageTimes",

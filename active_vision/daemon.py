@@ -1,7 +1,8 @@
 """av-daemon: camera frames in, fused 96x96x3 observations out, over shared memory.
 
     av-daemon [--name rl_observation] [--slots N] [--size 96] [--depth model|render]
-              [--threads 1] [--source camera|video:PATH|device:N] [--preview PATH]
+              [--backend auto|onnx|torch] [--threads 1]
+              [--source camera|video:PATH|device:N] [--preview PATH]
               [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
 
 (also ``python -m active_vision``). For each slot i it creates the fused segment
@@ -14,7 +15,10 @@ Then it prints one line containing ``ready`` (flushed) and serves:
 1. waits for new camera frames on any slot (futex wake-ups, short timeouts; idle costs
    almost no CPU);
 2. runs :class:`~active_vision.perception.Perception` on every slot that has a new frame,
-   as one batch;
+   as one batch, in ONNX Runtime or eager torch (``--backend``: ``auto``, the default, is
+   ONNX Runtime when it is installed, else torch with one log line saying so; the ONNX file
+   ships with the weights, or is exported once into the user cache for other weights, see
+   :mod:`active_vision.onnx_export`);
 3. publishes each fused frame into its slot's segment with ``source_seq`` = the camera
    frame's ``seq`` (the env waits on that with ``FrameReader.wait_for``);
 4. refreshes the fused segments' heartbeat while idle, and logs per-stage timings (gray,
@@ -49,6 +53,7 @@ from types import FrameType
 
 import numpy as np
 
+from active_vision.backends import BACKENDS
 from shm_protocol import (
     FUSED_SHAPE,
     FrameReader,
@@ -85,7 +90,9 @@ class DaemonConfig:
     """``model``: depth channel from the network; ``render``: from the camera frame's 4th
     channel (the env sends RGB + depth)."""
     threads: int = 1
-    """torch threads for perception."""
+    """Threads of the perception network (torch threads / ONNX Runtime intra-op threads)."""
+    backend: str = "auto"
+    """``auto`` (ONNX Runtime when installed, else torch), ``onnx`` or ``torch``."""
     source: str = "camera"
     """``camera`` (segments written by envs), ``video:PATH`` or ``device:N``."""
     preview: Path | None = None
@@ -173,14 +180,16 @@ class Daemon:
         cfg = self.config
         self._check_not_served()
         # Perception first: a bad weights file fails before any segment exists.
+        from active_vision.backends import BackendError
         from active_vision.models import WeightsError
+        from active_vision.onnx_export import OnnxExportError
         from active_vision.perception import Perception, PerceptionConfig
 
         try:
             self.perception = Perception(PerceptionConfig(
                 size=cfg.size, depth=cfg.depth, threads=cfg.threads, weights=cfg.weights,
-                max_batch=cfg.slots))  # type: ignore[arg-type]
-        except WeightsError as exc:
+                max_batch=cfg.slots, backend=cfg.backend))  # type: ignore[arg-type]
+        except (WeightsError, BackendError, OnnxExportError) as exc:
             raise DaemonError(str(exc)) from exc
         from active_vision.sources import CameraSegmentSource, OpenCVSource, SourceError
 
@@ -340,7 +349,13 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     p.add_argument("--depth", choices=("model", "render"), default=d.depth,
                    help="depth channel from the network, or from the camera frame's 4th "
                         "channel (renderer's depth)")
-    p.add_argument("--threads", type=_positive_int, default=d.threads, help="torch threads")
+    p.add_argument("--backend", choices=BACKENDS, default=d.backend,
+                   help="inference backend of the perception network: auto (default: ONNX "
+                        "Runtime when onnxruntime is installed, else torch, with one log "
+                        "line), onnx (ONNX Runtime; the .onnx file ships with the weights or "
+                        "is exported once into ~/.cache/roverav) or torch (eager)")
+    p.add_argument("--threads", type=_positive_int, default=d.threads,
+                   help="threads of the perception network (torch / ONNX Runtime intra-op)")
     p.add_argument("--source", type=_source, default=d.source,
                    help="camera (segments written by envs), video:PATH or device:N")
     p.add_argument("--preview", type=Path, default=None,
@@ -362,7 +377,7 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     if not a.stale_after > 0:
         p.error("--stale-after must be > 0")
     return DaemonConfig(name=a.name, slots=a.slots, size=a.size, depth=a.depth,
-                        threads=a.threads, source=a.source, preview=a.preview,
+                        threads=a.threads, backend=a.backend, source=a.source, preview=a.preview,
                         log_every=max(0, a.log_every), stale_after=a.stale_after,
                         weights=a.weights, log_level=a.log_level.upper())
 
@@ -383,7 +398,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if stop.signal is None:
             names = daemon.segment_names()
             print(f"av-daemon ready: name={cfg.name} slots={cfg.slots} size={cfg.size} "
-                  f"depth={cfg.depth} source={cfg.source} pid={os.getpid()} "
+                  f"depth={cfg.depth} backend={daemon.perception.backend} "
+                  f"source={cfg.source} pid={os.getpid()} "
                   f"segments={','.join(names)}", flush=True)
             daemon.serve()
         if stop.signal is not None:
