@@ -243,6 +243,10 @@ class Daemon:
         batch = np.empty((cfg.slots, cfg.size, cfg.size, channels), dtype=np.uint8)
         seqs = [0] * cfg.slots
         slots = [0] * cfg.slots
+        # Batch views made once per size: the loop allocates no arrays per frame.
+        gathered = [batch[:n] for n in range(cfg.slots + 1)]
+        buffer = getattr(source, "frames_buffer", None)
+        direct = None if buffer is None else [buffer[:n] for n in range(cfg.slots + 1)]
         while self.stop.signal is None:
             new = source.poll(IDLE_POLL_S)  # type: ignore[attr-defined]
             now = time.monotonic()
@@ -256,11 +260,19 @@ class Daemon:
                     return
                 continue
             n = len(new)
-            for j, f in enumerate(new):
-                batch[j] = f.data
-                seqs[j] = f.seq
-                slots[j] = f.slot
-            out = perception(batch[:n])
+            if direct is not None and new[n - 1].slot == n - 1:
+                frames = direct[n]  # slots 0..n-1: already in the source's buffer, in order
+                for j in range(n):
+                    seqs[j] = new[j].seq
+                    slots[j] = j
+            else:
+                for j in range(n):
+                    f = new[j]
+                    batch[j] = f.data
+                    seqs[j] = f.seq
+                    slots[j] = f.slot
+                frames = gathered[n]
+            out = perception(frames)
             t0 = time.perf_counter()
             for j in range(n):
                 fused[slots[j]].publish(out[j], source_seq=seqs[j])
