@@ -30,10 +30,8 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
-import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -42,22 +40,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from active_vision.launcher import spawn_daemon  # noqa: E402
+
 SEED_STEPS_PER_S = 20.0  # the seed steps in real time at 0.05 s control
-
-
-def start_daemon(name: str, slots: int, threads: int, backend: str) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "active_vision", "--name", name, "--slots", str(slots),
-         "--threads", str(threads), "--backend", backend, "--log-level", "WARNING"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-    )  # fmt: skip
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        if "ready" in line:
-            threading.Thread(target=lambda: [None for _ in proc.stdout], daemon=True).start()
-            return proc
-    raise RuntimeError(f"daemon exited with {proc.wait()} before it was ready")
 
 
 def _timed(fn, acc: list[float]):
@@ -169,6 +154,10 @@ def _ipc_child(name: str, n: int, q: mp.Queue) -> None:
     q.put(lat[10:])
 
 
+def daemon_args(threads: int, backend: str) -> list[str]:
+    return ["--threads", str(threads), "--backend", backend, "--log-level", "WARNING"]
+
+
 def run_envs(name: str, n_envs: int, steps: int, world: str) -> tuple[list[dict], float]:
     ctx = mp.get_context("spawn")
     q: mp.Queue = ctx.Queue()
@@ -188,20 +177,16 @@ def train_speed(backend: str, steps: int, threads: int, world: str) -> float:
     import tempfile
 
     name = f"bench_fused_train_{os.getpid()}_{backend}"
-    daemon = start_daemon(name, 1, threads, backend)
-    try:
+    with spawn_daemon(name, 1, extra_args=daemon_args(threads, backend)):
         with tempfile.TemporaryDirectory(prefix="roverav_bench_train_") as tmp:
             env = dict(os.environ, PYTHONPATH=str(ROOT))
             subprocess.run(
                 [sys.executable, "-m", "rover_train.train", "--env", "fused", "--world", world,
-                 "--timesteps", str(steps), "--shm-name", name, "--logdir", tmp,
+                 "--timesteps", str(steps), "--name", name, "--logdir", tmp,
                  "--no-progress", "--checkpoint-every", "0"],
                 check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             )  # fmt: skip
             metrics = json.loads((Path(tmp) / "metrics.json").read_text())
-    finally:
-        daemon.send_signal(signal.SIGTERM)
-        daemon.wait(10)
     return float(metrics["steps_per_s"])
 
 
@@ -222,12 +207,8 @@ def main() -> int:
     for backend in backends:
         for n_envs in (1, 2):
             name = f"bench_fused_{os.getpid()}_{backend}_{n_envs}"
-            daemon = start_daemon(name, n_envs, a.threads, backend)
-            try:
+            with spawn_daemon(name, n_envs, extra_args=daemon_args(a.threads, backend)):
                 results, total = run_envs(name, n_envs, a.steps, a.world)
-            finally:
-                daemon.send_signal(signal.SIGTERM)
-                daemon.wait(10)
             agg = sum(r["steps"] / r["wall"] for r in results)
             r0 = results[0]
             step_s = r0["wall"] / r0["steps"]

@@ -22,14 +22,13 @@ from shm_protocol import (
     SegmentNotFoundError,
     camera_name,
     depth_to_channel,
+    segment_path,
     slot_name,
 )
 
 log = logging.getLogger(__name__)
 
 FRAME_TIMEOUT = 2.0  # s without a fused frame before FrameTimeoutError
-INTIMATE_ZONE_M = 0.45  # proxemics: intimate distance
-PERSONAL_ZONE_M = 1.2  # proxemics: personal distance
 # The seed's descriptive message when the segment is missing (it then called exit(1)).
 SEED_MISSING_MESSAGE = (
     "Shared memory segment '{name}' not found. The Active Vision inference pipeline must be "
@@ -136,7 +135,7 @@ class RoverEnvFused(RoverEnvBase):
         connection_check_timeout: float = 30,
         lidar_points: int = c.LIDAR_POINTS,
         max_lidar_range: float = c.MAX_LIDAR_RANGE,
-        rl_obs_name: str = "rl_observation",
+        rl_obs_name: str = c.RL_OBS_NAME,
         *,
         slot: int = 0,
         frame_timeout: float = FRAME_TIMEOUT,
@@ -195,7 +194,7 @@ class RoverEnvFused(RoverEnvBase):
         self._disconnect()
         name, cam = self.rl_obs_name, camera_name(self.rl_obs_name)
         how = f"av-daemon --name {self._base_name()} --slots {self.slot + 1}"
-        if not os.path.exists(f"/dev/shm/{name}"):
+        if not os.path.exists(segment_path(name)):
             log.warning(
                 "waiting up to %.0f s for the Active Vision daemon's segment '%s'; "
                 "start it with: %s (or run your trainer under rover-pair)",
@@ -249,7 +248,7 @@ class RoverEnvFused(RoverEnvBase):
     def _link_is_current(self) -> bool:
         """False when the daemon replaced its segments (a new daemon after an orderly stop)."""
         try:
-            return os.stat(f"/dev/shm/{camera_name(self.rl_obs_name)}").st_ino == self._camera_ino
+            return os.stat(segment_path(camera_name(self.rl_obs_name))).st_ino == self._camera_ino
         except FileNotFoundError:
             return False
 
@@ -284,12 +283,13 @@ class RoverEnvFused(RoverEnvBase):
     def _task_reward(self, obs: dict[str, np.ndarray]) -> float:
         cfg = self.reward_config
         heatmap = obs["fused_image"][:, :, CHANNEL_HEATMAP]
-        self._heatmap_center = heatmap_center_sum(heatmap, cfg.heatmap_center_columns)
+        self._heatmap_center = rw.heatmap_center_sum(heatmap, cfg.heatmap_center_columns)
         if self.goal_reached:
             return self._add_reward_term("goal", rw.goal_reward(True, cfg))
         self._add_reward_term("goal", 0.0)
         progress = self._add_reward_term("progress", rw.progress_reward(self.distance_delta, cfg))
-        heat = self._add_reward_term("heatmap", -cfg.heatmap_center_scale * self._heatmap_center)
+        heat = rw.heatmap_center_penalty(self._heatmap_center, cfg)
+        heat = self._add_reward_term("heatmap", heat)
         return progress + heat
 
     def _info(self, reward: float, reason: str) -> dict[str, Any]:
@@ -298,8 +298,8 @@ class RoverEnvFused(RoverEnvBase):
         if self.report_latency:
             info["frame_latency_ms"] = self._frame_latency_ms
         info["pedestrian_collision"] = self._pedestrian_collision and self.collided
-        info["personal_space_intrusion"] = bool(d_ped < PERSONAL_ZONE_M)
-        info["intimate_space_intrusion"] = bool(d_ped < INTIMATE_ZONE_M)
+        info["personal_space_intrusion"] = bool(d_ped < c.PERSONAL_SPACE_M)
+        info["intimate_space_intrusion"] = bool(d_ped < c.INTIMATE_SPACE_M)
         info["heatmap_center"] = self._heatmap_center
         return info
 
@@ -308,10 +308,3 @@ class RoverEnvFused(RoverEnvBase):
         self._disconnect()
         super().close()
 
-
-def heatmap_center_sum(heatmap: np.ndarray, columns: int = c.HEATMAP_CENTER_COLUMNS) -> float:
-    """Sum of the centre columns of an (H, W) heatmap: ``columns`` of 96, scaled to W."""
-    width = heatmap.shape[1]
-    n = max(1, round(columns * width / c.FUSED_SIZE[1]))
-    lo = (width - n) // 2
-    return float(heatmap[:, lo : lo + n].sum())

@@ -10,6 +10,8 @@ from typing import Any
 
 import gymnasium as gym
 
+from shm_protocol.names import default_name
+
 log = logging.getLogger(__name__)
 
 ENV_IDS = {
@@ -18,13 +20,6 @@ ENV_IDS = {
     "discrete": "roverav/RoverEnvFusedDiscrete-v0",
 }
 FUSED_KINDS = ("fused", "discrete")
-DEFAULT_SHM_NAME = "rl_observation"
-ENV_SHM_NAME = "ROVERAV_SHM_NAME"  # set by rover-pair for the trainer
-
-
-def default_shm_name() -> str:
-    """The segment base name: ``$ROVERAV_SHM_NAME`` (set by rover-pair) or the seed's default."""
-    return os.environ.get(ENV_SHM_NAME, DEFAULT_SHM_NAME)
 
 
 def env_kwargs(
@@ -45,7 +40,7 @@ def env_kwargs(
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
     if kind in FUSED_KINDS:
-        kwargs["rl_obs_name"] = shm_name or default_shm_name()
+        kwargs["rl_obs_name"] = shm_name or default_name()
         kwargs["slot"] = slot
         if connect_timeout is not None:
             kwargs["connection_check_timeout"] = connect_timeout
