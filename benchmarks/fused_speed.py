@@ -8,7 +8,9 @@ for each perception backend (torch and onnx) side by side in one run.
 For each backend the daemon (``av-daemon --backend B``) serves 1 env, then 2 envs on 2
 slots; then ``rover-train --env fused`` (PPO, rover-train's defaults, 1 env) trains for
 ``--train-steps`` steps against a daemon of that backend and its steps/s is read from its
-``metrics.json``. The onnx/torch ratio of 1-env steps/s is printed at the end.
+``metrics.json`` (plus one run of the last backend with the update on one thread, the way
+rover-train trained before ``--update-threads``). The onnx/torch ratio of 1-env steps/s is
+printed at the end.
 
 Per step the env advances physics (0.05 s of simulated time), renders its camera,
 publishes the frame and waits for the daemon's fused frame. The table splits a step into
@@ -171,7 +173,8 @@ def run_envs(name: str, n_envs: int, steps: int, world: str) -> tuple[list[dict]
     return results, time.perf_counter() - t0
 
 
-def train_speed(backend: str, steps: int, threads: int, world: str) -> float:
+def train_speed(backend: str, steps: int, threads: int, world: str,
+                extra: tuple[str, ...] = ()) -> float:
     """rover-train --env fused steps/s (its own metrics.json) against a ``backend`` daemon."""
     import json
     import tempfile
@@ -183,7 +186,7 @@ def train_speed(backend: str, steps: int, threads: int, world: str) -> float:
             subprocess.run(
                 [sys.executable, "-m", "rover_train.train", "--env", "fused", "--world", world,
                  "--timesteps", str(steps), "--name", name, "--logdir", tmp,
-                 "--no-progress", "--checkpoint-every", "0"],
+                 "--no-progress", "--checkpoint-every", "0", *extra],
                 check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
             )  # fmt: skip
             metrics = json.loads((Path(tmp) / "metrics.json").read_text())
@@ -219,8 +222,15 @@ def main() -> int:
                  r0["render"] * 1e3, r0["roundtrip"] * 1e3, perc * 1e3,
                  (r0["roundtrip"] - perc) * 1e3, stages / step_s, r0["reset_s"] * 1e3)
             )  # fmt: skip
-    train = {b: train_speed(b, a.train_steps, a.threads, a.world) for b in backends
-             if a.train_steps > 0}
+    train: dict[str, float] = {}
+    if a.train_steps > 0:
+        for b in backends:
+            train[f"{b}, updates on all cores"] = train_speed(b, a.train_steps, a.threads,
+                                                              a.world)
+        # the old way: the PPO update on the trainer's single rollout thread
+        b = backends[-1]
+        train[f"{b}, updates on 1 thread (old)"] = train_speed(
+            b, a.train_steps, a.threads, a.world, ("--update-threads", "1"))
 
     print(
         f"\nRoverEnvFused end to end ({a.world}, {a.steps} steps per env, "
@@ -243,7 +253,7 @@ def main() -> int:
     if train:
         print(f"\nrover-train --env fused ({a.world}, PPO defaults, 1 env, "
               f"{a.train_steps} steps):\n")
-        print("| backend | training steps/s |\n|---|---|")
+        print("| backend, PPO update threads | training steps/s |\n|---|---|")
         for b, sps in train.items():
             print(f"| {b} | {sps:.0f} |")
     return 0

@@ -4,6 +4,7 @@ ONNX export and its cache, thread count, and the fall-back to torch without onnx
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import uuid
@@ -126,15 +127,24 @@ def test_missing_onnxruntime_falls_back_to_torch_with_one_log_line() -> None:
 
 def test_daemon_without_onnxruntime_serves_with_torch() -> None:
     name = f"test_avb_{uuid.uuid4().hex[:8]}"
-    res = _without_onnxruntime(
-        "import signal, threading, os\n"
-        "from active_vision.daemon import main\n"
-        "threading.Timer(3.0, lambda: os.kill(os.getpid(), signal.SIGTERM)).start()\n"
-        f"sys.exit(main(['--name', '{name}', '--backend', 'auto']))\n"
+    code = (
+        "import sys, runpy; sys.modules['onnxruntime'] = None\n"
+        f"sys.argv = ['av-daemon', '--name', '{name}', '--backend', 'auto']\n"
+        "runpy.run_module('active_vision', run_name='__main__')\n"
     )
-    assert res.returncode == 0, res.stderr
-    assert "ready" in res.stdout and "backend=torch" in res.stdout
-    assert len([ln for ln in res.stderr.splitlines() if "onnxruntime" in ln]) == 1
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        ready = proc.stdout.readline()
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    assert "ready" in ready and "backend=torch" in ready, err
+    assert proc.returncode == 0, err
+    assert len([ln for ln in err.splitlines() if "onnxruntime" in ln]) == 1, err
     assert not [p for p in os.listdir("/dev/shm") if p.startswith(name)]
 
 
