@@ -193,45 +193,10 @@ def train_speed(backend: str, steps: int, threads: int, world: str,
     return float(metrics["steps_per_s"])
 
 
-def main() -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--steps", type=int, default=2000, help="steps per env")
-    p.add_argument("--world", default="maze")
-    p.add_argument("--threads", type=int, default=1, help="daemon threads")
-    p.add_argument("--backends", default="torch,onnx", help="comma-separated, in run order")
-    p.add_argument("--train-steps", type=int, default=5120,
-                   help="rover-train --env fused steps per backend (0: skip)")
-    a = p.parse_args()
-    backends = [b.strip() for b in a.backends.split(",") if b.strip()]
-
+def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
+    """The env-stepping table: per backend, 1 env then 2 envs on 2 slots."""
     alone_ipc = ipc_handoff()
     alone_perc = {b: perception_alone(a.threads, b) for b in backends}
-    rows = []
-    for backend in backends:
-        for n_envs in (1, 2):
-            name = f"bench_fused_{os.getpid()}_{backend}_{n_envs}"
-            with spawn_daemon(name, n_envs, extra_args=daemon_args(a.threads, backend)):
-                results, total = run_envs(name, n_envs, a.steps, a.world)
-            agg = sum(r["steps"] / r["wall"] for r in results)
-            r0 = results[0]
-            step_s = r0["wall"] / r0["steps"]
-            perc = alone_perc[backend]
-            stages = r0["physics"] + r0["render"] + perc + 2 * alone_ipc
-            rows.append(
-                (backend, n_envs, agg, agg / SEED_STEPS_PER_S, step_s * 1e3, r0["physics"] * 1e3,
-                 r0["render"] * 1e3, r0["roundtrip"] * 1e3, perc * 1e3,
-                 (r0["roundtrip"] - perc) * 1e3, stages / step_s, r0["reset_s"] * 1e3)
-            )  # fmt: skip
-    train: dict[str, float] = {}
-    if a.train_steps > 0:
-        for b in backends:
-            train[f"{b}, updates on all cores"] = train_speed(b, a.train_steps, a.threads,
-                                                              a.world)
-        # the old way: the PPO update on the trainer's single rollout thread
-        b = backends[-1]
-        train[f"{b}, updates on 1 thread (old)"] = train_speed(
-            b, a.train_steps, a.threads, a.world, ("--update-threads", "1"))
-
     print(
         f"\nRoverEnvFused end to end ({a.world}, {a.steps} steps per env, "
         f"daemon --threads {a.threads}); IPC hand-off alone (p50): {alone_ipc * 1e6:.0f} us"
@@ -241,21 +206,55 @@ def main() -> int:
         "| render ms | daemon round trip ms | perception alone ms | round trip - perception ms "
         "| efficiency | reset ms |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r[0]} | {r[1]} | {r[2]:.0f} | {r[3]:.1f}x | {r[4]:.2f} | {r[5]:.2f} | "
-              f"{r[6]:.2f} | {r[7]:.2f} | {r[8]:.2f} | {r[9]:.2f} | {r[10]:.2f} | "
-              f"{r[11]:.1f} |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
+    one: dict[str, float] = {}
+    for backend in backends:
+        for n_envs in (1, 2):
+            name = f"bench_fused_{os.getpid()}_{backend}_{n_envs}"
+            with spawn_daemon(name, n_envs, extra_args=daemon_args(a.threads, backend)):
+                results, _ = run_envs(name, n_envs, a.steps, a.world)
+            agg = sum(r["steps"] / r["wall"] for r in results)
+            r0 = results[0]
+            step_s = r0["wall"] / r0["steps"]
+            perc = alone_perc[backend]
+            stages = r0["physics"] + r0["render"] + perc + 2 * alone_ipc
+            if n_envs == 1:
+                one[backend] = agg
+            print(f"| {backend} | {n_envs} | {agg:.0f} | {agg / SEED_STEPS_PER_S:.1f}x | "
+                  f"{step_s * 1e3:.2f} | {r0['physics'] * 1e3:.2f} | {r0['render'] * 1e3:.2f} | "
+                  f"{r0['roundtrip'] * 1e3:.2f} | {perc * 1e3:.2f} | "
+                  f"{(r0['roundtrip'] - perc) * 1e3:.2f} | {stages / step_s:.2f} | "
+                  f"{r0['reset_s'] * 1e3:.1f} |", flush=True)  # fmt: skip
     print("\nms/step, physics, render, round trip and efficiency are those of env 0.")
-    one = {r[0]: r[2] for r in rows if r[1] == 1}
     if "torch" in one and "onnx" in one:
-        print(f"onnx / torch, 1 env: {one['onnx'] / one['torch']:.2f}x")
-    if train:
+        print(f"onnx / torch, 1 env: {one['onnx'] / one['torch']:.2f}x", flush=True)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--steps", type=int, default=2000, help="steps per env")
+    p.add_argument("--world", default="maze")
+    p.add_argument("--threads", type=int, default=1, help="daemon threads")
+    p.add_argument("--backends", default="torch,onnx", help="comma-separated, in run order")
+    p.add_argument("--train-steps", type=int, default=5120,
+                   help="rover-train --env fused steps per backend (0: skip)")
+    p.add_argument("--skip-envs", action="store_true", help="only the training rows")
+    a = p.parse_args()
+    backends = [b.strip() for b in a.backends.split(",") if b.strip()]
+
+    if not a.skip_envs:
+        env_rows(a, backends)
+    if a.train_steps > 0:
         print(f"\nrover-train --env fused ({a.world}, PPO defaults, 1 env, "
               f"{a.train_steps} steps):\n")
-        print("| backend, PPO update threads | training steps/s |\n|---|---|")
-        for b, sps in train.items():
-            print(f"| {b} | {sps:.0f} |")
+        print("| backend, PPO update threads | training steps/s |\n|---|---|", flush=True)
+        for b in backends:
+            sps = train_speed(b, a.train_steps, a.threads, a.world)
+            print(f"| {b}, updates on all cores | {sps:.0f} |", flush=True)
+        # the old way: the PPO update on the trainer's single rollout thread
+        b = backends[-1]
+        sps = train_speed(b, a.train_steps, a.threads, a.world, ("--update-threads", "1"))
+        print(f"| {b}, updates on 1 thread (old) | {sps:.0f} |", flush=True)
     return 0
 
 
