@@ -28,9 +28,11 @@ import cv2
 import numpy as np
 
 from shm_protocol import (
+    MULTIWAIT_AVAILABLE,
     FrameReader,
     FrameTimeoutError,
     FrameWriter,
+    MultiWaiter,
     ShmError,
     WriterGoneError,
     camera_name,
@@ -173,9 +175,12 @@ class CameraSegmentSource:
 
     Waiting (:meth:`poll`): every slot is first looked at without blocking
     (``FrameReader.latest`` into a preallocated buffer, compared with the last frame number
-    handed out); when none has a new frame, the call sleeps on one slot's futex
-    (``wait_next``), rotating over the slots that have a live writer, in slices of at most
-    ``slice_s`` (1 slot: the whole timeout), then looks at every slot again. After
+    handed out); when none has a new frame, the call sleeps. With several slots where Linux
+    has ``futex_waitv`` (5.16+) it sleeps on every slot's wake word at once
+    (:class:`shm_protocol.MultiWaiter`), so any slot's frame wakes it at once. Otherwise it
+    sleeps on one slot's futex (``wait_next``), rotating over the slots that have a live
+    writer, in slices of at most ``slice_s`` (1 slot: the whole timeout), then looks at
+    every slot again. After
     ``IDLE_AFTER_S`` without any frame the slices grow to ``idle_slice_s`` (a woken slot
     still answers at once; a frame on another slot waits at most one slice). Slots whose env
     has gone (closed or died) are only looked at, never waited on, until a frame arrives.
@@ -216,6 +221,12 @@ class CameraSegmentSource:
         self._writer_gone = [False] * slots
         self._live = list(range(slots))
         self._turn = 0
+        # Several slots: sleep on all their wake words at once (futex_waitv), so a frame on
+        # any slot wakes the daemon at once; else rotate slices over the slots.
+        self._watch: MultiWaiter | None = None
+        if slots > 1 and MULTIWAIT_AVAILABLE and all(
+                r.wake_address is not None for r in self.readers):
+            self._watch = MultiWaiter(self.readers)
 
     def _take(self, i: int, seq: int) -> None:
         self._done[i] = seq
@@ -238,10 +249,27 @@ class CameraSegmentSource:
             self._new.sort(key=_slot_of)
         return self._new
 
+    def _collect_new(self) -> list[SourceFrame]:
+        buf = self.frames_buffer
+        for i, r in enumerate(self.readers):
+            f = r.next_frame(out=buf[i])
+            if f is not None and f.seq != self._done[i]:
+                self._take(i, f.seq)
+        return self._new
+
     def poll(self, timeout: float) -> list[SourceFrame]:
         """New frames, at most one per slot (see the class docstring). The list and its
         :class:`SourceFrame` objects are reused: valid until the next call."""
         self._new.clear()
+        watch = self._watch
+        if watch is not None:
+            watch.arm()  # before looking: a frame published after this ends the wait at once
+            frames = self._collect_new()
+            if frames:
+                self._last_frame = time.monotonic()
+                return frames
+            watch.wait(timeout)
+            return self._collect_new()
         frames = self._collect()
         now = time.monotonic()
         if frames:

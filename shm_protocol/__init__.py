@@ -31,6 +31,8 @@ from .layout import (
     channel_to_depth,
     depth_to_channel,
 )
+from .multiwait import AVAILABLE as MULTIWAIT_AVAILABLE
+from .multiwait import MultiWaiter
 from .names import (
     DEFAULT_NAME,
     SHM_DIR,
@@ -60,6 +62,8 @@ __all__ = [
     "FrameWriter",
     "InvalidNameError",
     "LayoutError",
+    "MULTIWAIT_AVAILABLE",
+    "MultiWaiter",
     "NonFiniteError",
     "SHM_DIR",
     "SegmentNotFoundError",
