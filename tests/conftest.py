@@ -13,7 +13,8 @@ import pytest
 # Tests that create segments name them with the prefix "test_" (the `shm_name` fixture does).
 # `_shm_no_leftover_segments` snapshots /dev/shm at the start of the session and fails the
 # session if a "test_..." segment (or a hidden ".test_..." creation temporary) that was not
-# there before is still there at the end.
+# there before is still there at the end. Segments whose writer is alive in a process outside
+# this session (another test run on the same machine) are neither reported nor removed.
 
 _SHM_DIR = "/dev/shm"
 _shm_leaks: list[str] = []
@@ -27,11 +28,42 @@ def _shm_test_entries() -> set[str]:
     return {n for n in names if n.startswith(("test_", ".test_"))}
 
 
+def _descends_from_us(pid: int) -> bool:
+    """True if ``pid`` is this process or one of its descendants (walks /proc ppid links)."""
+    me = os.getpid()
+    for _ in range(64):
+        if pid == me:
+            return True
+        if pid <= 1:
+            return False
+        try:
+            with open(f"/proc/{pid}/stat") as f:
+                pid = int(f.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            return False
+    return False
+
+
+def _another_sessions_live_segment(name: str) -> bool:
+    """A segment whose writer is alive and not ours: another test session running beside
+    this one on the same machine made it (never delete or report it)."""
+    from shm_protocol import FrameReader, ShmError
+    from shm_protocol._segment import pid_alive
+
+    try:
+        with FrameReader(name, attach_timeout=0.0) as r:
+            pid = r.writer_pid
+    except (ShmError, OSError, ValueError):
+        return False
+    return bool(pid) and pid_alive(pid) and not _descends_from_us(pid)
+
+
 @pytest.fixture(scope="session", autouse=True)
 def _shm_no_leftover_segments() -> Iterator[None]:
     before = _shm_test_entries()
     yield
-    left = sorted(_shm_test_entries() - before)
+    left = sorted(n for n in _shm_test_entries() - before
+                  if not _another_sessions_live_segment(n.lstrip(".")))
     for name in left:  # clean up so one failure does not pollute the next run
         try:
             os.unlink(os.path.join(_SHM_DIR, name))
