@@ -90,7 +90,7 @@ class StageTimes:
 
 
 class _Views(NamedTuple):
-    """Tensor views for one batch size, made once (no tensor objects per frame)."""
+    """Tensor views for one batch size, made once and reused by every call of that size."""
 
     x: torch.Tensor  # network input (n, 3, S, S)
     gray: torch.Tensor  # planes[:, CHANNEL_GRAY]

@@ -212,7 +212,7 @@ class CameraSegmentSource:
         """Slot i's newest frame is in row i: the daemon runs perception on ``[:n]`` directly
         when the new frames are slots 0..n-1 (no gathering copy)."""
         # One SourceFrame per slot and one result list, reused by every poll (the serve
-        # loop makes no objects per frame); a poll's result is valid until the next poll.
+        # loop makes no SourceFrame or list per frame); a result is valid until the next poll.
         self._frames = [SourceFrame(i, self.frames_buffer[i], 0) for i in range(slots)]
         self._new: list[SourceFrame] = []
         # A frame already in a reused segment may be one the dead daemon never answered
