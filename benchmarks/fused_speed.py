@@ -8,8 +8,8 @@ for each perception backend (torch and onnx) side by side in one run.
 For each backend the daemon (``av-daemon --backend B``) serves 1 env, then 2 envs on 2
 slots; then ``rover-train --env fused`` (PPO, rover-train's defaults, 1 env) trains for
 ``--train-steps`` steps against a daemon of that backend and its steps/s is read from its
-``metrics.json`` (plus one run of the last backend with the update on one thread, the way
-rover-train trained before ``--update-threads``). The onnx/torch ratio of 1-env steps/s is
+``metrics.json`` (plus one run of the last backend with the PPO update on every core,
+``--update-threads 0``). The onnx/torch ratio of 1-env steps/s is
 printed at the end.
 
 Per step the env advances physics (0.05 s of simulated time), renders its camera,
@@ -250,11 +250,11 @@ def main() -> int:
         print("| backend, PPO update threads | training steps/s |\n|---|---|", flush=True)
         for b in backends:
             sps = train_speed(b, a.train_steps, a.threads, a.world)
-            print(f"| {b}, updates on all cores | {sps:.0f} |", flush=True)
-        # the old way: the PPO update on the trainer's single rollout thread
+            print(f"| {b}, update on 1 thread (default) | {sps:.0f} |", flush=True)
+        # the PPO update on every core (pays only when the other cores are idle)
         b = backends[-1]
-        sps = train_speed(b, a.train_steps, a.threads, a.world, ("--update-threads", "1"))
-        print(f"| {b}, updates on 1 thread (old) | {sps:.0f} |", flush=True)
+        sps = train_speed(b, a.train_steps, a.threads, a.world, ("--update-threads", "0"))
+        print(f"| {b}, update on all cores (--update-threads 0) | {sps:.0f} |", flush=True)
     return 0
 
 
