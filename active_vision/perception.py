@@ -28,7 +28,13 @@ import cv2
 import numpy as np
 import torch
 
-from active_vision.backends import Network, OnnxNetwork, TorchNetwork, resolve_backend
+from active_vision.backends import (
+    BackendError,
+    Network,
+    OnnxNetwork,
+    TorchNetwork,
+    resolve_backend,
+)
 from active_vision.models import (
     HEAD_DEPTH,
     HEAD_HEATMAP,
@@ -122,6 +128,12 @@ class Perception:
         requested = self.config.backend
         if model is not None and requested == "auto":
             requested = "torch"
+        if model is not None and requested == "onnx":
+            raise BackendError(
+                "backend 'onnx' runs the ONNX export of a weights file, not a model object: "
+                "save the model (active_vision.save_weights) and pass its path as "
+                "PerceptionConfig.weights, or use backend 'torch' with model=."
+            )
         backend, onnx_path = resolve_backend(requested, self.config.weights, self.config.size)
         capacity = max(1, self.config.max_batch)
         if backend == "onnx":

@@ -164,6 +164,9 @@ def test_daemon_backend_flag_is_validated_and_explicit_onnx_without_it_fails() -
     assert "ready" not in res.stdout
 
 
-def test_unknown_backend_is_a_named_error() -> None:
+def test_unknown_backend_and_onnx_with_a_model_object_are_named_errors() -> None:
     with pytest.raises(BackendError, match="auto, onnx, torch"):
         Perception(PerceptionConfig(backend="tensorrt"))
+    with pytest.raises(BackendError, match="PerceptionConfig.weights"):
+        Perception(PerceptionConfig(backend="onnx"), model=AVNet().eval())
+    assert Perception(PerceptionConfig(backend="auto"), model=AVNet().eval()).backend == "torch"
