@@ -18,7 +18,8 @@ example inputs, and marks dimension 0 of every input and output as a dynamic bat
 initializers that ONNX Runtime's CPU convolution rejects. Exporting needs the ``onnx`` and
 ``onnxscript`` packages (the ``onnx`` extra: ``pip install 'roverav[onnx]'``).
 
-Re-make the shipped file after retraining with::
+``python -m active_vision.train`` writes the export beside the weights it trains; re-make
+the shipped file by hand with::
 
     python -m active_vision.onnx_export            # writes next to the shipped weights
 """
@@ -187,7 +188,25 @@ __all__ = [
     "onnx_file_for",
     "onnx_file_name",
     "weights_digest",
+    "write_export_beside",
 ]
+
+
+def write_export_beside(weights: Path, size: int = 96, out_dir: Path | None = None) -> Path:
+    """Export ``weights`` into ``out_dir`` (default: beside them) under its versioned name
+    and remove older exports of the same stem and size there (what ships with the package).
+
+    :raises OnnxExportError: the export tools are missing or the export failed.
+    """
+    weights = Path(weights)
+    out_dir = Path(out_dir) if out_dir is not None else weights.parent
+    path = out_dir / onnx_file_name(weights, size)
+    export_onnx(load_model(weights), avnet_example_inputs(size), path)
+    for old in out_dir.glob(f"{weights.stem}-*-s{size}-x*.onnx"):
+        if old != path:
+            old.unlink()
+            logger.info("removed stale export %s", old)
+    return path
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -201,17 +220,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="directory (default: the weights file's own)")
     a = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    out_dir = a.out_dir if a.out_dir is not None else a.weights.parent
-    path = out_dir / onnx_file_name(a.weights, a.size)
     try:
-        export_onnx(load_model(a.weights), avnet_example_inputs(a.size), path)
+        path = write_export_beside(a.weights, a.size, a.out_dir)
     except OnnxExportError as exc:
         print(f"onnx_export: {exc}", file=sys.stderr)
         return 1
-    stale = [p for p in out_dir.glob(f"{a.weights.stem}-*-s{a.size}-x*.onnx") if p != path]
-    for old in stale:
-        old.unlink()
-        logger.info("removed stale export %s", old)
     print(path)
     return 0
 

@@ -19,7 +19,11 @@ import torch  # noqa: E402
 from active_vision import dataset as ds  # noqa: E402
 from active_vision.backends import BackendError, OnnxNetwork  # noqa: E402
 from active_vision.models import DEFAULT_WEIGHTS, AVNet, AVNetConfig, save_weights  # noqa: E402
-from active_vision.onnx_export import onnx_file_for, onnx_file_name  # noqa: E402
+from active_vision.onnx_export import (  # noqa: E402
+    onnx_file_for,
+    onnx_file_name,
+    write_export_beside,
+)
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
 from shm_protocol import CHANNEL_HEATMAP  # noqa: E402
 
@@ -170,3 +174,14 @@ def test_unknown_backend_and_onnx_with_a_model_object_are_named_errors() -> None
     with pytest.raises(BackendError, match="PerceptionConfig.weights"):
         Perception(PerceptionConfig(backend="onnx"), model=AVNet().eval())
     assert Perception(PerceptionConfig(backend="auto"), model=AVNet().eval()).backend == "torch"
+
+
+def test_export_beside_retrained_weights_replaces_the_stale_file(tmp_path: Path) -> None:
+    small = AVNetConfig(widths=(8, 16, 24, 32))
+    weights = save_weights(AVNet(small).eval(), tmp_path / "w.pt")
+    first = write_export_beside(weights, 32)
+    save_weights(AVNet(small).eval(), weights, {"retrained": 1})  # new bytes, new sha256
+    second = write_export_beside(weights, 32)
+    assert first != second and first.name.startswith("w-") and second.name.startswith("w-")
+    assert sorted(p.name for p in tmp_path.glob("*.onnx")) == [second.name]
+    assert onnx_file_for(weights, 32, export=False) == second
