@@ -174,8 +174,8 @@ class CameraSegmentSource:
     :class:`FrameReader` per slot receives the frames.
 
     Waiting (:meth:`poll`): every slot is first looked at without blocking
-    (``FrameReader.latest`` into a preallocated buffer, compared with the last frame number
-    handed out); when none has a new frame, the call sleeps. With several slots where Linux
+    (``FrameReader.next_frame`` into a preallocated buffer: a copy only when there is a new
+    frame); when none has a new frame, the call sleeps. With several slots where Linux
     has ``futex_waitv`` (5.16+) it sleeps on every slot's wake word at once
     (:class:`shm_protocol.MultiWaiter`), so any slot's frame wakes it at once. Otherwise it
     sleeps on one slot's futex (``wait_next``), rotating over the slots that have a live
@@ -238,23 +238,17 @@ class CameraSegmentSource:
         self._new.append(frame)
 
     def _collect(self, skip: int = -1) -> list[SourceFrame]:
+        # next_frame copies only a frame newer than the reader's last: an unchanged slot
+        # costs a look at its seq, not a copy
         buf, done = self.frames_buffer, self._done
         for i, r in enumerate(self.readers):
             if i == skip:
                 continue
-            f = r.latest(out=buf[i])
+            f = r.next_frame(out=buf[i])
             if f is not None and f.seq != done[i]:
                 self._take(i, f.seq)
         if skip >= 0:  # the woken slot first, so slot order matches the buffer's rows
             self._new.sort(key=_slot_of)
-        return self._new
-
-    def _collect_new(self) -> list[SourceFrame]:
-        buf = self.frames_buffer
-        for i, r in enumerate(self.readers):
-            f = r.next_frame(out=buf[i])
-            if f is not None and f.seq != self._done[i]:
-                self._take(i, f.seq)
         return self._new
 
     def poll(self, timeout: float) -> list[SourceFrame]:
@@ -264,12 +258,12 @@ class CameraSegmentSource:
         watch = self._watch
         if watch is not None:
             watch.arm()  # before looking: a frame published after this ends the wait at once
-            frames = self._collect_new()
+            frames = self._collect()
             if frames:
                 self._last_frame = time.monotonic()
                 return frames
             watch.wait(timeout)
-            return self._collect_new()
+            return self._collect()
         frames = self._collect()
         now = time.monotonic()
         if frames:
