@@ -84,6 +84,8 @@ class RoverEnvFusedGaze(RoverEnvFused):
     - v0: first release.
     """
 
+    _counts_turns = 1  # pan_moves counts steps in which the camera turned (discrete: 0)
+
     def __init__(self, *args: Any, pan_rate: float | None = c.PAN_RATE, **kwargs: Any) -> None:
         if pan_rate is not None and not (math.isfinite(pan_rate) and pan_rate > 0):
             raise ValueError(
@@ -155,8 +157,6 @@ class RoverEnvFusedGaze(RoverEnvFused):
             new = pan + min(max(target - pan, -travel), travel)
         self.sim.set_camera_pan(new)
         self.pan_moves += self._counts_turns
-
-    _counts_turns = 1  # continuous: pan_moves counts steps in which the camera turned
 
     def _task_reward(self, obs: dict[str, np.ndarray]) -> float:
         reward = super()._task_reward(obs)

@@ -31,9 +31,7 @@ STOP = 1 * 36 + 6 * 3  # speed 0.0 m/s, heading 0 rad: add a pan move to it
 
 @pytest.fixture(scope="module")
 def daemon() -> Iterator[Daemon]:
-    # Not "test_...": a concurrent pytest session's conftest unlinks every "test_" segment
-    # created during its session, ours included (a shared machine). We clean up ourselves.
-    d = Daemon(f"gazetest_{uuid.uuid4().hex[:8]}", slots=2).start()
+    d = Daemon(f"test_gaze_{uuid.uuid4().hex[:8]}", slots=2).start()
     yield d
     assert d.proc is not None and d.proc.poll() is None, "daemon died:\n" + "".join(d.log)
     d.stop()
