@@ -38,8 +38,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from rover_env.constants import INTIMATE_SPACE_M, PERSONAL_SPACE_M  # noqa: E402
+from shm_protocol import DEPTH_MAX_M as VIEW_RANGE_M  # noqa: E402  (in view: within depth range)
+
 FIXED_HALF_FOV = math.radians(45.0)  # the forward camera's half field of view, unpanned
-VIEW_RANGE_M = 10.0
 
 
 @dataclass
@@ -99,8 +101,8 @@ def run_episode(
         obs, _, terminated, truncated, info = env.step(act(obs))
         tally.steps += 1
         d = float(info["min_pedestrian_distance"])
-        tally.personal_steps += d < 1.2
-        tally.intimate_steps += d < 0.45
+        tally.personal_steps += d < PERSONAL_SPACE_M
+        tally.intimate_steps += d < INTIMATE_SPACE_M
         collided |= bool(info.get("pedestrian_collision", False))
         seen = bool(info["nearest_pedestrian_in_view"])
         tally.nearest_in_view_steps += seen
