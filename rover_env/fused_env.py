@@ -104,7 +104,10 @@ class RoverEnvFused(RoverEnvBase):
     ``min_pedestrian_distance``, the reward terms) plus ``frame_latency_ms`` (camera
     publish to fused frame received), ``pedestrian_collision``,
     ``personal_space_intrusion`` (a pedestrian within 1.2 m), ``intimate_space_intrusion``
-    (within 0.45 m) and ``heatmap_center`` (the centre-column heatmap sum).
+    (within 0.45 m), ``heatmap_center`` (the centre-column heatmap sum),
+    ``pedestrian_in_view`` (some pedestrian stands inside the camera's horizontal field of
+    view, within the depth range of 10 m; geometric, occlusion not tested) and
+    ``nearest_pedestrian_in_view`` (the nearest one does).
 
     ## Arguments
 
@@ -114,6 +117,8 @@ class RoverEnvFused(RoverEnvBase):
     construction; ``rl_obs_name`` the daemon's segment base name; ``slot`` which daemon
     slot (``--slots N``) this env uses; ``frame_timeout`` seconds per fused frame;
     ``control_dt``; ``reward_config``; ``render_mode`` (``"rgb_array"``: chase camera);
+    ``pedestrian_mode`` ``"walk"`` (default) or ``"crossing"`` (pedestrians walk across the
+    line from the rover's start to its first goal, from the side, timed to meet it);
     ``report_latency`` (default True) puts the measured ``frame_latency_ms`` in ``info``.
     It is the one wall-clock value in ``info``, so two runs with the same seed and actions
     differ in it and nothing else; pass ``report_latency=False`` where infos are compared
@@ -146,6 +151,7 @@ class RoverEnvFused(RoverEnvBase):
         reward_config: RewardConfig | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
+        pedestrian_mode: str = "walk",
         report_latency: bool = True,
     ) -> None:
         del scan_topic, imu_topic, cmd_vel_topic  # ROS topics: accepted, no effect
@@ -180,6 +186,7 @@ class RoverEnvFused(RoverEnvBase):
                 reward_config=reward_config if reward_config is not None else RewardConfig.fused(),
                 render_mode=render_mode,
                 render_size=render_size,
+                pedestrian_mode=pedestrian_mode,
             )
         except BaseException:
             self._disconnect()
@@ -346,6 +353,9 @@ class RoverEnvFused(RoverEnvBase):
         if self._camera is None or not self._link_is_current():
             log.info("re-attaching to the daemon's segments for '%s'", self.rl_obs_name)
             self._connect(self.connection_check_timeout)
+        # reset()'s info describes the new episode, not the last step of the previous one
+        self._heatmap_center = 0.0
+        self._pedestrian_collision = False
 
     def _observe(self) -> dict[str, np.ndarray]:
         assert self._camera is not None and self._fused is not None
@@ -390,6 +400,11 @@ class RoverEnvFused(RoverEnvBase):
         info["personal_space_intrusion"] = bool(d_ped < c.PERSONAL_SPACE_M)
         info["intimate_space_intrusion"] = bool(d_ped < c.INTIMATE_SPACE_M)
         info["heatmap_center"] = self._heatmap_center
+        in_view = self.sim.pedestrians_in_view()
+        info["pedestrian_in_view"] = bool(in_view.any())
+        info["nearest_pedestrian_in_view"] = bool(
+            len(in_view) and in_view[self.nearest_pedestrian_index()]
+        )
         return info
 
     def close(self) -> None:

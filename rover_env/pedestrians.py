@@ -10,6 +10,11 @@ the world's pedestrian area), a speed in [1.0, 1.5] m/s, a start point on the pa
 palette draw, all from the generator passed to :meth:`Pedestrians.reset` (the env's
 ``np_random``). Position at simulated time t is a closed form of t, so the figures move
 identically whatever the step size.
+
+Two modes (``PEDESTRIAN_MODES``): ``walk`` (the paths above, anywhere in the pedestrian
+area) and ``crossing`` (:meth:`Pedestrians.lay_crossings`: paths across the straight line
+from the rover to its goal, walked from the side, timed to meet the rover there), the
+scenario where a camera fixed straight ahead sees pedestrians late.
 """
 
 from __future__ import annotations
@@ -38,6 +43,15 @@ YIELD_DISTANCE = 1.0  # m: a pedestrian waits rather than walk into the rover
 _BATCH = 32  # candidate paths checked per batch
 _MAX_BATCHES = 20
 _PATH_SAMPLES = 33  # clearance checks along a path (every 0.25 m on an 8 m path)
+
+PEDESTRIAN_MODES = ("walk", "crossing")
+# crossing mode: each pedestrian walks across the rover's start-goal line
+CROSSING_FRACTION_RANGE = (0.3, 0.85)  # where along the line it crosses
+CROSSING_HALF_LENGTH_RANGE = (2.5, 4.0)  # m walked on either side of the line
+CROSSING_MIN_HALF_LENGTH = 1.5  # m: cluttered places settle for shorter crossings
+CROSSING_ANGLE_JITTER = math.radians(20.0)  # from perpendicular to the line
+CROSSING_ROVER_SPEED = 0.6  # m/s: a crossing is timed for a rover driving this fast
+_CROSSING_TRIES = 48  # candidate crossings per pedestrian before a normal path
 
 # Clothing and skin palettes (RGB). Shirts are saturated hues; the scenery is grey, sand,
 # beige and dark blue, the rover light grey with an orange accent.
@@ -197,6 +211,65 @@ class Pedestrians:
             if avoid is None or math.hypot(sx - avoid[0], sy - avoid[1]) >= MIN_START_DISTANCE:
                 break
         return (sx, sy), (1.0, 0.0), 0.0, 0.0
+
+    def lay_crossings(
+        self, rng: np.random.Generator, start: tuple[float, float], goal: tuple[float, float]
+    ) -> int:
+        """Give every pedestrian a path across the line from ``start`` to ``goal``.
+
+        Pedestrian i crosses the line at a random fraction of its length
+        (``CROSSING_FRACTION_RANGE``), walking within ``CROSSING_ANGLE_JITTER`` of
+        perpendicular to it from a random side, ``CROSSING_HALF_LENGTH_RANGE`` m either side
+        of the line (``CROSSING_MIN_HALF_LENGTH`` where that is too cluttered; then back:
+        the path is out-and-back, so it crosses again). Its start
+        point is timed so that it reaches the line when a rover driving straight at
+        ``CROSSING_ROVER_SPEED`` would. Paths keep clear of obstacles and start at least
+        ``MIN_START_DISTANCE`` from the rover; a pedestrian with no free crossing after
+        ``_CROSSING_TRIES`` candidates gets a normal path. Speeds and clothes are drawn as
+        in :meth:`reset`. Returns how many pedestrians cross.
+        """
+        sx, sy = start
+        gx, gy = goal
+        span = math.hypot(gx - sx, gy - sy)
+        line = math.atan2(gy - sy, gx - sx)
+        t = np.linspace(0.0, 1.0, _PATH_SAMPLES)
+        crossing = 0
+        for i in range(self.n):
+            speed = float(rng.uniform(*SPEED_RANGE))
+            lo, hi = CROSSING_HALF_LENGTH_RANGE
+            for attempt in range(_CROSSING_TRIES):
+                if attempt == _CROSSING_TRIES // 2:  # cluttered: settle for shorter walks
+                    lo, hi = CROSSING_MIN_HALF_LENGTH, CROSSING_HALF_LENGTH_RANGE[0]
+                frac = float(rng.uniform(*CROSSING_FRACTION_RANGE))
+                half = float(rng.uniform(lo, hi))
+                side = 1.0 if rng.random() < 0.5 else -1.0
+                walk = (
+                    line
+                    + side * 0.5 * math.pi
+                    + float(rng.uniform(-1.0, 1.0)) * (CROSSING_ANGLE_JITTER)
+                )
+                ux, uy = math.cos(walk), math.sin(walk)
+                cx, cy = sx + frac * span * math.cos(line), sy + frac * span * math.sin(line)
+                ax, ay = cx - half * ux, cy - half * uy
+                length = 2.0 * half
+                arrive = frac * span / CROSSING_ROVER_SPEED  # s until the rover gets there
+                phase = (half - speed * arrive) % (2.0 * length)
+                px, py, _, _ = _position(_Path(ax, ay, ux, uy, length, speed), phase)
+                if math.hypot(px - sx, py - sy) < MIN_START_DISTANCE:
+                    continue
+                xs, ys = ax + length * ux * t, ay + length * uy * t
+                if np.all(self._world.clearance_many(xs[None], ys[None]) > PATH_CLEARANCE):
+                    self._paths[i] = _Path(ax, ay, ux, uy, length, speed)
+                    self._walked[i] = phase
+                    crossing += 1
+                    break
+            else:
+                (ax, ay), (ux, uy), length, phase = self._sample_path(rng, start)
+                self._paths[i] = _Path(ax, ay, ux, uy, length, speed)
+                self._walked[i] = phase
+            self._recolour(i, rng)
+        self._write_poses()
+        return crossing
 
     def _recolour(self, i: int, rng: np.random.Generator) -> None:
         rgba = self._model.geom_rgba

@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+from collections.abc import Callable
 from typing import NamedTuple
 
 import mujoco
@@ -25,8 +26,17 @@ from rover_env.worlds.spec import (
     OBSTACLE_FRICTION,
     OBSTACLE_PRIORITY,
 )
+from shm_protocol import DEPTH_MAX_M
 
 log = logging.getLogger(__name__)
+
+# Mesa's llvmpipe (the headless EGL renderer) rasterises on a pool of one thread per core by
+# default. A 96x96 camera frame is too small to split: the pool's hand-offs cost more than
+# they save, and on a 2-core machine its threads compete with the av-daemon and the other
+# envs. 0 renders in the calling thread (maze camera, one process: 0.49-0.51 ms instead of
+# 0.62-0.69 ms; see benchmarks/RESULTS.md). Read when the GL context is first made (lazily,
+# after this import); an LP_NUM_THREADS set by the user wins.
+os.environ.setdefault("LP_NUM_THREADS", "0")
 
 # s; implicitfast keeps wheel servos and contacts stable here (0.01 behaves the same:
 # drive speed, turn rates, flips; tested), and two steps per 0.05 s control period are cheap.
@@ -41,6 +51,11 @@ _CHASE_DISTANCE = 3.6
 _CHASE_ELEVATION = -22.0
 _CHASE_LEAD = 1.0
 _GOAL_BODY = "goal_marker"
+# The chase view's gaze cone: where the forward camera looks, drawn on the ground.
+VIEW_CONE_LENGTH = 4.0  # m from the camera along each edge of the field of view
+_VIEW_CONE_WIDTH = 0.04  # m, radius of the drawn lines
+_VIEW_CONE_RGBA = np.array([1.0, 0.85, 0.1, 0.9], dtype=np.float32)
+_VIEW_CONE_LIFT = 0.05  # m above the ground below the rover
 _OBSTACLE, _PEDESTRIAN = 1, 2  # contact codes of geoms (0: ground or the rover itself)
 
 
@@ -193,7 +208,9 @@ class _GLRenderer:
         height: int,
         depth: bool = False,
         segmentation: bool = False,
+        decorate: Callable[[mujoco.MjvScene], None] | None = None,
     ) -> CameraFrame:
+        """Render ``camera``; ``decorate(scene)`` may add geoms after the scene is built."""
         model, scene, ctx = self._model, self._scene, self._ctx
         if width > model.vis.global_.offwidth or height > model.vis.global_.offheight:
             raise ValueError(
@@ -205,6 +222,8 @@ class _GLRenderer:
         rect = mujoco.MjrRect(0, 0, width, height)
         rgb_buf, depth_buf, seg_buf = self._bufs(width, height)
         mujoco.mjv_updateScene(model, data, option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, scene)
+        if decorate is not None:
+            decorate(scene)
         mujoco.mjr_render(rect, scene, ctx)
         mujoco.mjr_readPixels(rgb_buf, depth_buf if depth else None, rect, ctx)
         rgb = rgb_buf[::-1].copy()
@@ -292,10 +311,16 @@ class RoverSim:
         self._wheel_cmd = np.zeros(4)
         self._wheel_speeds = np.zeros(4)
         self._camera_id = mujoco.mj_name2id(m, obj.mjOBJ_CAMERA, rover.CAMERA_NAME)
+        self._head = mujoco.mj_name2id(m, obj.mjOBJ_BODY, rover.CAMERA_HEAD_NAME)
+        self._camera_pan = 0.0
+        height, width = self.camera_size
+        half_fovy = math.radians(rover.CAMERA_FOVY) / 2
+        self.camera_half_fov = math.atan(math.tan(half_fovy) * width / height)
+        """Half the forward camera's horizontal field of view (rad): 45 deg on square frames."""
         self._goal_mocap = m.body_mocapid[mujoco.mj_name2id(m, obj.mjOBJ_BODY, _GOAL_BODY)]
         self.pedestrians = Pedestrians(m, d, self.world)
         # Geom classes for contacts: rover subtree, pedestrians, ground.
-        rover_bodies = {self._body} | {
+        rover_bodies = {self._body, self._head} | {
             mujoco.mj_name2id(m, obj.mjOBJ_BODY, n) for n in rover.WHEEL_NAMES
         }
         self._rover_geoms = np.isin(m.geom_bodyid, list(rover_bodies))
@@ -397,6 +422,43 @@ class RoverSim:
                 pedestrian |= touched.pedestrian
         self._contacts = Contacts(obstacle, pedestrian)
 
+    def set_camera_pan(self, angle: float) -> None:
+        """Turn the camera head to ``angle`` rad about the vertical (0 straight ahead, positive
+        to the left, like yaw) and update the camera pose at once (for the next render).
+
+        The head is a massless frame welded to the chassis: its pose is a model parameter
+        (``body_quat``), so turning it changes what the camera sees and nothing else.
+        """
+        angle = float(angle)
+        if not math.isfinite(angle):
+            raise ValueError(f"camera pan must be a finite angle in rad, got {angle}")
+        self._camera_pan = angle
+        self.model.body_quat[self._head] = (math.cos(0.5 * angle), 0.0, 0.0, math.sin(0.5 * angle))
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
+
+    @property
+    def camera_pan(self) -> float:
+        """The camera head's pan angle (rad, 0 straight ahead, positive left)."""
+        return self._camera_pan
+
+    @property
+    def camera_heading(self) -> float:
+        """Where the forward camera looks on the ground plane: world heading (rad)."""
+        look = self.data.cam_xmat[self._camera_id].reshape(3, 3)[:, 2]  # camera +z looks back
+        return math.atan2(-look[1], -look[0])
+
+    def pedestrians_in_view(self, max_range: float = DEPTH_MAX_M) -> np.ndarray:
+        """(P,) bool: pedestrians whose ground position lies inside the forward camera's
+        horizontal field of view and within ``max_range`` m of it (the depth channel's range
+        by default). A geometric test: a pedestrian behind a wall still counts."""
+        cam = self.data.cam_xpos[self._camera_id]
+        peds = self.pedestrians.positions
+        dx, dy = peds[:, 0] - cam[0], peds[:, 1] - cam[1]
+        bearing = np.arctan2(dy, dx) - self.camera_heading
+        bearing = (bearing + math.pi) % (2 * math.pi) - math.pi
+        return (np.abs(bearing) <= self.camera_half_fov) & (np.hypot(dx, dy) <= max_range)
+
     def set_goal_marker(self, x: float, y: float) -> None:
         """Move the goal marker (a green disc, drawn in the chase view only)."""
         self.data.mocap_pos[self._goal_mocap] = (x, y, self.world.ground_height(x, y))
@@ -493,8 +555,14 @@ class RoverSim:
             self.data, self._camera, r.camera_option, width, height, depth, segmentation
         )
 
-    def render_chase(self, width: int = 480, height: int = 360) -> np.ndarray:
-        """uint8 (height, width, 3) view from behind and above the rover (videos)."""
+    def render_chase(
+        self, width: int = 480, height: int = 360, *, view_cone: bool = False
+    ) -> np.ndarray:
+        """uint8 (height, width, 3) view from behind and above the rover (videos).
+
+        :param view_cone: draw where the forward camera looks: its centre line and the two
+            edges of its horizontal field of view, ``VIEW_CONE_LENGTH`` m on the ground.
+        """
         cam = self._chase
         q = self._qpos
         yaw = self.yaw
@@ -504,7 +572,29 @@ class RoverSim:
         cam.lookat[2] += 0.4
         cam.azimuth = math.degrees(yaw)
         r = self._gl()
-        return r.render(self.data, cam, r.chase_option, width, height).rgb
+        decorate = self._draw_view_cone if view_cone else None
+        return r.render(self.data, cam, r.chase_option, width, height, decorate=decorate).rgb
+
+    def _draw_view_cone(self, scene: mujoco.MjvScene) -> None:
+        cam = self.data.cam_xpos[self._camera_id]
+        q = self._qpos
+        z = float(self.data.qpos[q + 2]) - rover.REST_HEIGHT + _VIEW_CONE_LIFT
+        start = np.array([cam[0], cam[1], z])
+        heading = self.camera_heading
+        half = self.camera_half_fov
+        for offset in (-half, 0.0, half):
+            if scene.ngeom >= scene.maxgeom:
+                log.debug("chase scene full: view cone not drawn completely")
+                return
+            a = heading + offset
+            end = start + VIEW_CONE_LENGTH * np.array([math.cos(a), math.sin(a), 0.0])
+            geom = scene.geoms[scene.ngeom]
+            mujoco.mjv_initGeom(
+                geom, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3), np.zeros(9),
+                _VIEW_CONE_RGBA,
+            )  # fmt: skip
+            mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_CAPSULE, _VIEW_CONE_WIDTH, start, end)
+            scene.ngeom += 1
 
     def close(self) -> None:
         """Free the renderer (the sim stays usable; a later render makes a new one)."""

@@ -4,11 +4,18 @@
 ``import rover_train`` never need Ray.
 """
 
+import os as _os
 from typing import Any
 
-from rover_train.daemon_keeper import DaemonKeeper
-from rover_train.envs import ENV_IDS, DaemonRecovery, env_factory, make_env
-from rover_train.ray_worker import EnvWorker, WorkerConfig
+# A PPO update runs on every core (rover_train.threads.PhaseThreads) and rollouts on one:
+# torch's OpenMP workers must sleep, not spin, between the phases and while the daemon and
+# envs run (active_vision sets the same default for the daemon). Set before torch loads; an
+# OMP_WAIT_POLICY set by the user wins.
+_os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+from rover_train.daemon_keeper import DaemonKeeper  # noqa: E402
+from rover_train.envs import ENV_IDS, DaemonRecovery, env_factory, make_env  # noqa: E402
+from rover_train.ray_worker import EnvWorker, WorkerConfig  # noqa: E402
 
 _NEEDS_RAY = ("RayVecEnv", "WorkerLostError")
 
