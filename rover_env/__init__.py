@@ -19,8 +19,9 @@ from gymnasium.envs.registration import register, registry  # noqa: E402
 
 from rover_env.core import RoverEnvBase  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
+from rover_env.pedestrians import Appearance  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
-from rover_env.simulation import CameraFrame, Contacts, RoverSim  # noqa: E402
+from rover_env.simulation import CameraFrame, Contacts, Lighting, RoverSim  # noqa: E402
 from rover_env.worlds import WORLD_NAMES, WorldSpec, make_world  # noqa: E402
 
 _ENVS = {
@@ -34,8 +35,10 @@ for _env_id, _entry_point in _ENVS.items():
 
 __all__ = [
     "WORLD_NAMES",
+    "Appearance",
     "CameraFrame",
     "Contacts",
+    "Lighting",
     "RewardConfig",
     "RoverEnv",
     "RoverEnvBase",

@@ -101,6 +101,9 @@ class RoverEnvBase(gym.Env):
     :param reward_config: reward and termination constants (default ``RewardConfig()``).
     :param render_mode: None or ``"rgb_array"`` (chase camera).
     :param render_size: (width, height) of ``render()`` frames.
+    :param pedestrian_appearance: ``"fixed"`` (default, the seed's look) or ``"random"``
+        (clothing colours, height, girth and gait phase drawn per episode, deterministic
+        from the reset seed).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / c.CONTROL_DT))}
@@ -118,6 +121,7 @@ class RoverEnvBase(gym.Env):
         reward_config: RewardConfig | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
+        pedestrian_appearance: str = "fixed",
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
@@ -145,6 +149,7 @@ class RoverEnvBase(gym.Env):
             self.world_name,
             camera_size=camera_size,
             physics_dt=self.control_dt / self.physics_substeps,
+            pedestrian_appearance=pedestrian_appearance,
         )
         self.world = self.sim.world
         self.pid = HeadingPID(dt=self.control_dt)

@@ -145,6 +145,7 @@ class RoverEnvFused(RoverEnvBase):
         reward_config: RewardConfig | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
+        pedestrian_appearance: str = "fixed",
         report_latency: bool = True,
     ) -> None:
         del scan_topic, imu_topic, cmd_vel_topic  # ROS topics: accepted, no effect
@@ -174,6 +175,7 @@ class RoverEnvFused(RoverEnvBase):
                 reward_config=reward_config if reward_config is not None else RewardConfig.fused(),
                 render_mode=render_mode,
                 render_size=render_size,
+                pedestrian_appearance=pedestrian_appearance,
             )
         except BaseException:
             self._disconnect()

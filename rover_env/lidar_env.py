@@ -164,6 +164,7 @@ class RoverEnv(RoverEnvBase):
         reward_config: RewardConfig | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
+        pedestrian_appearance: str = "fixed",
     ) -> None:
         super().__init__(
             world_n=world_n,
@@ -176,6 +177,7 @@ class RoverEnv(RoverEnvBase):
             reward_config=reward_config,
             render_mode=render_mode,
             render_size=render_size,
+            pedestrian_appearance=pedestrian_appearance,
         )
         # Kept for compatibility and introspection only (no ROS here).
         self.size = tuple(size)
