@@ -49,6 +49,8 @@ class SourceFrame:
     """uint8 ``(S, S, 3)`` RGB or ``(S, S, 4)`` RGB + depth channel; owned by the caller."""
     seq: int
     """Sequence number of the camera frame (the fused frame's ``source_seq``)."""
+    episode_start: bool = False
+    """The env marked this frame as its episode's first (``Frame.episode_start``)."""
 
 
 class SourceError(RuntimeError):
@@ -217,7 +219,7 @@ class CameraSegmentSource:
             if f is not None and f.seq != self._done[i]:
                 self._done[i] = f.seq
                 self._writer_gone[i] = False
-                out.append(SourceFrame(i, self._buf[i], f.seq))
+                out.append(SourceFrame(i, self._buf[i], f.seq, f.episode_start))
         return out
 
     def poll(self, timeout: float) -> list[SourceFrame]:

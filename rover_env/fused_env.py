@@ -188,6 +188,7 @@ class RoverEnvFused(RoverEnvBase):
         )
         self.action_space = float_box(c.FUSED_ACTION_LOW, c.FUSED_ACTION_HIGH)
         self._frame_latency_ms = 0.0
+        self._episode_start = False
         self._heatmap_center = 0.0
         self._pedestrian_collision = False
 
@@ -260,6 +261,7 @@ class RoverEnvFused(RoverEnvBase):
         if self._camera is None or not self._link_is_current():
             log.info("re-attaching to the daemon's segments for '%s'", self.rl_obs_name)
             self._connect(self.connection_check_timeout)
+        self._episode_start = True  # the next camera frame opens the episode
 
     def _observe(self) -> dict[str, np.ndarray]:
         assert self._camera is not None and self._fused is not None
@@ -269,7 +271,8 @@ class RoverEnvFused(RoverEnvBase):
         if self._render_depth:
             np.rint(depth_to_channel(frame.depth) * 255.0, out=buf[:, :, 3], casting="unsafe")
         t0 = time.perf_counter()
-        seq = self._camera.publish(buf)
+        seq = self._camera.publish(buf, episode_start=self._episode_start)
+        self._episode_start = False
         fused = self._fused.wait_for(source_seq=seq, timeout=self.frame_timeout)
         while fused.seq <= self._stale_seq:
             fused = self._fused.wait_next(timeout=self.frame_timeout)

@@ -327,6 +327,15 @@ class Pedestrians:
         self._walked[i] = 0.0
         self._write_poses()
 
+    def walked_state(self) -> list[float]:
+        """Where every pedestrian is on its path (for :meth:`restore_walked`)."""
+        return list(self._walked)
+
+    def restore_walked(self, state: list[float]) -> None:
+        """Put every pedestrian back where :meth:`walked_state` found it."""
+        self._walked = list(state)
+        self._write_poses()
+
     # --- motion --------------------------------------------------------------------------------
     def advance(self, dt: float, rover_xy: tuple[float, float] | None = None) -> None:
         """Walk every pedestrian ``dt`` seconds on, then write the mocap poses.

@@ -566,6 +566,35 @@ class RoverSim:
             self.data, self._camera, r.camera_option, width, height, depth, segmentation
         )
 
+    def future_pedestrian_mask(self, horizon: float = 1.5, step: float = 0.1) -> np.ndarray:
+        """bool (H, W): camera pixels a pedestrian covers at some moment in the next
+        ``horizon`` seconds, seen from the current camera pose.
+
+        The rover and camera are held still; only the pedestrians walk on along their own
+        paths (waiting for the rover as they would), and their segmentation masks at
+        ``0, step, 2 step, ..., horizon`` are OR-ed. The sim is left exactly as it was
+        (pedestrian poses restored, no physics step taken).
+        """
+        if not horizon >= 0 or not step > 0:
+            raise ValueError(f"horizon must be >= 0 and step > 0, got {horizon}, {step}")
+        m, d = self.model, self.data
+        q = self._qpos
+        rover_xy = (float(d.qpos[q]), float(d.qpos[q + 1]))
+        saved = self.pedestrians.walked_state()
+        union = self.render_camera(segmentation=True).pedestrian_mask
+        assert union is not None
+        try:
+            for _ in range(int(round(horizon / step))):
+                self.pedestrians.advance(step, rover_xy)
+                mujoco.mj_kinematics(m, d)
+                mask = self.render_camera(segmentation=True).pedestrian_mask
+                assert mask is not None
+                union |= mask
+        finally:
+            self.pedestrians.restore_walked(saved)
+            mujoco.mj_kinematics(m, d)
+        return union
+
     def render_chase(self, width: int = 480, height: int = 360) -> np.ndarray:
         """uint8 (height, width, 3) view from behind and above the rover (videos)."""
         cam = self._chase

@@ -16,9 +16,10 @@ ROOT = Path(__file__).resolve().parents[2]
 class Daemon:
     """A real `python -m active_vision` process serving ``name``."""
 
-    def __init__(self, name: str, slots: int = 1) -> None:
+    def __init__(self, name: str, slots: int = 1, args: tuple[str, ...] = ()) -> None:
         self.name = name
         self.slots = slots
+        self.args = tuple(args)  # extra av-daemon flags
         self.proc: subprocess.Popen[str] | None = None
         self.log: collections.deque[str] = collections.deque(maxlen=200)
 
@@ -26,7 +27,7 @@ class Daemon:
         env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "active_vision", "--name", self.name,
-             "--slots", str(self.slots), "--threads", "1"],
+             "--slots", str(self.slots), "--threads", "1", *self.args],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT,
         )  # fmt: skip
         assert self.proc.stdout is not None
