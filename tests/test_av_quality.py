@@ -111,7 +111,8 @@ def test_train_and_evaluate_clis_run_end_to_end(tmp_path, heldout: ds.Dataset, c
             "per_world", "worst"} <= figures.keys()
     assert set(figures["per_world"]) == set(ds.WORLDS)
     for w in ds.WORLDS:
-        assert {"iou", "recall", "abs_rel", "delta1", "abs_rel_near"} <= figures["per_world"][w].keys()
+        keys = figures["per_world"][w].keys()
+        assert {"iou", "recall", "abs_rel", "delta1", "abs_rel_near"} <= keys
     # the worst world is no better than the whole set
     assert figures["worst"]["iou"] <= figures["iou"] + 1e-9
     assert figures["worst"]["abs_rel"] >= figures["abs_rel"] - 1e-9
