@@ -2,7 +2,7 @@
 
 ``python -m active_vision.dataset --out DIR --frames N --seed S`` renders N camera frames
 through :class:`rover_env.simulation.RoverSim` and writes
-``DIR/av_<worlds>_s<S>_n<N>_<size>px_v<version>.npz``
+``DIR/av_<worlds>_s<S>_n<N>_<size>px_d<drive %>_v<version>.npz``
 (compressed) with:
 
 ====================  ===================  =============================================
@@ -13,25 +13,36 @@ key                   shape / dtype        meaning
 ``mask``              (N, S, S) bool       pedestrian pixels (segmentation rendering)
 ``world``             (N,) int8            index into ``worlds``
 ``worlds``            (W,) str             world names
-``kind``              (N,) int8            0 empty, 1 walking, 2 placed (see below)
+``kind``              (N,) int8            0 empty, 1 walking, 2 placed, 3 driving
+``episode``           (N,) int32           driving episode (-1: posed frame)
+``step``              (N,) int16           control step within the episode (-1: posed)
 ``seed``              () int64             the seed the file was made from
 ====================  ===================  =============================================
 
-Every frame draws its own random generator from ``(seed, frame index)``, so a file is a pure
-function of ``(seed, frames, worlds, size)``. Frames cycle through the worlds (frame i in
-world ``i % W``). Per frame the script varies:
+A file is a pure function of ``(seed, frames, worlds, size, drive_fraction, appearance)``.
+The first ``round(frames * drive_fraction)`` frames (70 % by default) are **driving**
+frames: short episodes recorded while the rover drives (:mod:`active_vision.driving`:
+random smooth driving, approaching a pedestrian, driving into walls and rocks, watching a
+distant pedestrian; every 3rd control step kept), episode e in world ``e % W`` from
+``np.random.default_rng([seed, 1, e])``. These are the frames the agent sees. The rest are
+**posed** frames (frame j in world ``j % W`` from ``np.random.default_rng([seed, j])``),
+which vary per frame:
 
 - the rover pose: a free point (0.4 m clearance) near the pedestrian area or anywhere in
   bounds, random heading - so walls, rocks, panels and open ground all appear;
 - the pedestrians (see :class:`FrameRenderer`): walking figures seen from 0.8-9 m
   (uniform in log distance), standing figures pinned in view (1-3, some straddling the frame
-  edge, random headings and clothes), and ``p_empty`` of the frames with none in view;
-- the lighting: every light's diffuse/ambient/specular and the headlight scaled by random
-  factors (dim dusk to bright noon), with a random colour cast.
+  edge, random headings), and ``p_empty`` of the frames with none in view.
 
-The held-out split is by seed (``HELDOUT_SEED`` vs ``TRAIN_SEED``: no shared frame) and is
-reported by world (``evaluate`` prints figures per world; ``--worlds`` renders a subset so a
-network can be trained without one world and evaluated on it).
+Both kinds randomise the lighting (every light's diffuse/ambient/specular and the headlight
+scaled by random factors, dim dusk to bright noon, with a random colour cast:
+:func:`random_lighting`) and, with ``appearance="random"`` (the default), the pedestrians'
+clothing colours, height, girth and gait phase (``RoverSim(pedestrian_appearance=...)``).
+
+The held-out split (``evaluate.heldout``) is ``drive_fraction=1``: driving frames only,
+from ``HELDOUT_SEED`` (seeds, appearances and lighting never used in training), reported by
+world (``--worlds`` renders a subset so a network can be trained without one world and
+evaluated on it). Everything is read through public :class:`RoverSim` calls.
 """
 
 from __future__ import annotations
@@ -71,8 +82,8 @@ DEFAULT_DATA_DIR = (
 class DatasetConfig:
     """What :func:`render_dataset` renders."""
 
-    frames: int = 3000
-    """Number of frames (cycled over ``worlds``)."""
+    frames: int = 8000
+    """Number of frames."""
     seed: int = TRAIN_SEED
     """Base seed; frame i uses ``np.random.default_rng([seed, i])``."""
     worlds: tuple[str, ...] = WORLDS
@@ -416,6 +427,8 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--worlds", default=",".join(WORLDS),
                    help="comma-separated worlds (default: all three)")
     p.add_argument("--size", type=int, default=96)
+    p.add_argument("--drive-fraction", type=float, default=DatasetConfig.drive_fraction,
+                   help="share of frames recorded while driving (held-out split: 1)")
     p.add_argument("--force", action="store_true", help="re-render even if the file exists")
     p.add_argument("--log-level", default="INFO")
     return p.parse_args(argv)
@@ -425,7 +438,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parse(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     worlds = tuple(w.strip() for w in args.worlds.split(",") if w.strip())
-    config = DatasetConfig(frames=args.frames, seed=args.seed, worlds=worlds, size=args.size)
+    config = DatasetConfig(frames=args.frames, seed=args.seed, worlds=worlds, size=args.size,
+                           drive_fraction=args.drive_fraction)
     path = build(args.out, config, reuse=not args.force)
     data = Dataset.load(path)
     empty = float(np.mean(~data.mask.reshape(len(data), -1).any(axis=1)))

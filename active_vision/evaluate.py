@@ -5,7 +5,10 @@
 daemon runs - on held-out frames (rendered with ``dataset.HELDOUT_SEED`` when no file is
 given) and prints the figures overall and per world. With ``--json`` the last line is one
 JSON object with the keys ``iou``, ``recall``, ``false_positive_rate``, ``abs_rel``,
-``delta1`` (plus counts and per-world figures).
+``delta1`` (plus counts, ``abs_rel_near``, ``worst`` and ``per_world``). With
+``--heatmap predict`` it also evaluates the predictive heatmap on held-out driving
+sequences (:mod:`active_vision.predict_train`) and adds ``predict_iou``,
+``detect_baseline_iou`` and ``oracle_now_iou``, overall and in each ``per_world`` entry.
 
 Definitions (``THRESHOLD`` = 0.5, ``MIN_PEDESTRIAN_PX`` = 30, ``MIN_BLOB_PX`` = 5):
 
@@ -260,6 +263,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="held-out frames to render when --data is not given")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--json", action="store_true", help="end with one JSON line of the figures")
+    p.add_argument("--heatmap", choices=("detect", "predict"), default="detect",
+                   help="predict: also evaluate the predictive heatmap (future occupancy)")
+    p.add_argument("--predict-weights", type=Path, default=None,
+                   help="predictor weights (default: the shipped predict.pt)")
     p.add_argument("--log-level", default="WARNING")
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
@@ -267,13 +274,30 @@ def main(argv: Sequence[str] | None = None) -> int:
     model = load_model(args.weights)
     m = evaluate(model, data, threads=args.threads)
     print(format_metrics(m))
+    out: dict[str, object] = {**m.summary(), "frames": m.frames, "pedestrians": m.pedestrians,
+                              "empty_frames": m.empty_frames, "abs_rel_near": m.abs_rel_near,
+                              "worst": m.worst(),
+                              "per_world": {w: dict(f) for w, f in m.per_world.items()}}
+    if args.heatmap == "predict":
+        from active_vision.predict_train import evaluate_heldout
+
+        pm = evaluate_heldout(args.predict_weights, args.weights, args.data_dir,
+                              threads=args.threads)
+        keys = ("predict_iou", "detect_baseline_iou", "oracle_now_iou")
+        print(f"predictive heatmap, {pm['targets']} held-out targets (IoU with the 1.5 s "
+              "future-occupancy mask):")
+        print(f"  {'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}")
+        per = pm["per_world"]
+        assert isinstance(per, dict)
+        for w, f in [("all", pm), *per.items()]:
+            print(f"  {w:<8} " + " ".join(f"{f[k]:8.4f}" for k in keys))  # type: ignore[index]
+        out.update({k: pm[k] for k in keys})
+        pw = out["per_world"]
+        assert isinstance(pw, dict)
+        for w, f in per.items():
+            pw.setdefault(w, {}).update(f)
     if args.json:
-        print(json.dumps(_json_safe({**m.summary(), "frames": m.frames,
-                                     "pedestrians": m.pedestrians,
-                                     "empty_frames": m.empty_frames,
-                                     "abs_rel_near": m.abs_rel_near,
-                                     "worst": m.worst(),
-                                     "per_world": m.per_world})))
+        print(json.dumps(_json_safe(out)))
     return 0
 
 
