@@ -48,7 +48,10 @@ class RoverEnvFused(RoverEnvBase):
     renders its forward camera, publishes it to the daemon's camera segment
     ``<rl_obs_name>[_<slot>]_camera`` and waits for the fused frame computed from exactly
     that camera frame (``source_seq``), so observations are in lock-step with the physics
-    and reproducible for a fixed seed.
+    and reproducible for a fixed seed. The first camera frame of every episode carries the
+    episode-start flag, on which the daemon clears the slot's frame history (what
+    ``av-daemon --heatmap predict`` predicts from), so ``reset(seed=s)`` reproduces whole
+    episodes in either heatmap mode.
 
     Start the daemon first (``av-daemon --name rl_observation``), or run both under the
     supervisor (``rover-pair -- <your trainer>``).
@@ -113,6 +116,8 @@ class RoverEnvFused(RoverEnvBase):
     construction; ``rl_obs_name`` the daemon's segment base name; ``slot`` which daemon
     slot (``--slots N``) this env uses; ``frame_timeout`` seconds per fused frame;
     ``control_dt``; ``reward_config``; ``render_mode`` (``"rgb_array"``: chase camera);
+    ``pedestrian_appearance`` ``"fixed"`` (default, the seed's figures) or ``"random"``
+    (clothing colours, height, girth and gait phase drawn per episode from the reset seed);
     ``report_latency`` (default True) puts the measured ``frame_latency_ms`` in ``info``.
     It is the one wall-clock value in ``info``, so two runs with the same seed and actions
     differ in it and nothing else; pass ``report_latency=False`` where infos are compared

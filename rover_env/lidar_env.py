@@ -140,6 +140,8 @@ class RoverEnv(RoverEnvBase):
     | ``reward_config`` | ``RewardConfig()`` | reward and termination constants |
     | ``render_mode`` | None | ``"rgb_array"``: ``render()`` returns a chase-camera frame |
     | ``render_size`` | (480, 360) | (width, height) of rendered frames |
+    | ``pedestrian_appearance`` | ``"fixed"`` | ``"random"``: clothing colours, height, |
+    | | | girth and gait phase drawn per episode from the reset seed |
 
     ## Version history
 
