@@ -142,3 +142,37 @@ def test_daemon_restart_mid_episode_starts_an_empty_history(predictor_file: Path
     finally:
         d.stop()
         d.remove_leftovers()
+
+
+def test_preview_shows_the_prediction_beside_the_detection() -> None:
+    from active_vision.preview import compose
+
+    camera = np.zeros((96, 96, 3), np.uint8)
+    fused = np.zeros((96, 96, 3), np.float32)
+    detect = np.ones((96, 96), np.float32)
+    assert compose(camera, fused, scale=1).shape == (110, 4 * 96, 3)
+    img = compose(camera, fused, scale=1, detect=detect)
+    assert img.shape == (110, 5 * 96, 3)
+    # the 4th tile is the detection (all ones: bright), the 3rd the prediction (zeros: dark)
+    assert img[14:, 3 * 96:4 * 96].mean() > 100 > img[14:, 2 * 96:3 * 96].mean()
+
+
+def test_predictive_ground_truth_and_baselines_on_driving_sequences() -> None:
+    from active_vision import predict_train as pt
+    from active_vision.predict import Predictor
+
+    data = pt.render_sequences(seed=99, episodes=3)
+    assert len(data.target_row) > 10
+    # the future occupancy includes every pixel a pedestrian covers now
+    assert np.all(data.future[data.now])
+    win = pt.windows(data, threads=1)
+    assert win.shape == (len(data.target_row), K, 96, 96, 3)
+    # a window ends with its target's own fused frame, and starts within its episode
+    first = data.target_row == data.episode_row + 4
+    assert np.all(data.episode_row <= data.target_row)
+    torch.manual_seed(0)
+    m = pt.evaluate_predictor(Predictor(PredictNet().eval()), data, win)
+    for k in ("predict_iou", "detect_baseline_iou", "oracle_now_iou"):
+        assert 0.0 <= m[k] <= 1.0, (k, m)
+    assert set(m["per_world"]) == set(data.worlds)
+    assert first.any()
