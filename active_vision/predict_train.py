@@ -193,7 +193,9 @@ class PredictTrainConfig:
     weights: Path | None = None
     """Detection weights (default: the shipped AVNet)."""
     out: Path = DEFAULT_PREDICT_WEIGHTS
-    max_minutes: float = 20.0
+    max_minutes: float = 60.0
+    init: Path | None = None
+    """Start from these predictor weights (fine-tuning) instead of random ones."""
 
 
 def _loss(logit: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -212,6 +214,11 @@ def train_predictor(cfg: PredictTrainConfig) -> tuple[PredictNet, dict[str, floa
     y = torch.from_numpy(data.future).unsqueeze(1).float()
     n = len(y)
     model = PredictNet()
+    if cfg.init is not None:
+        from active_vision.predict import load_predictor
+
+        model.load_state_dict(load_predictor(cfg.init, fuse=False).state_dict())
+        logger.info("starting from %s", cfg.init)
     model.train()
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
     steps = math.ceil(n / cfg.batch)
@@ -297,6 +304,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--data-dir", type=Path, default=d.data_dir)
     p.add_argument("--weights", type=Path, default=None, help="detection weights")
     p.add_argument("--out", type=Path, default=d.out, help="predictor weights to write")
+    p.add_argument("--init", type=Path, default=None,
+                   help="fine-tune from these predictor weights instead of training afresh")
     p.add_argument("--evaluate-only", action="store_true",
                    help="evaluate --out on the held-out episodes, no training")
     p.add_argument("--json", action="store_true", help="end with one JSON line")
@@ -306,7 +315,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not a.evaluate_only:
         cfg = PredictTrainConfig(episodes=a.episodes, epochs=a.epochs, batch=a.batch, lr=a.lr,
                                  threads=a.threads, seed=a.seed, data_dir=a.data_dir,
-                                 weights=a.weights, out=a.out, max_minutes=a.max_minutes)
+                                 weights=a.weights, out=a.out, max_minutes=a.max_minutes,
+                                 init=a.init)
         model, facts = train_predictor(cfg)
         save_predictor(model, a.out, facts)
         print(f"wrote {a.out} after {facts['epochs']:.0f} epochs in {facts['seconds']:.0f} s")
