@@ -10,7 +10,7 @@
 ``--source camera``, the camera segment ``camera_name(slot_name(name, i))`` (uint8
 ``size x size x 3``, or ``x 4`` with ``--depth render``: channel 3 is the renderer's depth
 channel), which the env writes (``FrameWriter(..., create=False)``) and the daemon reads.
-Then it prints one line containing ``ready`` (flushed) and serves:
+Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flushed) and serves:
 
 1. waits for new camera frames on any slot (futex wake-ups, short timeouts; idle costs
    almost no CPU);
@@ -60,8 +60,10 @@ from types import FrameType
 
 import numpy as np
 
+from active_vision.launcher import READY_MARKER
 from shm_protocol import (
     CHANNEL_HEATMAP,
+    DEFAULT_NAME,
     FUSED_SHAPE,
     FrameReader,
     FrameWriter,
@@ -87,7 +89,7 @@ PNG_PREVIEW_EVERY_S = 0.5
 class DaemonConfig:
     """The daemon's options (CLI flags of the same names)."""
 
-    name: str = "rl_observation"
+    name: str = DEFAULT_NAME
     """Base segment name; slot i uses ``slot_name(name, i)``."""
     slots: int = 1
     """Number of slots (one per env of a vector env)."""
@@ -431,7 +433,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return EXIT_FAILURE
         if stop.signal is None:
             names = daemon.segment_names()
-            print(f"av-daemon ready: name={cfg.name} slots={cfg.slots} size={cfg.size} "
+            print(f"{READY_MARKER}: name={cfg.name} slots={cfg.slots} size={cfg.size} "
                   f"depth={cfg.depth} heatmap={cfg.heatmap} source={cfg.source} "
                   f"pid={os.getpid()} "
                   f"segments={','.join(names)}", flush=True)

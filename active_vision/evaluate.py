@@ -58,7 +58,7 @@ from active_vision.dataset import (
     DatasetConfig,
     build,
 )
-from active_vision.models import AVNet, load_model
+from active_vision.models import MIN_DEPTH_M, AVNet, load_model
 from active_vision.perception import (
     CHANNEL_DEPTH,
     CHANNEL_HEATMAP,
@@ -72,7 +72,6 @@ logger = logging.getLogger(__name__)
 THRESHOLD = 0.5
 MIN_PEDESTRIAN_PX = 30
 MIN_BLOB_PX = 5
-MIN_DEPTH_M = 0.05
 NEAR_DEPTH_M = 0.3
 HELDOUT_FRAMES = 900
 _LOWER_IS_BETTER = ("false_positive_rate", "abs_rel")

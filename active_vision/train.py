@@ -52,7 +52,14 @@ from active_vision.dataset import (
     DatasetConfig,
     build,
 )
-from active_vision.models import DEFAULT_WEIGHTS, HEAD_DEPTH, HEAD_HEATMAP, AVNet, AVNetConfig
+from active_vision.models import (
+    DEFAULT_WEIGHTS,
+    HEAD_DEPTH,
+    HEAD_HEATMAP,
+    MIN_DEPTH_M,
+    AVNet,
+    AVNetConfig,
+)
 from active_vision.models import save_weights as _save
 from shm_protocol import DEPTH_MAX_M
 
@@ -61,7 +68,6 @@ logger = logging.getLogger(__name__)
 TASKS = ("both", "heatmap", "depth")
 HARD_NEGATIVES = 32
 HARD_NEGATIVE_WEIGHT = 0.2
-MIN_DEPTH_M = 0.05
 PEDESTRIAN_DEPTH_WEIGHT = 4.0
 
 

@@ -23,10 +23,7 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
-import signal
-import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -35,22 +32,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from active_vision.launcher import spawn_daemon  # noqa: E402
+
 SEED_STEPS_PER_S = 20.0  # the seed steps in real time at 0.05 s control
-
-
-def start_daemon(name: str, slots: int, threads: int) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "active_vision", "--name", name, "--slots", str(slots),
-         "--threads", str(threads), "--log-level", "WARNING"],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env,
-    )  # fmt: skip
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        if "ready" in line:
-            threading.Thread(target=lambda: [None for _ in proc.stdout], daemon=True).start()
-            return proc
-    raise RuntimeError(f"daemon exited with {proc.wait()} before it was ready")
 
 
 def _timed(fn, acc: list[float]):
@@ -174,8 +158,8 @@ def main() -> int:
     rows = []
     for n_envs in (1, 2):
         name = f"bench_fused_{os.getpid()}_{n_envs}"
-        daemon = start_daemon(name, n_envs, a.threads)
-        try:
+        with spawn_daemon(name, n_envs,
+                          extra_args=["--threads", str(a.threads), "--log-level", "WARNING"]):
             ctx = mp.get_context("spawn")
             q: mp.Queue = ctx.Queue()
             procs = [
@@ -189,9 +173,6 @@ def main() -> int:
             for pr in procs:
                 pr.join()
             total = time.perf_counter() - t0
-        finally:
-            daemon.send_signal(signal.SIGTERM)
-            daemon.wait(10)
         agg = sum(r["steps"] / r["wall"] for r in results)
         r0 = results[0]
         step_s = r0["wall"] / r0["steps"]

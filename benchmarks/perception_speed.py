@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import subprocess
 import sys
 import time
 import uuid
@@ -47,6 +46,7 @@ from torch import nn
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from active_vision.launcher import spawn_daemon  # noqa: E402
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
 
 YOLO11N_PARAMS = 2_624_080  # ultralytics yolo11.yaml, scale n (80 classes)
@@ -97,15 +97,7 @@ def bench_daemon(slots: int, args: Args) -> dict[str, float]:
     from shm_protocol import FrameReader, FrameWriter, camera_name, slot_name
 
     name = f"bench_av_{uuid.uuid4().hex[:8]}"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "active_vision", "--name", name, "--slots", str(slots),
-         "--threads", "1", "--log-level", "WARNING"],
-        stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env)
-    try:
-        line = proc.stdout.readline() if proc.stdout else ""
-        if "ready" not in line:
-            raise RuntimeError(f"daemon did not start: {line!r}")
+    with spawn_daemon(name, slots, extra_args=["--threads", "1", "--log-level", "WARNING"]):
         cams = [FrameWriter(camera_name(slot_name(name, i)), create=False) for i in range(slots)]
         fused = [FrameReader(slot_name(name, i)) for i in range(slots)]
         frame = np.random.default_rng(1).integers(0, 256, (96, 96, 3), dtype=np.uint8)
@@ -125,9 +117,6 @@ def bench_daemon(slots: int, args: Args) -> dict[str, float]:
             r.close()
         total = sum(lat)
         return {"fps": rounds * slots / total, "round_ms_p50": 1e3 * statistics.median(lat)}
-    finally:
-        proc.terminate()
-        proc.wait(timeout=20)
 
 
 # --- YOLO11n-shaped comparison --------------------------------------------------------------

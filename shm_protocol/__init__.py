@@ -17,6 +17,7 @@ from .errors import (
     InvalidNameError,
     LayoutError,
     NonFiniteError,
+    SegmentBusyError,
     SegmentNotFoundError,
     ShmError,
     WriterGoneError,
@@ -31,7 +32,18 @@ from .layout import (
     channel_to_depth,
     depth_to_channel,
 )
-from .names import camera_name, slot_name, validate_name
+from .names import (
+    DEFAULT_NAME,
+    SHM_DIR,
+    camera_name,
+    default_name,
+    default_slots,
+    existing_segments,
+    segment_path,
+    segments_of,
+    slot_name,
+    validate_name,
+)
 from .reader import Frame, FrameReader
 from .writer import FrameWriter
 
@@ -39,6 +51,7 @@ __all__ = [
     "CHANNEL_DEPTH",
     "CHANNEL_GRAY",
     "CHANNEL_HEATMAP",
+    "DEFAULT_NAME",
     "DEPTH_MAX_M",
     "FUSED_DTYPE",
     "FUSED_SHAPE",
@@ -49,12 +62,19 @@ __all__ = [
     "InvalidNameError",
     "LayoutError",
     "NonFiniteError",
+    "SHM_DIR",
+    "SegmentBusyError",
     "SegmentNotFoundError",
     "ShmError",
     "WriterGoneError",
     "camera_name",
     "channel_to_depth",
+    "default_name",
+    "default_slots",
     "depth_to_channel",
+    "existing_segments",
+    "segment_path",
+    "segments_of",
     "slot_name",
     "validate_name",
 ]

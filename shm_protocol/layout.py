@@ -81,7 +81,6 @@ FLAG_EPISODE_START = 1 << 2
 """Per frame: set by ``publish(..., episode_start=True)`` on the first camera frame of an
 episode, cleared by every other publish; written and read inside the seqlock bracket, so it
 belongs to exactly the frame it was published with (``Frame.episode_start``)."""
-KNOWN_FLAGS = FLAG_SHUTTING_DOWN | FLAG_CHECKSUM | FLAG_EPISODE_START
 
 U32_MAX = 0xFFFF_FFFF
 U64_MAX = 0xFFFF_FFFF_FFFF_FFFF
@@ -150,11 +149,6 @@ def normalize_shape(shape: Any) -> tuple[int, int, int]:
     if not all(1 <= d <= U32_MAX for d in dims):
         raise LayoutError(f"every dimension must be in 1..{U32_MAX}, got {dims}")
     return dims  # type: ignore[return-value]
-
-
-def dtype_name(dtype: np.dtype[Any]) -> str:
-    """``float32`` / ``uint8`` (byte order implied: the wire is little-endian)."""
-    return np.dtype(dtype).name
 
 
 # --- one segment's layout --------------------------------------------------------------

@@ -72,7 +72,7 @@ def predictor_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def _predict_daemon(predictor_file: Path, name: str, slots: int = 1) -> Daemon:
     return Daemon(name, slots=slots,
-                  args=("--heatmap", "predict", "--predict-weights", str(predictor_file)))
+                  extra_args=("--heatmap", "predict", "--predict-weights", str(predictor_file)))
 
 
 @pytest.fixture(scope="module")
