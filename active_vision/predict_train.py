@@ -1,6 +1,6 @@
 """Data, training and evaluation of the predictive heatmap (:mod:`active_vision.predict`).
 
-    python -m active_vision.predict_train [--episodes 150] [--epochs 25] [--threads 2]
+    python -m active_vision.predict_train [--episodes 150] [--epochs 6] [--threads 2]
     python -m active_vision.predict_train --evaluate-only [--json]
 
 Data: driving episodes (:meth:`active_vision.driving.DriveRecorder.record_sequence`, the
@@ -184,7 +184,7 @@ class PredictTrainConfig:
     """Options of :func:`train_predictor` (CLI flags of the same names)."""
 
     episodes: int = 150
-    epochs: int = 25
+    epochs: int = 6
     batch: int = 32
     lr: float = 3e-3
     threads: int = 2
