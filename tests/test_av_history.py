@@ -176,3 +176,17 @@ def test_predictive_ground_truth_and_baselines_on_driving_sequences() -> None:
         assert 0.0 <= m[k] <= 1.0, (k, m)
     assert set(m["per_world"]) == set(data.worlds)
     assert first.any()
+
+
+def test_shipped_predictor_loads_and_outputs_probabilities() -> None:
+    from active_vision.predict import DEFAULT_PREDICT_WEIGHTS, Predictor, load_predictor
+
+    assert DEFAULT_PREDICT_WEIGHTS.is_file()
+    model = load_predictor()
+    assert model.k == K
+    window = np.random.default_rng(0).random((2, K, 96, 96, 3), dtype=np.float32)
+    out = Predictor(model)(window)
+    assert out.shape == (2, 96, 96) and out.dtype == np.float32
+    assert np.all((out >= 0.0) & (out <= 1.0))
+    with pytest.raises(ValueError, match="windows shaped"):
+        Predictor(model)(window[:, :3])
