@@ -73,6 +73,10 @@ class TrainArgs:
     threads: int = 1
     """Torch intra-op threads of the trainer (small nets on CPU run best on one; the daemon
     and the env workers need the other cores)."""
+    update_threads: int = 1
+    """PPO: torch threads for the gradient epochs, while envs and daemon are idle (0: every
+    core this process may use). More than 1 pays only on an otherwise idle machine: with
+    other work on the cores a 2-thread update measured slower. Rollouts keep --threads."""
     log_level: str = field(default_factory=default_log_level,
                            metadata={"choices": LOG_LEVELS, "parse": str.upper})
     """Log level; defaults to $ROVERAV_LOG_LEVEL (set by rover-pair --log-level), else INFO."""
@@ -376,6 +380,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
     import torch
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
+    from rover_train.threads import PhaseThreads
+
     torch.set_num_threads(max(args.threads, 1))
     args.logdir.mkdir(parents=True, exist_ok=True)
     monitor_dir = args.logdir / "monitor"
@@ -385,6 +391,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
         model = build_model(args, venv, args.logdir / "tb")
         metrics_cb = make_metrics_callback()
         callbacks = [metrics_cb]
+        if args.algo == "ppo" and args.update_threads != args.threads:
+            callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
         if args.checkpoint_every > 0:
             every = max(args.checkpoint_every // args.n_envs, 1)
             callbacks.append(
