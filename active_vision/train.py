@@ -1,6 +1,6 @@
 """Train the perception network on frames rendered from our worlds.
 
-    python -m active_vision.train both [--data FILE] [--frames N] [--epochs E] [--threads 2]
+    python -m active_vision.train [--data FILE] [--frames N] [--epochs E] [--threads 2]
 
 One network (:class:`~active_vision.models.AVNet`) serves both fused channels, so ``both``
 trains it on the sum of the two losses. ``heatmap`` and ``depth`` are accepted too and train
@@ -66,7 +66,6 @@ from shm_protocol import DEPTH_MAX_M
 
 logger = logging.getLogger(__name__)
 
-TASKS = ("both", "heatmap", "depth")
 HARD_NEGATIVES = 32
 HARD_NEGATIVE_WEIGHT = 0.2
 PEDESTRIAN_DEPTH_WEIGHT = 4.0
@@ -76,8 +75,6 @@ PEDESTRIAN_DEPTH_WEIGHT = 4.0
 class TrainConfig:
     """Training options (CLI flags of the same names)."""
 
-    task: str = "both"
-    """``both`` (the joint model); ``heatmap`` and ``depth`` train the same joint model."""
     data: Path | None = None
     """Training ``.npz``; None renders/reuses the training split in ``data_dir``."""
     data_dir: Path = DEFAULT_DATA_DIR
@@ -162,9 +159,6 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
         path = cfg.data or build(cfg.data_dir, DatasetConfig(frames=cfg.frames, seed=TRAIN_SEED,
                                                             worlds=cfg.worlds))
         data = Dataset.load(path)
-    if cfg.task != "both":
-        logger.info("'%s': the heatmap and depth heads share one network; training the joint "
-                    "model (both losses), as 'both' does", cfg.task)
     rgb = torch.from_numpy(data.rgb).permute(0, 3, 1, 2).contiguous()  # uint8 N,3,H,W
     mask = torch.from_numpy(data.mask).unsqueeze(1).float()
     depth_m = torch.from_numpy(np.nan_to_num(data.depth, nan=1e3, posinf=1e3)).unsqueeze(1)
@@ -236,7 +230,6 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     d = TrainConfig()
     p = argparse.ArgumentParser(prog="python -m active_vision.train",
                                 description=__doc__.split("\n")[0])
-    p.add_argument("task", choices=TASKS, help="both = the joint model; heatmap/depth: same")
     p.add_argument("--data", type=Path, default=None, help="training .npz (default: render)")
     p.add_argument("--data-dir", type=Path, default=d.data_dir)
     p.add_argument("--frames", type=int, default=d.frames)
@@ -256,7 +249,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     p.add_argument("--log-level", default="INFO")
     a = p.parse_args(argv)
     logging.basicConfig(level=a.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
-    return TrainConfig(task=a.task, data=a.data, data_dir=a.data_dir, frames=a.frames,
+    return TrainConfig(data=a.data, data_dir=a.data_dir, frames=a.frames,
                        worlds=tuple(w for w in a.worlds.split(",") if w), epochs=a.epochs,
                        batch=a.batch, lr=a.lr, threads=a.threads, seed=a.seed,
                        max_minutes=a.max_minutes, out=a.out, evaluate=not a.no_evaluate,
@@ -266,7 +259,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
 def main(argv: Sequence[str] | None = None) -> int:
     cfg = _parse(argv)
     model, facts = train(cfg)
-    meta: dict[str, float | str] = {**facts, "task": cfg.task}
+    meta: dict[str, float | str] = {**facts}
     path = _save(model, cfg.out, meta)  # first without figures: evaluation may fail
     if cfg.evaluate:
         from active_vision.evaluate import evaluate, format_metrics, heldout
