@@ -26,8 +26,9 @@ from rover_env.fused_env import RoverEnvFused  # noqa: E402
 from rover_env.gaze_discrete_env import DiscreteRoverEnvFusedGaze  # noqa: E402
 from rover_env.gaze_env import RoverEnvFusedGaze  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
+from rover_env.pedestrians import Appearance  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
-from rover_env.simulation import CameraFrame, Contacts, RoverSim  # noqa: E402
+from rover_env.simulation import CameraFrame, Contacts, Lighting, RoverSim  # noqa: E402
 from rover_env.worlds import WORLD_NAMES, WorldSpec, make_world  # noqa: E402
 
 _ENVS = {
@@ -43,11 +44,13 @@ for _env_id, _entry_point in _ENVS.items():
 
 __all__ = [
     "WORLD_NAMES",
+    "Appearance",
     "CameraFrame",
     "Contacts",
     "DiscreteRoverEnvFused",
     "DiscreteRoverEnvFusedGaze",
     "EnvClosedError",
+    "Lighting",
     "RewardConfig",
     "RoverEnv",
     "RoverEnvBase",

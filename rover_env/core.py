@@ -106,6 +106,9 @@ class RoverEnvBase(gym.Env):
     :param pedestrian_mode: ``walk`` (paths anywhere in the pedestrian area) or
         ``crossing`` (paths across the line from the rover's start to its first goal,
         walked from the side: see ``Pedestrians.lay_crossings``).
+    :param pedestrian_appearance: ``"fixed"`` (default, the seed's look) or ``"random"``
+        (clothing colours, height, girth and gait phase drawn per episode, deterministic
+        from the reset seed).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / c.CONTROL_DT))}
@@ -124,6 +127,7 @@ class RoverEnvBase(gym.Env):
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
         pedestrian_mode: str = "walk",
+        pedestrian_appearance: str = "fixed",
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
@@ -156,6 +160,7 @@ class RoverEnvBase(gym.Env):
             self.world_name,
             camera_size=camera_size,
             physics_dt=self.control_dt / self.physics_substeps,
+            pedestrian_appearance=pedestrian_appearance,
         )
         self.world = self.sim.world
         self.pid = HeadingPID(dt=self.control_dt)

@@ -142,6 +142,8 @@ class RoverEnv(RoverEnvBase):
     | ``pedestrian_mode`` | ``"walk"`` | ``"crossing"``: pedestrians walk across the line |
     | | | from the start to the first goal, from the side |
     | ``render_size`` | (480, 360) | (width, height) of rendered frames |
+    | ``pedestrian_appearance`` | ``"fixed"`` | ``"random"``: clothing colours, height, |
+    | | | girth and gait phase drawn per episode from the reset seed |
 
     ## Version history
 
@@ -167,6 +169,7 @@ class RoverEnv(RoverEnvBase):
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
         pedestrian_mode: str = "walk",
+        pedestrian_appearance: str = "fixed",
     ) -> None:
         super().__init__(
             world_n=world_n,
@@ -180,6 +183,7 @@ class RoverEnv(RoverEnvBase):
             render_mode=render_mode,
             render_size=render_size,
             pedestrian_mode=pedestrian_mode,
+            pedestrian_appearance=pedestrian_appearance,
         )
         # Kept for compatibility and introspection only (no ROS here).
         self.size = tuple(size)

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from rover_env import rover
-from rover_env.pedestrians import Pedestrians, pedestrians_xml
+from rover_env.pedestrians import Appearance, Pedestrians, pedestrians_xml
 from rover_env.worlds import WorldSpec, make_world
 from rover_env.worlds.spec import (
     CONAFFINITY_WORLD,
@@ -72,6 +72,17 @@ class CameraFrame(NamedTuple):
     rgb: np.ndarray
     depth: np.ndarray | None
     pedestrian_mask: np.ndarray | None
+
+
+class Lighting(NamedTuple):
+    """The model's lights: per-light diffuse/ambient/specular ``(L, 3)`` and the headlight's
+    diffuse/ambient ``(3,)`` (RGB in [0, 1])."""
+
+    diffuse: np.ndarray
+    ambient: np.ndarray
+    specular: np.ndarray
+    head_diffuse: np.ndarray
+    head_ambient: np.ndarray
 
 
 class Contacts(NamedTuple):
@@ -276,6 +287,9 @@ class RoverSim:
     :param physics_dt: physics time step (s); ``advance`` runs whole steps.
     :param seed_rng: generator for the initial state; the sim is reset from it (or from
         a fixed seed) at construction so it is usable before the first ``reset``.
+    :param pedestrian_appearance: ``"fixed"`` (default: the palette figures) or ``"random"``
+        (colours, height, girth and gait phase drawn per episode from the reset generator;
+        see :mod:`rover_env.pedestrians`).
     """
 
     def __init__(
@@ -284,6 +298,7 @@ class RoverSim:
         camera_size: tuple[int, int] = (96, 96),
         physics_dt: float = PHYSICS_DT,
         seed_rng: np.random.Generator | None = None,
+        pedestrian_appearance: str = "fixed",
     ) -> None:
         if not physics_dt > 0:
             raise ValueError(f"physics_dt must be > 0, got {physics_dt}")
@@ -318,7 +333,7 @@ class RoverSim:
         self.camera_half_fov = math.atan(math.tan(half_fovy) * width / height)
         """Half the forward camera's horizontal field of view (rad): 45 deg on square frames."""
         self._goal_mocap = m.body_mocapid[mujoco.mj_name2id(m, obj.mjOBJ_BODY, _GOAL_BODY)]
-        self.pedestrians = Pedestrians(m, d, self.world)
+        self.pedestrians = Pedestrians(m, d, self.world, appearance=pedestrian_appearance)
         # Geom classes for contacts: rover subtree, pedestrians, ground.
         rover_bodies = {self._body, self._head} | {
             mujoco.mj_name2id(m, obj.mjOBJ_BODY, n) for n in rover.WHEEL_NAMES
@@ -340,6 +355,13 @@ class RoverSim:
         self._chase.type = mujoco.mjtCamera.mjCAMERA_FREE
         self._chase.distance = _CHASE_DISTANCE
         self._chase.elevation = _CHASE_ELEVATION
+        self._lights0 = Lighting(
+            m.light_diffuse.copy(), m.light_ambient.copy(), m.light_specular.copy(),
+            m.vis.headlight.diffuse.copy(), m.vis.headlight.ambient.copy(),
+        )
+        self._scenery_group = np.zeros(6, np.uint8)
+        self._scenery_group[0] = 1  # geom group 0: ground, terrain, rocks, walls
+        self._ray_geom = np.zeros(1, np.int32)
         self.reset(seed_rng if seed_rng is not None else np.random.default_rng(0))
 
     # --- state ---------------------------------------------------------------------------------
@@ -509,6 +531,47 @@ class RoverSim:
         return lidar.scan().copy()
 
     @property
+    def camera_fov(self) -> float:
+        """Vertical field of view of the forward camera (rad); equal to the horizontal one
+        for square frames."""
+        return math.radians(float(self.model.cam_fovy[self._camera_id]))
+
+    @property
+    def lighting(self) -> Lighting:
+        """The lights as they are now (copies)."""
+        m = self.model
+        return Lighting(m.light_diffuse.copy(), m.light_ambient.copy(), m.light_specular.copy(),
+                        m.vis.headlight.diffuse.copy(), m.vis.headlight.ambient.copy())
+
+    @property
+    def default_lighting(self) -> Lighting:
+        """The lights as the world defines them (copies)."""
+        return Lighting(*(a.copy() for a in self._lights0))
+
+    def set_lighting(self, lighting: Lighting) -> None:
+        """Set every light (values clipped to [0, 1]); ``set_lighting(default_lighting)``
+        restores the world's."""
+        m = self.model
+        m.light_diffuse[:] = np.clip(lighting.diffuse, 0.0, 1.0)
+        m.light_ambient[:] = np.clip(lighting.ambient, 0.0, 1.0)
+        m.light_specular[:] = np.clip(lighting.specular, 0.0, 1.0)
+        m.vis.headlight.diffuse[:] = np.clip(lighting.head_diffuse, 0.0, 1.0)
+        m.vis.headlight.ambient[:] = np.clip(lighting.head_ambient, 0.0, 1.0)
+
+    def terrain_height(self, x: float, y: float) -> float:
+        """Height of the rendered scenery (ground, terrain, rocks, walls) at (x, y): a ray
+        cast down from 100 m; ``WorldSpec.ground_height`` where the ray hits nothing."""
+        dist = mujoco.mj_ray(self.model, self.data, np.array([x, y, 100.0]),
+                             np.array([0.0, 0.0, -1.0]), self._scenery_group, 1, -1,
+                             self._ray_geom)
+        return 100.0 - dist if dist >= 0 else self.world.ground_height(x, y)
+
+    @property
+    def pedestrian_appearance(self) -> list[Appearance]:
+        """This episode's look of every pedestrian (colours, height, girth, gait phase)."""
+        return list(self.pedestrians.appearance)
+
+    @property
     def pedestrian_positions(self) -> np.ndarray:
         """(P, 2) pedestrian ground positions (x, y) in metres (new array)."""
         return self.pedestrians.positions.copy()
@@ -554,6 +617,35 @@ class RoverSim:
         return r.render(
             self.data, self._camera, r.camera_option, width, height, depth, segmentation
         )
+
+    def future_pedestrian_mask(self, horizon: float = 1.5, step: float = 0.1) -> np.ndarray:
+        """bool (H, W): camera pixels a pedestrian covers at some moment in the next
+        ``horizon`` seconds, seen from the current camera pose.
+
+        The rover and camera are held still; only the pedestrians walk on along their own
+        paths (waiting for the rover as they would), and their segmentation masks at
+        ``0, step, 2 step, ..., horizon`` are OR-ed. The sim is left exactly as it was
+        (pedestrian poses restored, no physics step taken).
+        """
+        if not horizon >= 0 or not step > 0:
+            raise ValueError(f"horizon must be >= 0 and step > 0, got {horizon}, {step}")
+        m, d = self.model, self.data
+        q = self._qpos
+        rover_xy = (float(d.qpos[q]), float(d.qpos[q + 1]))
+        saved = self.pedestrians.walked_state()
+        union = self.render_camera(segmentation=True).pedestrian_mask
+        assert union is not None
+        try:
+            for _ in range(int(round(horizon / step))):
+                self.pedestrians.advance(step, rover_xy)
+                mujoco.mj_kinematics(m, d)
+                mask = self.render_camera(segmentation=True).pedestrian_mask
+                assert mask is not None
+                union |= mask
+        finally:
+            self.pedestrians.restore_walked(saved)
+            mujoco.mj_kinematics(m, d)
+        return union
 
     def render_chase(
         self, width: int = 480, height: int = 360, *, view_cone: bool = False
