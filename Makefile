@@ -32,9 +32,9 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 
 # The main job: a supervised daemon + trainer pair trains PPO on RoverEnvFused (maze),
 # then evaluates it; outputs (model, curve, metrics, table, video) land in runs/demo/.
-DEMO_STEPS ?= 20000
+DEMO_STEPS ?= 4000
 demo: setup
-	$(PY) launch/run_pair.py --name roverav_demo -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --out runs/demo
+	$(PY) launch/run_pair.py --name roverav_demo --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --out runs/demo
 
 test: setup
 	$(PY) -m pytest -q

@@ -48,6 +48,7 @@ STALL_PROGRESS = 0.3  # m of planned path that counts as progress
 DETOUR_TIME = 4.0  # s a detour plan is followed
 DETOUR_COST = 40.0  # extra cost per cell inside a blocking pedestrian's personal space
 _SQRT2 = math.sqrt(2.0)
+_SIGHT_SAMPLES = 14  # points checked along a line of sight (every <= 0.1 m at LOOKAHEAD)
 _CANDIDATE_HEADINGS = np.linspace(-math.pi, math.pi, 16, endpoint=False)
 _CANDIDATE_SPEEDS = (0.0, 0.35, 0.7, 1.0)
 _HORIZON_TIMES = np.array([0.25, 0.5, 0.75, 1.0]) * PED_HORIZON / 0.8 * 1.0
@@ -150,6 +151,12 @@ class OccupancyGrid:
         j = int((y - self.y0) / self.res)
         return min(max(i, 0), self.shape[0] - 1), min(max(j, 0), self.shape[1] - 1)
 
+    def clearance_at(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        """Clearance of the cells under points (nearest cell; outside the grid: its edge)."""
+        i = np.clip(((np.asarray(xs) - self.x0) / self.res).astype(int), 0, self.shape[0] - 1)
+        j = np.clip(((np.asarray(ys) - self.y0) / self.res).astype(int), 0, self.shape[1] - 1)
+        return self.clearance[i, j]
+
     def discs_cost(self, centres: np.ndarray, radius: float, cost: float) -> np.ndarray:
         """A per-cell extra cost of ``cost`` inside discs of ``radius`` around ``centres``."""
         xs = self.x0 + (np.arange(self.shape[0]) + 0.5) * self.res
@@ -181,8 +188,8 @@ class OccupancyGrid:
         if not np.isfinite(field).any():
             field[gi, gj] = 0.0
         n_i, n_j = self.shape
-        for _ in range(4 * (n_i + n_j)):
-            before = field.copy()
+        before = field.copy()
+        for sweep in range(4 * (n_i + n_j)):
             for di, dj, d in _NEIGHBOURS:
                 # dst cells [a0:a1, b0:b1] take from src cells shifted by (di, dj)
                 a0, a1 = max(0, -di), n_i - max(0, di)
@@ -191,8 +198,10 @@ class OccupancyGrid:
                 src_f = field[a0 + di : a1 + di, b0 + dj : b1 + dj]
                 edge = 0.5 * (cost[a0:a1, b0:b1] + cost[a0 + di : a1 + di, b0 + dj : b1 + dj])
                 np.minimum(dst, src_f + d * edge, out=dst)
-            if np.array_equal(before, field):
-                break
+            if sweep % 8 == 7:
+                if np.array_equal(before, field):
+                    break
+                before = field.copy()
         return field
 
 
@@ -234,19 +243,21 @@ class PlannerExpert:
     def pursuit_point(self, x: float, y: float, goal: tuple[float, float]) -> tuple[float, float]:
         """The point the rover steers at: the goal when in plain sight and near, else the
         farthest visible point of the planned path within ``LOOKAHEAD``."""
-        world = self.world
-        if math.hypot(goal[0] - x, goal[1] - y) < LOOKAHEAD and world.segment_is_free(
-            (x, y), goal, SIGHT_CLEARANCE, step=0.1
-        ):
-            return goal
+        if math.hypot(goal[0] - x, goal[1] - y) < LOOKAHEAD:
+            t = np.linspace(0.0, 1.0, _SIGHT_SAMPLES)
+            xs, ys = x + (goal[0] - x) * t, y + (goal[1] - y) * t
+            if self.grid.clearance_at(xs, ys).min() > SIGHT_CLEARANCE:
+                return goal
         path = self.field(goal).descent(x, y, LOOKAHEAD)
         if not path:
             return goal
-        target = path[0]
-        for p in path[1:]:
-            if world.segment_is_free((x, y), p, SIGHT_CLEARANCE, step=0.1):
-                target = p
-        return target
+        pts = np.asarray(path)
+        t = np.linspace(0.0, 1.0, _SIGHT_SAMPLES)
+        xs = x + (pts[:, 0, None] - x) * t[None, :]
+        ys = y + (pts[:, 1, None] - y) * t[None, :]
+        visible = np.flatnonzero(self.grid.clearance_at(xs, ys).min(axis=1) > SIGHT_CLEARANCE)
+        k = int(visible[-1]) if len(visible) else 0
+        return float(pts[k, 0]), float(pts[k, 1])
 
     def act(
         self,
@@ -268,7 +279,7 @@ class PlannerExpert:
         heading = wrap_angle(math.atan2(py - y, px - x) - yaw)
         speed = cfg.max_speed * max(0.0, math.cos(heading)) ** 3
         # slower where the corridor is tight
-        clear = self.world.clearance(x, y)
+        clear = float(self.grid.clearance_at(x, y))
         speed *= float(np.clip((clear - 0.2) / 0.5, 0.35, 1.0))
         if cfg.pedestrian_aware and pedestrians is not None and len(pedestrians):
             peds = np.asarray(pedestrians, dtype=np.float64)[:, :2]
@@ -355,7 +366,8 @@ class PlannerExpert:
         qy = peds[:, 1, None] + vel[:, 1, None] * ts[None, :]
         d = np.hypot(rx[:, None, :] - qx[None], ry[:, None, :] - qy[None])  # (C, P, T)
         intrude = np.clip(self.config.zone - d, 0.0, None)
-        ped_cost = (intrude**2).sum(axis=(1, 2)) * self.config.personal_weight + (d < 0.6).sum(axis=(1, 2)) * 5.0
+        ped_cost = (intrude**2).sum(axis=(1, 2)) * self.config.personal_weight
+        ped_cost += (d < 0.6).sum(axis=(1, 2)) * 5.0
         field = self.field(goal)
         grid = field.grid
         fi = np.clip(((rx[:, -1] - grid.x0) / grid.res).astype(int), 0, grid.shape[0] - 1)
@@ -363,7 +375,7 @@ class PlannerExpert:
         here = field.value(x, y)
         progress = (here - field.field[fi, fj]) * grid.res
         progress = np.where(np.isfinite(progress), progress, -100.0)
-        clear = self.world.clearance_many(rx, ry).min(axis=1)
+        clear = grid.clearance_at(rx, ry).min(axis=1)
         wall = np.where(clear < HARD_CLEARANCE, 20.0 + 50.0 * (HARD_CLEARANCE - clear), 0.0)
         score = 2.0 * progress - ped_cost - wall - 0.05 * np.abs(h)
         best = int(np.argmax(score))
