@@ -35,7 +35,8 @@ def _spec(name: str) -> EntrySpec:
         return ENTRIES[name]
     except KeyError:
         raise UnknownEntryError(
-            f"no zoo entry {name!r}; the zoo has {names()} (rover_train.zoo.names())"
+            f"no zoo entry {name!r}; the zoo knows {sorted(ENTRIES)} "
+            "(those shipped: rover_train.zoo.names())"
         ) from None
 
 
