@@ -24,7 +24,7 @@ import argparse
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -196,12 +196,15 @@ def run_dagger(
     cfg: DAggerConfig,
     label: str = "dagger",
     history: list[dict[str, float]] | None = None,
+    on_round: Callable[[int, StudentAgent], None] | None = None,
 ) -> StudentAgent:
     """DAgger on ``env`` starting from ``agent`` (trained in place); returns it.
 
     :param history: if given, one dict per round is appended: ``round``, ``steps`` (env
         steps so far), ``success`` (first-goal success of that round's episodes),
         ``episodes``, ``beta``, ``loss``, ``wall_s`` (since the start).
+    :param on_round: called with (env steps so far, agent) after each round's fit (e.g. to
+        evaluate); its time is not counted in ``wall_s``.
     """
     expert = PlannerExpert(world)
     data = Dataset.empty(agent.spec)
@@ -209,6 +212,7 @@ def run_dagger(
     gen = torch.Generator().manual_seed(cfg.seed)
     status = StatusLine(label, cfg.iterations * cfg.steps, every=cfg.status_every)
     start = time.monotonic()
+    paused = 0.0
     for it in range(cfg.iterations):
         if it == 0 and cfg.first_round_expert:
             driver, beta = None, 1.0
@@ -238,9 +242,13 @@ def run_dagger(
                     "episodes": stats["episodes"],
                     "beta": beta,
                     "loss": loss,
-                    "wall_s": time.monotonic() - start,
+                    "wall_s": time.monotonic() - start - paused,
                 }
             )
+        if on_round is not None:
+            t2 = time.monotonic()
+            on_round((it + 1) * cfg.steps, agent)
+            paused += time.monotonic() - t2
     return agent
 
 
