@@ -71,6 +71,10 @@ class DAggerConfig:
     """Round 0 drives with the expert (off when starting from a trained student)."""
     status_every: float = 5.0
     """Seconds between status lines."""
+    synthetic_goals: int = 0
+    """Before round 0, add expert-labelled states drawn without driving: this many goals
+    (state students only; see :func:`synthetic_samples`)."""
+    synthetic_per_goal: int = 200
 
 
 @dataclass
@@ -159,6 +163,65 @@ def collect(
     return {"episodes": episodes, "success": successes / max(episodes, 1)}
 
 
+def synthetic_samples(
+    env: Any,
+    expert: PlannerExpert,
+    data: Dataset,
+    n_goals: int,
+    per_goal: int,
+    rng: np.random.Generator,
+) -> None:
+    """Append expert-labelled states drawn without driving (state-space coverage).
+
+    For each of ``n_goals`` goals drawn like the env draws them, ``per_goal`` rover poses
+    uniform over the free part of the goal square plus a metre (random yaw and odometry),
+    with each pedestrian, half of the time, stood somewhere 0.8-3 m from the rover. The
+    observation keys are computed as the env computes them (the LIDAR by ray casting in the
+    env's own sim), the label is the expert's action. Only for students without the image
+    (the fused image needs the daemon and a real trajectory).
+    """
+    spec = data.spec
+    if spec.image:
+        raise ValueError("synthetic samples have no fused image: use them for state students")
+    base = env.unwrapped
+    world, sim = base.world, base.sim
+    area = world.goal.expanded(1.0)
+    env.reset(seed=int(rng.integers(EVAL_SEED_BASE)))
+    n_peds = len(sim.pedestrian_positions)
+    for _ in range(n_goals):
+        goal = world.sample_free(rng, world.goal, 0.3)
+        for _ in range(per_goal):
+            x, y = world.sample_free(rng, area, 0.36)
+            yaw = float(rng.uniform(-np.pi, np.pi))
+            sim.set_rover_pose(x, y, yaw)
+            peds = None
+            if n_peds:
+                for i in range(n_peds):
+                    if rng.random() < 0.5:
+                        r, a = rng.uniform(0.8, 3.0), rng.uniform(-np.pi, np.pi)
+                        px, py = x + r * np.cos(a), y + r * np.sin(a)
+                    else:
+                        px, py = x + 40.0, y + 40.0 + i  # out of the way
+                    sim.place_pedestrian(i, px, py, float(rng.uniform(-np.pi, np.pi)))
+                peds = sim.pedestrian_positions
+            expert.reset()
+            label = expert.act((x, y), yaw, goal, peds, None)
+            dist = float(np.hypot(goal[0] - x, goal[1] - y))
+            bearing = float(np.angle(np.exp(1j * (np.arctan2(goal[1] - y, goal[0] - x) - yaw))))
+            obs = {
+                "pose": np.array([x, y, sim.position[2]], np.float32),
+                "imu": np.array([0.0, 0.0, yaw], np.float32),
+                "target": np.array([dist, bearing], np.float32),
+                "velocities": np.array(
+                    [rng.uniform(-0.2, 1.0), rng.uniform(-1.5, 1.5)], np.float32
+                ),
+            }
+            if spec.lidar_points:
+                obs["lidar"] = sim.lidar(base.lidar_points, base.max_lidar_range)
+            data.states.append(state_features(obs, spec))
+            data.targets.append(encode_action(label, spec))
+
+
 def fit(net: StudentNet, data: Dataset, cfg: DAggerConfig, gen: torch.Generator) -> float:
     """Refit ``net`` on ``data`` (MSE on speed, cos and sin of the heading). Returns the
     last epoch's mean loss."""
@@ -213,6 +276,13 @@ def run_dagger(
     status = StatusLine(label, cfg.iterations * cfg.steps, every=cfg.status_every)
     start = time.monotonic()
     paused = 0.0
+    if cfg.synthetic_goals:
+        synthetic_samples(env, expert, data, cfg.synthetic_goals, cfg.synthetic_per_goal, rng)
+        print(
+            f"{label}: {len(data)} synthetic expert-labelled states in "
+            f"{time.monotonic() - start:.0f} s",
+            flush=True,
+        )
     for it in range(cfg.iterations):
         if it == 0 and cfg.first_round_expert:
             driver, beta = None, 1.0
@@ -326,6 +396,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--epochs", type=int, default=d.epochs)
     p.add_argument("--fused-iterations", type=int, default=4)
     p.add_argument("--fused-steps", type=int, default=5_000)
+    p.add_argument("--synthetic-goals", type=int, default=150,
+                   help="goals of expert-labelled states drawn without driving (0: none)")
+    p.add_argument("--synthetic-per-goal", type=int, default=200)
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--threads", type=int, default=1, help="torch threads")
     p.add_argument("--shm-name", default=None, help="daemon name (default: $ROVERAV_SHM_NAME)")
@@ -334,10 +407,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.set_num_threads(args.threads)
     entry = ENTRIES[args.entry]
     cfg = DAggerConfig(
-        iterations=args.iterations, steps=args.steps, epochs=args.epochs, seed=args.seed
-    )
+        iterations=args.iterations, steps=args.steps, epochs=args.epochs, seed=args.seed,
+        synthetic_goals=args.synthetic_goals, synthetic_per_goal=args.synthetic_per_goal,
+    )  # fmt: skip
     fused_cfg = replace(
         cfg,
+        synthetic_goals=0,
         iterations=args.fused_iterations,
         steps=args.fused_steps,
         first_round_expert=False,
