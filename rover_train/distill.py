@@ -273,7 +273,6 @@ def run_dagger(
     data = Dataset.empty(agent.spec)
     rng = np.random.default_rng(cfg.seed)
     gen = torch.Generator().manual_seed(cfg.seed)
-    status = StatusLine(label, cfg.iterations * cfg.steps, every=cfg.status_every)
     start = time.monotonic()
     paused = 0.0
     if cfg.synthetic_goals:
@@ -283,6 +282,7 @@ def run_dagger(
             f"{time.monotonic() - start:.0f} s",
             flush=True,
         )
+    status = StatusLine(label, cfg.iterations * cfg.steps, every=cfg.status_every)
     for it in range(cfg.iterations):
         if it == 0 and cfg.first_round_expert:
             driver, beta = None, 1.0
