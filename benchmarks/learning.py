@@ -7,8 +7,10 @@
 ``--curves`` trains, in one run and with the same env-step budget on RoverEnv, the zoo's
 recipe (DAgger from the planner expert, ``rover_train.distill``) and rover-train's PPO
 defaults, evaluating both after every ``budget / points`` steps on the same evaluation
-episodes (the zoo's seeds and 600-step rule). It prints a table (steps, wall-clock s of
-training, success, collisions, SPL) and writes the curves to ``docs/learning_curves.png``.
+episodes (the zoo's seeds and 600-step rule). DAgger also gets the recipe's 30,000
+expert-labelled states drawn without driving (not env steps; their time is in its wall
+clock). It prints a table (steps, wall-clock s of training, success, collisions, SPL) and
+writes the curves to ``docs/learning_curves.png``.
 
 For each seed it trains with rover-train's own code, then evaluates the trained policy and
 the random policy on the same fixed evaluation seeds (rover-eval's code) and prints one
@@ -134,7 +136,10 @@ def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[di
             s = _zoo_eval(eval_env, student.act, episodes)
             rows.append({"steps": steps, **s})
 
-        cfg = DAggerConfig(iterations=points, steps=budget // points, status_every=30.0)
+        cfg = DAggerConfig(
+            iterations=points, steps=budget // points, epochs=8, status_every=30.0,
+            synthetic_goals=150, synthetic_per_goal=200,
+        )  # fmt: skip
         run_dagger(env, world, agent, cfg, "curve dagger", history, on_round)
     finally:
         env.close()
