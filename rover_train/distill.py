@@ -55,11 +55,11 @@ EXIT_NO_DAEMON = 1
 class DAggerConfig:
     """One DAgger run."""
 
-    iterations: int = 6
+    iterations: int = 3
     """Collection rounds (the first one drives with the expert)."""
-    steps: int = 12_000
+    steps: int = 6_000
     """Env steps per round."""
-    epochs: int = 6
+    epochs: int = 8
     """Passes over the aggregate data set after each round."""
     batch: int = 256
     lr: float = 1e-3
@@ -394,8 +394,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--iterations", type=int, default=d.iterations)
     p.add_argument("--steps", type=int, default=d.steps, help="env steps per DAgger round")
     p.add_argument("--epochs", type=int, default=d.epochs)
-    p.add_argument("--fused-iterations", type=int, default=4)
-    p.add_argument("--fused-steps", type=int, default=5_000)
+    p.add_argument("--fused-iterations", type=int, default=3)
+    p.add_argument("--fused-steps", type=int, default=3_000)
     p.add_argument("--synthetic-goals", type=int, default=150,
                    help="goals of expert-labelled states drawn without driving (0: none)")
     p.add_argument("--synthetic-per-goal", type=int, default=200)
