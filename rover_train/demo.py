@@ -129,6 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 epochs=4,
                 beta0=0.3,
                 first_round_expert=False,
+                image_only=True,
                 seed=args.seed + 1,
             )
             run_dagger(env, args.world, agent, cfg, label="demo fine-tune", history=history)

@@ -75,6 +75,10 @@ class DAggerConfig:
     """Before round 0, add expert-labelled states drawn without driving: this many goals
     (state students only; see :func:`synthetic_samples`)."""
     synthetic_per_goal: int = 200
+    image_only: bool = False
+    """Fit only the image branch (CNN and its projection), keeping the state network: for
+    a fused student whose routing was learnt in stage 1 from far more data than a fused
+    round gives (refitting everything on the fused rounds alone made it forget)."""
 
 
 @dataclass
@@ -226,7 +230,11 @@ def fit(net: StudentNet, data: Dataset, cfg: DAggerConfig, gen: torch.Generator)
     """Refit ``net`` on ``data`` (MSE on speed, cos and sin of the heading). Returns the
     last epoch's mean loss."""
     states, images, targets = data.tensors()
-    opt = torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    if cfg.image_only and net.spec.image:
+        params = list(net.cnn.parameters()) + list(net.img_proj.parameters())
+    else:
+        params = list(net.parameters())
+    opt = torch.optim.Adam(params, lr=cfg.lr)
     loss_fn = nn.MSELoss()
     net.train()
     n = len(targets)
@@ -413,6 +421,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     fused_cfg = replace(
         cfg,
         synthetic_goals=0,
+        image_only=True,
         iterations=args.fused_iterations,
         steps=args.fused_steps,
         first_round_expert=False,
