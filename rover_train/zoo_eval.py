@@ -13,6 +13,7 @@ personal-space intrusion rate, ...).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
@@ -100,6 +101,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--file", help="a student file instead of the shipped entry")
     p.add_argument("--rl-obs-name", help="daemon name for fused entries")
     p.add_argument("--json", action="store_true", help="print the summary as JSON last")
+    p.add_argument(
+        "--dump", help="write every episode's result to this JSON file (to merge split runs)"
+    )
     args = p.parse_args(argv)
     import torch
 
@@ -132,6 +136,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         env.close()
     summary = summarise(results)
     summary["wall_s"] = wall
+    if args.dump:
+        with open(args.dump, "w") as f:
+            json.dump([dataclasses.asdict(r) for r in results], f)
     last = args.seed + args.episodes - 1
     print(format_table(summary, f"{who} on {args.entry}, seeds {args.seed}..{last}"))
     if args.json:
