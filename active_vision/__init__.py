@@ -5,8 +5,15 @@ Camera frames (from the env's camera segment, a video, or a camera device) becom
 memory by the ``av-daemon`` (:mod:`active_vision.daemon`).
 
 - :class:`Perception` / :class:`PerceptionConfig`: batched frames -> fused frames.
+- ``BACKENDS`` / :class:`BackendError`: the network runs in ONNX Runtime or eager torch
+  (``PerceptionConfig.backend``, ``av-daemon --backend``; :mod:`active_vision.backends`).
 - :class:`AVNet`, :func:`load_model`, :class:`WeightsError`: the network and its weights.
+- :func:`spawn_daemon` / :func:`start_daemon` / :class:`ChildProcess`: run an av-daemon from
+  another process (:mod:`active_vision.launcher`; standard library only, no torch).
 - ``python -m active_vision.dataset | train | evaluate``: data, training, quality figures.
+
+The torch-backed names load on first use, so ``from active_vision import spawn_daemon``
+(a supervisor, a test) does not import torch.
 """
 
 import os as _os
@@ -18,16 +25,52 @@ import os as _os
 # OpenMP starts, hence here, before torch is imported through the modules below.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from active_vision.models import AVNet, AVNetConfig, WeightsError, load_model, save_weights
-from active_vision.perception import Perception, PerceptionConfig, StageTimes
+import importlib as _importlib
+from typing import Any as _Any
+
+from active_vision.launcher import (
+    READY_MARKER,
+    ChildProcess,
+    DaemonStartError,
+    spawn_daemon,
+    start_daemon,
+)
+
+_LAZY = {
+    "BACKENDS": "active_vision.backends",
+    "BackendError": "active_vision.backends",
+    "AVNet": "active_vision.models",
+    "AVNetConfig": "active_vision.models",
+    "WeightsError": "active_vision.models",
+    "load_model": "active_vision.models",
+    "save_weights": "active_vision.models",
+    "Perception": "active_vision.perception",
+    "PerceptionConfig": "active_vision.perception",
+    "StageTimes": "active_vision.perception",
+}
+
+
+def __getattr__(name: str) -> _Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'active_vision' has no attribute {name!r}")
+    return getattr(_importlib.import_module(module), name)
+
 
 __all__ = [
+    "BACKENDS",
+    "READY_MARKER",
     "AVNet",
     "AVNetConfig",
+    "BackendError",
+    "ChildProcess",
+    "DaemonStartError",
     "Perception",
     "PerceptionConfig",
     "StageTimes",
     "WeightsError",
     "load_model",
     "save_weights",
+    "spawn_daemon",
+    "start_daemon",
 ]

@@ -46,7 +46,7 @@ from active_vision.dataset import (
     DatasetConfig,
     build,
 )
-from active_vision.models import AVNet, load_model
+from active_vision.models import MIN_DEPTH_M, AVNet, load_model
 from active_vision.perception import (
     CHANNEL_DEPTH,
     CHANNEL_HEATMAP,
@@ -60,7 +60,6 @@ logger = logging.getLogger(__name__)
 THRESHOLD = 0.5
 MIN_PEDESTRIAN_PX = 30
 MIN_BLOB_PX = 5
-MIN_DEPTH_M = 0.05
 HELDOUT_FRAMES = 600
 TARGETS = {"iou": 0.6, "recall": 0.95, "false_positive_rate": 0.02, "abs_rel": 0.15,
            "delta1": 0.85}

@@ -58,6 +58,8 @@ WEIGHTS_VERSION = 2  # 2: four encoder levels + global context, log-depth head
 #: Index of each head in the output of :meth:`AVNet.forward` / :meth:`AVNet.predict`.
 HEAD_HEATMAP = 0
 HEAD_DEPTH = 1
+MIN_DEPTH_M = 0.05
+"""Smallest metric depth the depth head is trained on and scored against (metres)."""
 
 
 def log_depth_to_channel(log_d: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:

@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -49,7 +50,14 @@ from active_vision.dataset import (
     DatasetConfig,
     build,
 )
-from active_vision.models import DEFAULT_WEIGHTS, HEAD_DEPTH, HEAD_HEATMAP, AVNet, AVNetConfig
+from active_vision.models import (
+    DEFAULT_WEIGHTS,
+    HEAD_DEPTH,
+    HEAD_HEATMAP,
+    MIN_DEPTH_M,
+    AVNet,
+    AVNetConfig,
+)
 from active_vision.models import save_weights as _save
 from shm_protocol import DEPTH_MAX_M
 
@@ -58,7 +66,6 @@ logger = logging.getLogger(__name__)
 TASKS = ("both", "heatmap", "depth")
 HARD_NEGATIVES = 32
 HARD_NEGATIVE_WEIGHT = 0.2
-MIN_DEPTH_M = 0.05
 PEDESTRIAN_DEPTH_WEIGHT = 4.0
 
 
@@ -237,6 +244,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         path = _save(model, cfg.out, meta)
     print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB) after {facts['epochs']:.0f} "
           f"epochs in {facts['seconds']:.0f} s")
+    # the ONNX backend's file, named for these exact weights (stale exports are removed)
+    from active_vision.onnx_export import OnnxExportError, write_export_beside
+
+    try:
+        print(f"wrote {write_export_beside(path)}")
+    except OnnxExportError as exc:
+        print(f"no ONNX export written beside the weights ({exc}); the daemon exports it "
+              "on first use, or run `python -m active_vision.onnx_export`", file=sys.stderr)
     return 0
 
 

@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -32,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from active_vision.launcher import spawn_daemon  # noqa: E402
 from rover_train import evaluate  # noqa: E402
 from rover_train.envs import make_env  # noqa: E402
 from rover_train.train import TrainArgs, train  # noqa: E402
@@ -67,20 +66,6 @@ def evaluate_greedy(world: str, episodes: int, max_steps: int) -> dict:
     finally:
         env.close()
     return evaluate.summarise(results)
-
-
-def start_daemon(name: str) -> subprocess.Popen:
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "active_vision", "--name", name, "--threads", "1"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        if "ready" in line:
-            return proc
-    raise RuntimeError(f"daemon exited with {proc.wait()} before it was ready")
 
 
 def run(
@@ -252,14 +237,10 @@ def main() -> int:
         rows += run("lidar", a.world, a.lidar_steps, a.seeds, a.episodes, a.max_steps, "")
     if a.fused_steps > 0:
         name = f"bench_learning_{os.getpid()}"
-        daemon = start_daemon(name)
-        try:
+        with spawn_daemon(name, 1, extra_args=["--threads", "1"]):
             rows += run(
                 "fused", a.world, a.fused_steps, a.fused_seeds, a.episodes, a.max_steps, name
             )
-        finally:
-            daemon.send_signal(signal.SIGTERM)
-            daemon.wait(10)
     print("\n" + header + "\n" + "\n".join(rows))
     if a.lidar_steps > 0:
         print("\n" + greedy)

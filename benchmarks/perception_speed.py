@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import subprocess
 import sys
 import time
 import uuid
@@ -47,6 +46,7 @@ from torch import nn
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from active_vision.launcher import spawn_daemon  # noqa: E402
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
 
 YOLO11N_PARAMS = 2_624_080  # ultralytics yolo11.yaml, scale n (80 classes)
@@ -66,13 +66,15 @@ class Args:
     """Measure the daemon end to end."""
     yolo: bool = True
     """Time the YOLO11n-shaped comparison."""
+    backend: str = "auto"
+    """Perception backend (``auto``, ``onnx``, ``torch``) for the Perception and daemon rows."""
 
 
 # --- perception -----------------------------------------------------------------------------
 
 
 def bench_perception(threads: int, batch: int, args: Args) -> dict[str, float]:
-    p = Perception(PerceptionConfig(threads=threads, max_batch=batch))
+    p = Perception(PerceptionConfig(threads=threads, max_batch=batch, backend=args.backend))
     frames = np.random.default_rng(0).integers(0, 256, (batch, 96, 96, 3), dtype=np.uint8)
     iters = max(10, args.iters // (4 if batch > 1 else 1))
     for _ in range(20):
@@ -97,15 +99,8 @@ def bench_daemon(slots: int, args: Args) -> dict[str, float]:
     from shm_protocol import FrameReader, FrameWriter, camera_name, slot_name
 
     name = f"bench_av_{uuid.uuid4().hex[:8]}"
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "active_vision", "--name", name, "--slots", str(slots),
-         "--threads", "1", "--log-level", "WARNING"],
-        stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env)
-    try:
-        line = proc.stdout.readline() if proc.stdout else ""
-        if "ready" not in line:
-            raise RuntimeError(f"daemon did not start: {line!r}")
+    with spawn_daemon(name, slots, extra_args=["--threads", "1", "--backend", args.backend,
+                                               "--log-level", "WARNING"]):
         cams = [FrameWriter(camera_name(slot_name(name, i)), create=False) for i in range(slots)]
         fused = [FrameReader(slot_name(name, i)) for i in range(slots)]
         frame = np.random.default_rng(1).integers(0, 256, (96, 96, 3), dtype=np.uint8)
@@ -125,9 +120,6 @@ def bench_daemon(slots: int, args: Args) -> dict[str, float]:
             r.close()
         total = sum(lat)
         return {"fps": rounds * slots / total, "round_ms_p50": 1e3 * statistics.median(lat)}
-    finally:
-        proc.terminate()
-        proc.wait(timeout=20)
 
 
 # --- YOLO11n-shaped comparison --------------------------------------------------------------
@@ -356,13 +348,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="fewer iterations (a smoke run)")
     p.add_argument("--no-daemon", action="store_true")
     p.add_argument("--no-yolo", action="store_true")
+    p.add_argument("--backend", choices=("auto", "onnx", "torch"), default="auto",
+                   help="perception backend (the daemon's default is auto: onnx if installed)")
     a = p.parse_args(argv)
-    args = Args(daemon=not a.no_daemon, yolo=not a.no_yolo)
+    args = Args(daemon=not a.no_daemon, yolo=not a.no_yolo, backend=a.backend)
     if a.quick:
         args.iters, args.repeats, args.daemon_frames = 40, 3, 100
     load = os.getloadavg()[0]
     print(f"machine: {os.cpu_count()} CPUs, load average {load:.2f} at start; torch "
           f"{torch.__version__}")
+    print(f"perception backend: {Perception(PerceptionConfig(backend=args.backend)).backend}")
     print()
     print("| configuration | gray | heatmap+depth | total ms/frame (best run) | frames/s |")
     print("|---|---:|---:|---:|---:|")

@@ -33,16 +33,14 @@ stops them in order) and get SIGTERM from the kernel if the supervisor itself is
 from __future__ import annotations
 
 import argparse
-import collections
-import ctypes
+import logging
 import os
-import re
+import shutil
 import signal
-import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,14 +48,27 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from shm_protocol import FrameReader, ShmError, camera_name, slot_name  # noqa: E402
+from active_vision.launcher import (  # noqa: E402  (standard library only: no torch here)
+    READY_MARKER,
+    ChildProcess,
+    daemon_command,
+    exit_status,
+)
+from shm_protocol import (  # noqa: E402
+    DEFAULT_NAME,
+    SHM_DIR,
+    FrameReader,
+    ShmError,
+    camera_name,
+    existing_segments,
+    slot_name,
+)
+from shm_protocol.names import NAME_ENV_VAR, SLOTS_ENV_VAR  # noqa: E402
 
 EXIT_USAGE = 2
 EXIT_DAEMON_NOT_READY = 69  # EX_UNAVAILABLE
 EXIT_RESTARTS_EXHAUSTED = 70  # EX_SOFTWARE
-SHM_DIR = Path("/dev/shm")
-_PR_SET_PDEATHSIG = 1
-_LOG_TAIL_LINES = 40
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 
 
 @dataclass
@@ -66,7 +77,7 @@ class PairConfig:
 
     trainer: list[str]
     """The trainer command line."""
-    name: str = "rl_observation"
+    name: str = DEFAULT_NAME
     """Base name of the daemon's segments."""
     slots: int = 1
     """Number of daemon slots (one per env of a vector env)."""
@@ -80,26 +91,11 @@ class PairConfig:
     """Seconds a stopped process gets between SIGTERM and SIGKILL."""
     backoff: float = 0.5
     """First restart delay in seconds; doubles on each restart, capped at 8 s."""
-    daemon_cmd: list[str] = field(default_factory=lambda: [sys.executable, "-m", "active_vision"])
-    """How the daemon is started (before its options)."""
-
-
-def segment_names(name: str, slots: int) -> list[str]:
-    """Every segment a daemon serving ``name`` with ``slots`` slots creates."""
-    names = []
-    for i in range(slots):
-        fused = slot_name(name, i)
-        names += [fused, camera_name(fused)]
-    return names
-
-
-def _segments_of(name: str) -> list[str]:
-    """Segments in /dev/shm that belong to base name ``name`` (any slot count)."""
-    pattern = re.compile(rf"^{re.escape(name)}(_\d+)?(_camera)?$")
-    try:
-        return sorted(p.name for p in SHM_DIR.iterdir() if pattern.match(p.name))
-    except FileNotFoundError:
-        return []
+    log_level: str = "INFO"
+    """Log level of the supervisor, passed on to the daemon (``--log-level``) and to the
+    trainer (``ROVERAV_LOG_LEVEL``)."""
+    python: str = sys.executable
+    """The interpreter that runs the daemon."""
 
 
 def _writer_alive(segment: str) -> bool:
@@ -119,79 +115,14 @@ def remove_segments(names: Sequence[str]) -> list[str]:
     removed = []
     for seg in names:
         try:
-            (SHM_DIR / seg).unlink()
+            (Path(SHM_DIR) / seg).unlink()
             removed.append(seg)
         except FileNotFoundError:
             pass
     return removed
 
 
-def _set_pdeathsig() -> None:  # runs in the child between fork and exec
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):
-        pass
-
-
-class _Child:
-    """A supervised process whose output is relayed with a prefix."""
-
-    def __init__(self, label: str, argv: list[str], env: dict[str, str], out_lock: threading.Lock):
-        self.label = label
-        self.tail: collections.deque[str] = collections.deque(maxlen=_LOG_TAIL_LINES)
-        self.ready = threading.Event()
-        self._lock = out_lock
-        self.proc = subprocess.Popen(
-            argv,
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            env=env,
-            start_new_session=True,
-            preexec_fn=_set_pdeathsig,
-        )
-        self._relay = threading.Thread(target=self._pump, name=f"relay-{label}", daemon=True)
-        self._relay.start()
-
-    def _pump(self) -> None:
-        assert self.proc.stdout is not None
-        for raw in iter(self.proc.stdout.readline, b""):
-            line = raw.decode(errors="replace").rstrip("\n")
-            self.tail.append(line)
-            if re.search(r"\bready\b", line):
-                self.ready.set()
-            with self._lock:
-                sys.stdout.write(f"[{self.label}] {line}\n")
-                sys.stdout.flush()
-
-    def poll(self) -> int | None:
-        return self.proc.poll()
-
-    def stop(self, grace: float) -> int:
-        """SIGTERM the child's process group, SIGKILL after ``grace`` seconds."""
-        if self.proc.poll() is None:
-            self._signal(signal.SIGTERM)
-            try:
-                self.proc.wait(grace)
-            except subprocess.TimeoutExpired:
-                self._signal(signal.SIGKILL)
-                self.proc.wait()
-        self._relay.join(timeout=2.0)
-        return self.proc.returncode
-
-    def _signal(self, sig: int) -> None:
-        try:
-            os.killpg(self.proc.pid, sig)
-        except ProcessLookupError:
-            pass
-
-    def tail_text(self) -> str:
-        return "\n".join(f"    {line}" for line in self.tail) or "    (no output)"
-
-
-def _status(returncode: int) -> int:
-    return 128 - returncode if returncode < 0 else returncode
+_status = exit_status
 
 
 class Supervisor:
@@ -201,8 +132,8 @@ class Supervisor:
         self.cfg = cfg
         self._out_lock = threading.Lock()
         self._stop_signal: int | None = None
-        self.daemon: _Child | None = None
-        self.trainer: _Child | None = None
+        self.daemon: ChildProcess | None = None
+        self.trainer: ChildProcess | None = None
 
     def say(self, msg: str) -> None:
         with self._out_lock:
@@ -220,7 +151,7 @@ class Supervisor:
             for child in (self.trainer, self.daemon):
                 if child is not None:
                     child.stop(self.cfg.grace)
-            left = remove_segments(_segments_of(self.cfg.name))
+            left = remove_segments(existing_segments(self.cfg.name))
             if left:
                 self.say(f"removed leftover segments: {', '.join(left)}")
             for sig, handler in previous.items():
@@ -235,8 +166,10 @@ class Supervisor:
             return EXIT_USAGE
         if not self._start_daemon():
             return EXIT_DAEMON_NOT_READY
-        env = dict(os.environ, ROVERAV_SHM_NAME=cfg.name, ROVERAV_SLOTS=str(cfg.slots))
-        self.trainer = _Child("trainer", cfg.trainer, env, self._out_lock)
+        env = dict(os.environ)
+        env.update({NAME_ENV_VAR: cfg.name, SLOTS_ENV_VAR: str(cfg.slots),
+                    "ROVERAV_LOG_LEVEL": cfg.log_level})  # fmt: skip
+        self.trainer = ChildProcess(cfg.trainer, env, on_line=self._relay("trainer"))
         self.say(f"trainer started (pid {self.trainer.proc.pid}): {' '.join(cfg.trainer)}")
         restarts = 0
         while True:
@@ -283,7 +216,7 @@ class Supervisor:
         return True
 
     def _clear_stale(self) -> bool:
-        segments = _segments_of(self.cfg.name)
+        segments = existing_segments(self.cfg.name)
         live = [s for s in segments if not s.endswith("_camera") and _writer_alive(s)]
         if live:
             self.say(
@@ -296,35 +229,56 @@ class Supervisor:
             self.say(f"removed segments left by a dead earlier run: {', '.join(removed)}")
         return True
 
+    def _relay(self, label: str) -> Callable[[str], None]:
+        def on_line(line: str) -> None:
+            with self._out_lock:
+                sys.stdout.write(f"[{label}] {line}\n")
+                sys.stdout.flush()
+
+        return on_line
+
     def _start_daemon(self) -> bool:
         cfg = self.cfg
-        argv = [*cfg.daemon_cmd, "--name", cfg.name, "--slots", str(cfg.slots), *cfg.daemon_args]
+        extra = [*cfg.daemon_args]
+        if not any(a == "--log-level" or a.startswith("--log-level=") for a in extra):
+            extra += ["--log-level", cfg.log_level]
+        argv = daemon_command(cfg.name, cfg.slots, extra, cfg.python)
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.daemon = _Child("daemon", argv, env, self._out_lock)
-        deadline = time.monotonic() + cfg.ready_timeout
-        while not self.daemon.ready.wait(0.05):
-            if self.daemon.poll() is not None:
-                self.daemon.stop(cfg.grace)
-                self.say(
-                    f"daemon exited with status {_status(self.daemon.proc.returncode)} before "
-                    f"it was ready.\n  command: {' '.join(argv)}\n  log tail:\n"
-                    f"{self.daemon.tail_text()}"
-                )
-                return False
-            if time.monotonic() > deadline or self._stop_signal is not None:
-                why = (
-                    "was interrupted"
-                    if self._stop_signal
-                    else (f"was not ready after {cfg.ready_timeout:.0f} s (--ready-timeout)")
-                )
-                self.daemon.stop(cfg.grace)
-                self.say(
-                    f"daemon {why}.\n  command: {' '.join(argv)}\n  log tail:\n"
-                    f"{self.daemon.tail_text()}"
-                )
-                return False
-        self.say(f"daemon ready (pid {self.daemon.proc.pid}) on '{cfg.name}', {cfg.slots} slot(s)")
+        self.daemon = ChildProcess(argv, env, on_line=self._relay("daemon"),
+                                   ready_marker=READY_MARKER)  # fmt: skip
+        why = self.daemon.wait_ready(cfg.ready_timeout, lambda: self._stop_signal is not None)
+        if why:
+            if "not ready after" in why:
+                why += " (--ready-timeout)"
+            self.daemon.stop(cfg.grace)
+            self.say(f"daemon {why}.\n  command: {' '.join(argv)}\n  log tail:\n"
+                     f"{self.daemon.tail_text()}")  # fmt: skip
+            return False
+        self.say(f"daemon ready (pid {self.daemon.pid}) on '{cfg.name}', {cfg.slots} slot(s)")
         return True
+
+
+def check_usage(
+    name: str, trainer: Sequence[str], ready_timeout: float, grace: float
+) -> str | None:
+    """What is wrong with these options (and how to fix it), or None. Checked before the
+    daemon starts, so a typo costs no daemon start-up."""
+    try:
+        camera_name(slot_name(name, 0))
+    except ValueError as exc:
+        return f"--name: {exc}"
+    if shutil.which(trainer[0]) is None:
+        where = "is not an executable file" if "/" in trainer[0] else "was not found on PATH"
+        return (
+            f"trainer command {trainer[0]!r} {where}: expected a program after '--', e.g. "
+            "-- rover-train --env fused. Check the spelling, give its path, or install the "
+            "project (pip install -e .) so rover-train is on PATH."
+        )
+    if not ready_timeout > 0:
+        return f"--ready-timeout must be > 0 seconds, got {ready_timeout}"
+    if not grace >= 0:
+        return f"--grace must be 0 or more seconds, got {grace}"
+    return None
 
 
 def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
@@ -337,7 +291,8 @@ def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
     parser = argparse.ArgumentParser(
         prog="rover-pair",
         description="Run the Active Vision daemon and a trainer together, supervised.",
-        epilog="Example: rover-pair --slots 2 -- rover-train --env fused --n-envs 2",
+        epilog="Example: rover-pair --slots 2 -- rover-train --env fused  (the trainer's "
+        "--slots defaults to the supervisor's)",
     )
     parser.add_argument("--name", default=PairConfig.name, help="segment base name")
     parser.add_argument("--slots", type=int, default=PairConfig.slots, help="daemon slots")
@@ -351,6 +306,8 @@ def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
     parser.add_argument("--max-restarts", type=int, default=PairConfig.max_restarts)
     parser.add_argument("--ready-timeout", type=float, default=PairConfig.ready_timeout)
     parser.add_argument("--grace", type=float, default=PairConfig.grace)
+    parser.add_argument("--log-level", default=PairConfig.log_level, type=str.upper,
+                        choices=LOG_LEVELS, help="supervisor, daemon and trainer log level")
     ns = parser.parse_args(own)
     if not trainer:
         parser.error("no trainer command: put it after '--', e.g. -- rover-train --env fused")
@@ -358,6 +315,9 @@ def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
         parser.error(f"--slots must be at least 1, got {ns.slots}")
     if ns.max_restarts < 0:
         parser.error(f"--max-restarts must be 0 or more, got {ns.max_restarts}")
+    problem = check_usage(ns.name, trainer, ns.ready_timeout, ns.grace)
+    if problem:
+        parser.error(problem)
     return PairConfig(
         trainer=trainer,
         name=ns.name,
@@ -366,11 +326,14 @@ def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
         max_restarts=ns.max_restarts,
         ready_timeout=ns.ready_timeout,
         grace=ns.grace,
+        log_level=ns.log_level,
     )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    return Supervisor(parse_args(argv)).run()
+    cfg = parse_args(argv)
+    logging.basicConfig(level=cfg.log_level, format="[rover-pair] %(levelname)s %(message)s")
+    return Supervisor(cfg).run()
 
 
 if __name__ == "__main__":

@@ -4,8 +4,8 @@ Importing this package sets ``MUJOCO_GL=egl`` (unless already set) before MuJoCo
 so rendering works headless, and registers the ``roverav/`` env ids:
 
 - ``roverav/RoverEnv-v0``: :class:`RoverEnv` (LIDAR)
-- ``roverav/RoverEnvFused-v0``: ``rover_env.fused_env:RoverEnvFused``
-- ``roverav/RoverEnvFusedDiscrete-v0``: ``rover_env.discrete_env:DiscreteRoverEnvFused``
+- ``roverav/RoverEnvFused-v0``: :class:`RoverEnvFused` (needs the av-daemon)
+- ``roverav/RoverEnvFusedDiscrete-v0``: :class:`DiscreteRoverEnvFused`
 
 Episode length is the envs' own ``length`` argument (they truncate themselves), so no
 ``TimeLimit`` wrapper is registered.
@@ -18,6 +18,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from gymnasium.envs.registration import register, registry  # noqa: E402
 
 from rover_env.core import RoverEnvBase  # noqa: E402
+from rover_env.discrete_env import DiscreteRoverEnvFused  # noqa: E402
+from rover_env.errors import EnvClosedError  # noqa: E402
+from rover_env.fused_env import RoverEnvFused  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
 from rover_env.simulation import CameraFrame, Contacts, RoverSim  # noqa: E402
@@ -36,9 +39,12 @@ __all__ = [
     "WORLD_NAMES",
     "CameraFrame",
     "Contacts",
+    "DiscreteRoverEnvFused",
+    "EnvClosedError",
     "RewardConfig",
     "RoverEnv",
     "RoverEnvBase",
+    "RoverEnvFused",
     "RoverSim",
     "WorldSpec",
     "make_world",

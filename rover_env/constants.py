@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import math
 
+from shm_protocol.names import DEFAULT_NAME
+
 # --- episode and timing ----------------------------------------------------------------
 LENGTH = 2000  # seed: RoverEnv(length=2000), maximum steps per episode
 FUSED_LENGTH = 6000  # seed: RoverEnvFused(length=6000)
@@ -25,7 +27,7 @@ SCAN_TOPIC = "/scan"
 IMU_TOPIC = "/imu/data"
 CMD_VEL_TOPIC = "/cmd_vel"
 CAMERA_TOPIC = "/camera/image_raw"
-RL_OBS_NAME = "rl_observation"  # seed: rl_obs_name (fused envs' shared-memory segment)
+RL_OBS_NAME = DEFAULT_NAME  # seed: rl_obs_name (fused envs' segment); home: shm_protocol.names
 
 # --- spaces ----------------------------------------------------------------------------
 ACTION_LOW = (-1.0, -math.pi)  # RoverEnv: speed m/s, relative heading rad
@@ -103,4 +105,8 @@ WORLD_RECTANGLES: dict[str, dict[str, tuple[float, float]]] = {
     },
 }
 WORLD_ALIASES = {"island": "moon"}  # seed: if world_n == 'island': world_name = 'moon'
-DEFAULT_WORLD = "inspect"
+DEFAULT_WORLD = "inspect"  # seed: world_n='inspect'; every CLI's default too
+
+# --- proxemics (not in the seeds; the metrics every env and report use) -------------------
+PERSONAL_SPACE_M = 1.2  # a pedestrian closer than this is a personal-space intrusion
+INTIMATE_SPACE_M = 0.45  # ... and closer than this an intimate-space intrusion

@@ -19,17 +19,18 @@ from shm_protocol import (
     CHANNEL_HEATMAP,
     FrameReader,
     FrameWriter,
+    LayoutError,
+    SegmentBusyError,
     SegmentNotFoundError,
     camera_name,
     depth_to_channel,
+    segment_path,
     slot_name,
 )
 
 log = logging.getLogger(__name__)
 
 FRAME_TIMEOUT = 2.0  # s without a fused frame before FrameTimeoutError
-INTIMATE_ZONE_M = 0.45  # proxemics: intimate distance
-PERSONAL_ZONE_M = 1.2  # proxemics: personal distance
 # The seed's descriptive message when the segment is missing (it then called exit(1)).
 SEED_MISSING_MESSAGE = (
     "Shared memory segment '{name}' not found. The Active Vision inference pipeline must be "
@@ -136,7 +137,7 @@ class RoverEnvFused(RoverEnvBase):
         connection_check_timeout: float = 30,
         lidar_points: int = c.LIDAR_POINTS,
         max_lidar_range: float = c.MAX_LIDAR_RANGE,
-        rl_obs_name: str = "rl_observation",
+        rl_obs_name: str = c.RL_OBS_NAME,
         *,
         slot: int = 0,
         frame_timeout: float = FRAME_TIMEOUT,
@@ -149,8 +150,12 @@ class RoverEnvFused(RoverEnvBase):
     ) -> None:
         del scan_topic, imu_topic, cmd_vel_topic  # ROS topics: accepted, no effect
         height, width = int(size[0]), int(size[1])
-        if slot < 0:
-            raise ValueError(f"slot must be >= 0, got {slot}")
+        if isinstance(slot, bool) or not isinstance(slot, (int, np.integer)) or slot < 0:
+            raise ValueError(
+                f"slot must be an int >= 0 (the daemon slot this env uses: 0..N-1 with "
+                f"av-daemon --slots N), got {slot!r}"
+            )
+        slot = int(slot)
         if not frame_timeout > 0:
             raise ValueError(f"frame_timeout must be > 0 s, got {frame_timeout}")
         self.rl_obs_name = slot_name(rl_obs_name, slot)
@@ -158,6 +163,7 @@ class RoverEnvFused(RoverEnvBase):
         self.frame_timeout = float(frame_timeout)
         self.report_latency = bool(report_latency)
         self.connection_check_timeout = float(connection_check_timeout)
+        self._size = (height, width)
         self._fused: FrameReader | None = None
         self._camera: FrameWriter | None = None
         # Attach before building the world: a missing daemon fails fast and cheaply.
@@ -195,7 +201,8 @@ class RoverEnvFused(RoverEnvBase):
         self._disconnect()
         name, cam = self.rl_obs_name, camera_name(self.rl_obs_name)
         how = f"av-daemon --name {self._base_name()} --slots {self.slot + 1}"
-        if not os.path.exists(f"/dev/shm/{name}"):
+        if not os.path.exists(segment_path(name)):
+            self._check_slot_served()
             log.warning(
                 "waiting up to %.0f s for the Active Vision daemon's segment '%s'; "
                 "start it with: %s (or run your trainer under rover-pair)",
@@ -215,10 +222,27 @@ class RoverEnvFused(RoverEnvBase):
                 exc.available,
             ) from None
         try:
+            self._check_size(fused.shape, "fused")
+            daemon_pid = fused.writer_pid
             camera = FrameWriter(
-                cam, create=False, attach_timeout=max(deadline - time.monotonic(), 1.0)
+                cam,
+                create=False,
+                attach_timeout=max(deadline - time.monotonic(), 1.0),
+                exclusive=True,
+                ignore_pids=() if daemon_pid is None else (daemon_pid,),
             )
+        except SegmentBusyError as exc:
+            fused.close()
+            raise SegmentBusyError(
+                self._slot_busy_message(exc.pid, exc.command), cam, exc.pid, exc.command
+            ) from None
         except BaseException:
+            fused.close()
+            raise
+        try:
+            self._check_size(camera.shape, "camera")
+        except BaseException:
+            camera.close()
             fused.close()
             raise
         self._fused, self._camera = fused, camera
@@ -231,6 +255,70 @@ class RoverEnvFused(RoverEnvBase):
         h, w, ch = camera.shape
         self._render_depth = ch == 4
         self._camera_buf = np.zeros((h, w, ch), dtype=np.uint8)
+
+    def _check_slot_served(self) -> None:
+        """Fail fast when a running daemon serves the base name with fewer slots than
+        ``slot + 1`` (instead of waiting ``connection_check_timeout`` for a segment that
+        will never come)."""
+        if self.slot == 0:
+            return
+        base = self._base_name()
+        # The daemon creates every fused segment before the first camera segment, so once
+        # slot 0's camera segment exists all of its fused segments do.
+        if not os.path.exists(segment_path(camera_name(base))):
+            return
+        try:
+            probe = FrameReader(base, attach_timeout=0.0)
+        except (SegmentNotFoundError, LayoutError):
+            return
+        try:
+            if not probe.is_writer_alive():
+                return
+            pid = probe.writer_pid
+        finally:
+            probe.close()
+        served = 1
+        while os.path.exists(segment_path(slot_name(base, served))):
+            served += 1
+        if self.slot < served:
+            return
+        raise SegmentNotFoundError(
+            f"slot={self.slot} is beyond the slots of the av-daemon serving '{base}' (pid "
+            f"{pid}): it serves {served} slot(s), 0..{served - 1}. Use slot= in "
+            f"0..{served - 1}, or restart the daemon with more slots: av-daemon --name {base} "
+            f"--slots {self.slot + 1} (or rover-pair --name {base} --slots {self.slot + 1} "
+            "-- <trainer command>).",
+            self.rl_obs_name,
+            [slot_name(base, i) for i in range(served)],
+        )
+
+    def _check_size(self, shape: tuple[int, int, int], which: str) -> None:
+        """LayoutError naming both sizes when the daemon's frames differ from ``size``."""
+        if tuple(shape[:2]) == self._size:
+            return
+        h, w = self._size
+        side = f"--size {h}" if h == w else f"a square --size (this env's size is {h}x{w})"
+        raise LayoutError(
+            f"size mismatch: this env was made with size=({h}, {w}) but the av-daemon serving "
+            f"'{self.rl_obs_name}' makes {shape[0]}x{shape[1]} frames (its {which} segment "
+            f"holds {shape[0]}x{shape[1]}x{shape[2]}; av-daemon --size {shape[0]}). Make the "
+            f"env with size=({shape[0]}, {shape[1]}), or restart the daemon with {side}."
+        )
+
+    def _slot_busy_message(self, pid: int, command: str) -> str:
+        who = (
+            "this process (another RoverEnvFused here that is not closed)"
+            if pid == os.getpid()
+            else f"another process ({command or 'command line unknown'})"
+        )
+        base = self._base_name()
+        return (
+            f"daemon slot {self.slot} of '{base}' is already in use: pid {pid}, {who}, holds "
+            f"its camera segment '{camera_name(self.rl_obs_name)}'. Each env needs its own "
+            f"slot: give each env a different slot= (0..N-1) and serve N slots with "
+            f"av-daemon --name {base} --slots N (or rover-pair --slots N), or close the "
+            "other env first. (A holder that crashed or closed does not block.)"
+        )
 
     def _base_name(self) -> str:
         suffix = f"_{self.slot}"
@@ -249,7 +337,7 @@ class RoverEnvFused(RoverEnvBase):
     def _link_is_current(self) -> bool:
         """False when the daemon replaced its segments (a new daemon after an orderly stop)."""
         try:
-            return os.stat(f"/dev/shm/{camera_name(self.rl_obs_name)}").st_ino == self._camera_ino
+            return os.stat(segment_path(camera_name(self.rl_obs_name))).st_ino == self._camera_ino
         except FileNotFoundError:
             return False
 
@@ -284,12 +372,13 @@ class RoverEnvFused(RoverEnvBase):
     def _task_reward(self, obs: dict[str, np.ndarray]) -> float:
         cfg = self.reward_config
         heatmap = obs["fused_image"][:, :, CHANNEL_HEATMAP]
-        self._heatmap_center = heatmap_center_sum(heatmap, cfg.heatmap_center_columns)
+        self._heatmap_center = rw.heatmap_center_sum(heatmap, cfg.heatmap_center_columns)
         if self.goal_reached:
             return self._add_reward_term("goal", rw.goal_reward(True, cfg))
         self._add_reward_term("goal", 0.0)
         progress = self._add_reward_term("progress", rw.progress_reward(self.distance_delta, cfg))
-        heat = self._add_reward_term("heatmap", -cfg.heatmap_center_scale * self._heatmap_center)
+        heat = rw.heatmap_center_penalty(self._heatmap_center, cfg)
+        heat = self._add_reward_term("heatmap", heat)
         return progress + heat
 
     def _info(self, reward: float, reason: str) -> dict[str, Any]:
@@ -298,8 +387,8 @@ class RoverEnvFused(RoverEnvBase):
         if self.report_latency:
             info["frame_latency_ms"] = self._frame_latency_ms
         info["pedestrian_collision"] = self._pedestrian_collision and self.collided
-        info["personal_space_intrusion"] = bool(d_ped < PERSONAL_ZONE_M)
-        info["intimate_space_intrusion"] = bool(d_ped < INTIMATE_ZONE_M)
+        info["personal_space_intrusion"] = bool(d_ped < c.PERSONAL_SPACE_M)
+        info["intimate_space_intrusion"] = bool(d_ped < c.INTIMATE_SPACE_M)
         info["heatmap_center"] = self._heatmap_center
         return info
 
@@ -308,10 +397,3 @@ class RoverEnvFused(RoverEnvBase):
         self._disconnect()
         super().close()
 
-
-def heatmap_center_sum(heatmap: np.ndarray, columns: int = c.HEATMAP_CENTER_COLUMNS) -> float:
-    """Sum of the centre columns of an (H, W) heatmap: ``columns`` of 96, scaled to W."""
-    width = heatmap.shape[1]
-    n = max(1, round(columns * width / c.FUSED_SIZE[1]))
-    lo = (width - n) // 2
-    return float(heatmap[:, lo : lo + n].sum())

@@ -107,11 +107,19 @@ def collision_penalty(collided: bool, cfg: RewardConfig) -> float:
     return cfg.collision_penalty if collided else 0.0
 
 
-def heatmap_center_penalty(heatmap: np.ndarray, cfg: RewardConfig) -> float:
-    """Fused envs: ``-scale * sum`` of the heatmap's centre columns ((H, W) array)."""
+def heatmap_center_sum(heatmap: np.ndarray, columns: int = c.HEATMAP_CENTER_COLUMNS) -> float:
+    """Sum of the centre columns of an (H, W) heatmap: ``columns`` of the seed's 96, scaled
+    to the width W (``max(1, round(columns * W / 96))`` columns, centred)."""
     width = heatmap.shape[1]
-    lo = (width - cfg.heatmap_center_columns) // 2
-    return -cfg.heatmap_center_scale * float(heatmap[:, lo : lo + cfg.heatmap_center_columns].sum())
+    n = max(1, round(columns * width / c.FUSED_SIZE[1]))
+    lo = (width - n) // 2
+    return float(heatmap[:, lo : lo + n].sum())
+
+
+def heatmap_center_penalty(center_sum: float, cfg: RewardConfig) -> float:
+    """Fused envs' heatmap term: ``-heatmap_center_scale * center_sum`` (seed 000), where
+    ``center_sum`` is :func:`heatmap_center_sum` of the fused image's channel 1."""
+    return -cfg.heatmap_center_scale * center_sum
 
 
 def termination_penalty(reason: str, cfg: RewardConfig) -> float:

@@ -10,6 +10,8 @@ from typing import Any
 
 import gymnasium as gym
 
+from shm_protocol.names import default_name
+
 log = logging.getLogger(__name__)
 
 ENV_IDS = {
@@ -18,13 +20,6 @@ ENV_IDS = {
     "discrete": "roverav/RoverEnvFusedDiscrete-v0",
 }
 FUSED_KINDS = ("fused", "discrete")
-DEFAULT_SHM_NAME = "rl_observation"
-ENV_SHM_NAME = "ROVERAV_SHM_NAME"  # set by rover-pair for the trainer
-
-
-def default_shm_name() -> str:
-    """The segment base name: ``$ROVERAV_SHM_NAME`` (set by rover-pair) or the seed's default."""
-    return os.environ.get(ENV_SHM_NAME, DEFAULT_SHM_NAME)
 
 
 def env_kwargs(
@@ -45,7 +40,7 @@ def env_kwargs(
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
     if kind in FUSED_KINDS:
-        kwargs["rl_obs_name"] = shm_name or default_shm_name()
+        kwargs["rl_obs_name"] = shm_name or default_name()
         kwargs["slot"] = slot
         if connect_timeout is not None:
             kwargs["connection_check_timeout"] = connect_timeout
@@ -66,7 +61,9 @@ class DaemonRecovery(gym.Wrapper):
     into the end of the episode (``truncated=True``, ``info["daemon_error"]`` says why), and
     its ``reset()`` retries for up to ``recover_timeout`` seconds while rover-pair restarts
     the daemon on the same segments. Truncation, not termination: the episode did not fail,
-    so value bootstrapping stays correct.
+    so value bootstrapping stays correct. Errors a daemon restart cannot fix (a daemon of
+    another ``--size``: ``LayoutError``; the slot taken by another env: ``SegmentBusyError``)
+    are raised at once.
     """
 
     def __init__(self, env: gym.Env, recover_timeout: float = 60.0):
@@ -75,7 +72,7 @@ class DaemonRecovery(gym.Wrapper):
         self._last_obs: Any = None
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
-        from shm_protocol.errors import ShmError
+        from shm_protocol.errors import LayoutError, SegmentBusyError, ShmError
 
         deadline = time.monotonic() + self.recover_timeout
         while True:
@@ -83,6 +80,8 @@ class DaemonRecovery(gym.Wrapper):
                 obs, info = self.env.reset(**kwargs)
                 self._last_obs = obs
                 return obs, info
+            except (LayoutError, SegmentBusyError):
+                raise
             except ShmError as exc:
                 if time.monotonic() > deadline:
                     raise

@@ -33,9 +33,12 @@ from typing import Any
 
 import numpy as np
 
-from rover_train.envs import ENV_IDS, default_shm_name, make_env
+from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
+from rover_env.worlds import WORLD_CHOICES
+from rover_train.cli import LOG_LEVELS, default_log_level
+from rover_train.envs import ENV_IDS, make_env
+from shm_protocol.names import default_name, default_slots
 
-PERSONAL_SPACE_M = 1.2
 VIDEO_PANEL = 256  # pixels per side of each video panel
 
 
@@ -54,15 +57,25 @@ class EpisodeResult:
     ret: float
 
 
+class PolicyLoadError(ValueError):
+    """A model file is missing, cannot be loaded, or was trained for another env (the message
+    says which and what to do)."""
+
+
 def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | None) -> Any:
-    """A callable obs -> action: the saved SB3 model, or uniform random actions."""
+    """A callable obs -> action: the saved SB3 model, or uniform random actions.
+
+    The random policy samples ``env.action_space``: seed it (``env.action_space.seed(s)``)
+    for a reproducible baseline, as :func:`main` does per episode. Raises
+    :class:`PolicyLoadError`.
+    """
     if policy == "random":
         space = env.action_space
         return lambda _obs: space.sample()
     if model is None:
-        raise SystemExit("rover-eval: give a model .zip or --policy random")
+        raise PolicyLoadError("give a model .zip or --policy random")
     if not model.is_file():
-        raise SystemExit(f"rover-eval: no model file at {model} (train one with rover-train)")
+        raise PolicyLoadError(f"no model file at {model} (train one with rover-train)")
     from stable_baselines3 import DQN, PPO, SAC
 
     classes = {"ppo": PPO, "sac": SAC, "dqn": DQN}
@@ -75,10 +88,37 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
     for name in order:
         try:
             loaded = classes[name].load(model, device="cpu")
-            return lambda obs: loaded.predict(obs, deterministic=True)[0]
         except Exception as exc:  # noqa: BLE001 - try the next algorithm
             errors.append(f"{name}: {exc}")
-    raise SystemExit(f"rover-eval: could not load {model}: " + "; ".join(errors))
+            continue
+        check_spaces(model, loaded, env)
+        return lambda obs: loaded.predict(obs, deterministic=True)[0]
+    raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
+
+
+def check_spaces(path: Path, model: Any, env: Any) -> None:
+    """Raise :class:`PolicyLoadError` when ``model`` was made for other spaces than ``env``'s
+    (say a LIDAR policy evaluated on the fused env), naming both and the fix."""
+    for what in ("observation", "action"):
+        want = getattr(model, f"{what}_space")
+        have = getattr(env, f"{what}_space")
+        if want != have:
+            raise PolicyLoadError(
+                f"{path} was trained for another env: its {what} space is {_describe(want)}, "
+                f"but this env's (--env, --world) is {_describe(have)}. Evaluate it with the "
+                "--env it was trained on (see metrics.json beside the model), or train a "
+                "model for this env with rover-train."
+            )
+
+
+def _describe(space: Any) -> str:
+    from gymnasium import spaces
+
+    if isinstance(space, spaces.Dict):
+        return "Dict(" + ", ".join(f"{k}: {_describe(v)}" for k, v in space.spaces.items()) + ")"
+    if isinstance(space, spaces.Box):
+        return f"Box{tuple(space.shape)}"
+    return str(space)
 
 
 def _video_frame(env: Any, obs: Any) -> np.ndarray:
@@ -227,58 +267,93 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float) -> None:
         writer.release()
 
 
+def validate(args: argparse.Namespace) -> str | None:
+    """What else is wrong with rover-eval's arguments, and how to fix it; None if nothing."""
+    from shm_protocol import InvalidNameError, camera_name, slot_name
+
+    if args.max_steps < 1:
+        return f"--max-steps must be at least 1, got {args.max_steps}"
+    if args.slot < 0:
+        return f"--slot must be >= 0 (the first daemon slot to use), got {args.slot}"
+    try:
+        camera_name(slot_name(args.name, args.slot + args.slots - 1))
+    except InvalidNameError as exc:
+        return f"--name: {exc}"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s")
     p = argparse.ArgumentParser(prog="rover-eval", description=__doc__.split("\n")[0])
     p.add_argument("model", nargs="?", type=Path, help="a model .zip written by rover-train")
-    p.add_argument("--policy", choices=["random"], help="evaluate uniform random actions instead")
+    p.add_argument("--policy", choices=["random"],
+                   help="evaluate uniform random actions instead (seeded: --seed)")
     p.add_argument(
         "--algo", choices=["ppo", "sac", "dqn"], help="default: from metrics.json beside the model"
     )
     p.add_argument("--env", choices=sorted(ENV_IDS), default="lidar")
-    p.add_argument("--world", default="maze")
+    p.add_argument("--world", choices=WORLD_CHOICES, default=DEFAULT_WORLD)
     p.add_argument("--episodes", type=int, default=10)
-    p.add_argument("--seed", type=int, default=1000, help="episode i uses seed + i")
+    p.add_argument("--seed", type=int, default=1000,
+                   help="episode i uses seed + i (reset, and the random policy's actions)")
     p.add_argument(
         "--max-steps", type=int, default=1000, help="steps before an episode is a timeout"
     )
-    p.add_argument("--shm-name", default=default_shm_name())
-    p.add_argument("--slot", type=int, default=0)
+    p.add_argument("--name", default=default_name(),
+                   help="daemon segment base name (fused envs; default $ROVERAV_SHM_NAME or "
+                        "rl_observation)")
+    p.add_argument("--shm-name", dest="name", help=argparse.SUPPRESS)  # old spelling
+    p.add_argument("--slots", type=int, default=default_slots(),
+                   help="envs to spread the episodes over, one per daemon slot (episode i on "
+                        "slot i mod N; default $ROVERAV_SLOTS or 1)")
+    p.add_argument("--slot", type=int, default=0, help=argparse.SUPPRESS)  # old: first slot
+    p.add_argument("--log-level", type=str.upper, choices=LOG_LEVELS,
+                   default=default_log_level("WARNING"))
     p.add_argument("--video", type=Path, help="write an MP4: chase view beside the fused channels")
     p.add_argument("--video-episodes", type=int, default=1, help="episodes recorded in the video")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on the last line")
     args = p.parse_args(argv)
+    logging.basicConfig(level=args.log_level, format="%(name)s %(levelname)s %(message)s")
     if (args.model is None) == (args.policy is None):
         p.error("give exactly one of: a model .zip, or --policy random")
+    if args.slots < 1 or args.episodes < 1:
+        p.error(f"--slots and --episodes must be at least 1, got {args.slots} and {args.episodes}")
+    problem = validate(args)
+    if problem:
+        p.error(problem)
 
     from shm_protocol.errors import ShmError
 
+    envs: list[Any] = []
     try:
-        env = make_env(
-            args.env,
-            world=args.world,
-            slot=args.slot,
-            shm_name=args.shm_name,
-            render_mode="rgb_array" if args.video else None,
-        )
-    except ShmError as exc:
-        print(
-            f"{exc}\n\nrover-eval --env {args.env} needs the daemon: "
-            f"av-daemon --name {args.shm_name}",
-            file=sys.stderr,
-        )
-        return 1
-    try:
-        act = load_policy(args.model, args.policy, env, args.algo)
+        try:
+            for k in range(min(args.slots, args.episodes)):
+                envs.append(make_env(
+                    args.env, world=args.world, slot=args.slot + k, shm_name=args.name,
+                    render_mode="rgb_array" if args.video and k == 0 else None,
+                ))  # fmt: skip
+        except ShmError as exc:
+            print(
+                f"{exc}\n\nrover-eval --env {args.env} needs the daemon: "
+                f"av-daemon --name {args.name} --slots {args.slot + args.slots}",
+                file=sys.stderr,
+            )
+            return 1
+        try:
+            policies = [load_policy(args.model, args.policy, env, args.algo) for env in envs]
+        except PolicyLoadError as exc:
+            print(f"rover-eval: {exc}", file=sys.stderr)
+            return 1
         results, frames = [], []
         for i in range(args.episodes):
-            record = args.video is not None and i < args.video_episodes
-            results.append(
-                run_episode(env, act, args.seed + i, args.max_steps, frames if record else None)
-            )
-        fps = 1.0 / float(getattr(env.unwrapped, "control_dt", 0.05))
+            k = i % len(envs)
+            record = args.video is not None and k == 0 and i < args.video_episodes * len(envs)
+            envs[k].action_space.seed(args.seed + i)  # the random policy's draws, reproducible
+            results.append(run_episode(envs[k], policies[k], args.seed + i, args.max_steps,
+                                       frames if record else None))  # fmt: skip
+        fps = 1.0 / float(getattr(envs[0].unwrapped, "control_dt", 0.05))
     finally:
-        env.close()
+        for env in envs:
+            env.close()
     summary = summarise(results)
     who = "random policy" if args.policy else str(args.model)
     print(

@@ -11,19 +11,22 @@ then write ``model.zip``, ``metrics.json`` and ``learning_curve.png`` into ``--l
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from rover_train.envs import ENV_IDS, FUSED_KINDS, default_shm_name, env_factory
+from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
+from rover_env.worlds import WORLD_CHOICES
+from rover_train.cli import LOG_LEVELS, build_parser, default_log_level, parse_into, plain
+from rover_train.envs import ENV_IDS, FUSED_KINDS, env_factory
+from shm_protocol.names import default_name, default_slots
 
 log = logging.getLogger("rover_train")
 
@@ -33,18 +36,19 @@ EXIT_NO_DAEMON = 1
 
 @dataclass
 class TrainArgs:
-    """Arguments of one training run."""
+    """Arguments of one training run (the CLI is generated from these fields)."""
 
-    env: str = "lidar"
+    env: str = field(default="lidar", metadata={"choices": tuple(ENV_IDS)})
     """Which env: lidar (RoverEnv), fused (RoverEnvFused) or discrete (its Discrete(60) twin)."""
-    world: str = "maze"
+    world: str = field(default=DEFAULT_WORLD, metadata={"choices": WORLD_CHOICES})
     """World: inspect, moon (island) or maze."""
-    algo: str = "ppo"
+    algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), sac (lidar, fused) or dqn (discrete)."""
     timesteps: int = 100_000
     """Total environment steps to train for (over all envs)."""
-    n_envs: int = 1
-    """Parallel envs (subprocesses); env i uses daemon slot i."""
+    slots: int = field(default_factory=default_slots, metadata={"aliases": ("--n-envs",)})
+    """Parallel envs; env i uses daemon slot i. Defaults to $ROVERAV_SLOTS (set by rover-pair
+    --slots), else 1."""
     seed: int = 0
     """Seed of the model and of env i's first reset (seed + i)."""
     device: str = "cpu"
@@ -57,43 +61,87 @@ class TrainArgs:
     """A model .zip, or a run directory whose newest checkpoint (or model.zip) is loaded."""
     progress: bool = True
     """Show a progress bar."""
-    shm_name: str = field(default_factory=default_shm_name)
-    """Daemon segment base name (fused envs); defaults to $ROVERAV_SHM_NAME set by rover-pair."""
+    name: str = field(default_factory=default_name, metadata={"aliases": ("--shm-name",)})
+    """Daemon segment base name (fused envs); defaults to $ROVERAV_SHM_NAME set by rover-pair,
+    else rl_observation."""
     length: int | None = None
     """Episode length override (default: the env's own, 2000 lidar / 6000 fused)."""
     connect_timeout: float = 10.0
     """Seconds to wait for the daemon's segments before giving up (fused envs)."""
-    n_steps: int = 1024
-    """PPO rollout length per env."""
-    vec_env: str = "auto"
+    vec_env: str = field(default="auto", metadata={"choices": ("auto", "subproc", "dummy")})
     """auto (subprocesses for several fused envs, one process otherwise), subproc or dummy."""
     threads: int = 1
-    """Torch intra-op threads of the trainer (small nets on CPU run best on one; the
-    daemon and the env workers need the other cores)."""
+    """Torch intra-op threads of the trainer (small nets on CPU run best on one; the daemon
+    and the env workers need the other cores)."""
+    update_threads: int = 1
+    """PPO: torch threads for the gradient epochs, while envs and daemon are idle (0: every
+    core this process may use). More than 1 pays only on an otherwise idle machine: with
+    other work on the cores a 2-thread update measured slower. Rollouts keep --threads."""
+    log_level: str = field(default_factory=default_log_level,
+                           metadata={"choices": LOG_LEVELS, "parse": str.upper})
+    """Log level; defaults to $ROVERAV_LOG_LEVEL (set by rover-pair --log-level), else INFO."""
+    # --- algorithm hyperparameters (written to metrics.json) -----------------------------
+    learning_rate: float | None = None
+    """Adam learning rate (default: ppo and sac 3e-4, dqn 1e-4)."""
+    gamma: float = 0.99
+    """Discount factor (all algorithms)."""
+    batch_size: int | None = None
+    """Minibatch size (default: ppo 256, sac 256, dqn 32)."""
+    n_steps: int = 1024
+    """PPO: rollout length per env."""
+    n_epochs: int = 10
+    """PPO: optimisation epochs per rollout."""
+    gae_lambda: float = 0.95
+    """PPO: GAE lambda."""
+    clip_range: float = 0.2
+    """PPO: policy clip range."""
+    ent_coef: float = 0.0
+    """PPO: entropy bonus coefficient."""
+    buffer_size: int | None = None
+    """SAC/DQN: replay buffer size (default: sac 100000, dqn 50000)."""
+    learning_starts: int = 1_000
+    """SAC/DQN: environment steps collected before the first update."""
+    exploration_fraction: float = 0.3
+    """DQN: fraction of training over which epsilon anneals."""
+
+    # kept readable for code written against the old names
+    @property
+    def n_envs(self) -> int:
+        return self.slots
+
+    @property
+    def shm_name(self) -> str:
+        return self.name
+
+
+_ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
+    "ppo": {"learning_rate": 3e-4, "batch_size": 256},
+    "sac": {"learning_rate": 3e-4, "batch_size": 256, "buffer_size": 100_000},
+    "dqn": {"learning_rate": 1e-4, "batch_size": 32, "buffer_size": 50_000},
+}
+
+
+def hyperparameters(args: TrainArgs) -> dict[str, Any]:
+    """The keyword arguments the algorithm is built with (what ``metrics.json`` records)."""
+    d = _ALGO_DEFAULTS[args.algo]
+    hp: dict[str, Any] = {"learning_rate": args.learning_rate or d["learning_rate"],
+                          "gamma": args.gamma,
+                          "batch_size": args.batch_size or d["batch_size"]}  # fmt: skip
+    if args.algo == "ppo":
+        hp.update(n_steps=args.n_steps, n_epochs=args.n_epochs, gae_lambda=args.gae_lambda,
+                  clip_range=args.clip_range, ent_coef=args.ent_coef)  # fmt: skip
+    else:
+        hp.update(buffer_size=args.buffer_size or d["buffer_size"],
+                  learning_starts=args.learning_starts)  # fmt: skip
+        if args.algo == "dqn":
+            hp["exploration_fraction"] = args.exploration_fraction
+    return hp
 
 
 def parse_args(argv: Sequence[str] | None = None) -> TrainArgs:
-    d = TrainArgs()
-    p = argparse.ArgumentParser(prog="rover-train", description=__doc__.split("\n")[0])
-    p.add_argument("--env", choices=sorted(ENV_IDS), default=d.env)
-    p.add_argument("--world", default=d.world, help="inspect, moon (island) or maze")
-    p.add_argument("--algo", choices=ALGOS, default=d.algo)
-    p.add_argument("--timesteps", type=int, default=d.timesteps)
-    p.add_argument("--n-envs", type=int, default=d.n_envs)
-    p.add_argument("--seed", type=int, default=d.seed)
-    p.add_argument("--device", default=d.device, help="cpu or cuda")
-    p.add_argument("--logdir", type=Path, default=d.logdir)
-    p.add_argument("--checkpoint-every", type=int, default=d.checkpoint_every)
-    p.add_argument("--resume", type=Path, default=None)
-    p.add_argument("--no-progress", dest="progress", action="store_false")
-    p.add_argument("--shm-name", default=d.shm_name)
-    p.add_argument("--length", type=int, default=None)
-    p.add_argument("--connect-timeout", type=float, default=d.connect_timeout)
-    p.add_argument("--n-steps", type=int, default=d.n_steps)
-    p.add_argument("--threads", type=int, default=d.threads)
-    p.add_argument("--vec-env", choices=["auto", "subproc", "dummy"], default=d.vec_env)
-    ns = p.parse_args(argv)
-    args = TrainArgs(**vars(ns))
+    p = build_parser(TrainArgs, "rover-train", __doc__.split("\n")[0],
+                     epilog="Under rover-pair, --name and --slots default to the supervisor's.")
+    args = parse_into(TrainArgs, p, argv)
     problem = validate(args)
     if problem:
         p.error(problem)
@@ -106,8 +154,43 @@ def validate(args: TrainArgs) -> str | None:
         return "--algo dqn needs a discrete action space: use --env discrete (or --algo ppo/sac)"
     if args.algo == "sac" and args.env == "discrete":
         return "--algo sac needs continuous actions: use --env lidar|fused, or --algo ppo/dqn"
-    if args.n_envs < 1 or args.timesteps < 1:
-        return "--n-envs and --timesteps must be at least 1"
+    if args.slots < 1 or args.timesteps < 1:
+        return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
+    return _validate_values(args) or _validate_device(args)
+
+
+def _validate_values(args: TrainArgs) -> str | None:
+    """Lengths, segment name and --resume: each message names the value and the fix."""
+    from shm_protocol import InvalidNameError, camera_name, slot_name
+
+    if args.length is not None and args.length < 1:
+        return f"--length must be at least 1 step (or omit it for the env's own), got {args.length}"
+    if args.algo == "ppo" and args.n_steps * args.slots < 2:
+        return (
+            f"--n-steps must be at least 2 for PPO (a rollout of n_steps x slots > 1 steps), "
+            f"got --n-steps {args.n_steps} with {args.slots} env(s)"
+        )
+    positive = {"--batch-size": args.batch_size, "--n-epochs": args.n_epochs,
+                "--buffer-size": args.buffer_size, "--learning-rate": args.learning_rate}
+    for flag, value in positive.items():
+        if value is not None and not value > 0:
+            return f"{flag} must be > 0 (or omit it for the algorithm's default), got {value}"
+    if not 0.0 < args.gamma <= 1.0:
+        return f"--gamma is a discount factor in (0, 1], got {args.gamma}"
+    if args.env in FUSED_KINDS:
+        try:
+            camera_name(slot_name(args.name, args.slots - 1))
+        except InvalidNameError as exc:
+            return f"--name: {exc}"
+    if args.resume is not None:
+        try:
+            resolve_checkpoint(args.resume)
+        except FileNotFoundError as exc:
+            return f"{exc}; give a model .zip or a run directory written by rover-train"
+    return None
+
+
+def _validate_device(args: TrainArgs) -> str | None:
     if args.device.startswith("cuda"):
         import torch
 
@@ -147,7 +230,7 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path) -> Any:
             monitor_dir=str(monitor_dir),
             world=args.world,
             slot=i,
-            shm_name=args.shm_name,
+            shm_name=args.name,
             length=args.length,
             connect_timeout=args.connect_timeout,
         )
@@ -187,20 +270,7 @@ def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
         "policy_kwargs": policy_kwargs,
         "verbose": 0,
     }
-    if args.algo == "ppo":
-        return cls(
-            n_steps=args.n_steps,
-            batch_size=256,
-            n_epochs=10,
-            gamma=0.99,
-            gae_lambda=0.95,
-            ent_coef=0.0,
-            learning_rate=3e-4,
-            **common,
-        )
-    if args.algo == "sac":
-        return cls(buffer_size=100_000, learning_starts=1_000, **common)
-    return cls(buffer_size=50_000, learning_starts=1_000, exploration_fraction=0.3, **common)
+    return cls(**hyperparameters(args), **common)
 
 
 def resolve_checkpoint(path: Path) -> Path:
@@ -241,7 +311,9 @@ def make_metrics_callback() -> Any:
             for i, info in enumerate(self.locals["infos"]):
                 acc = self._acc[i]
                 acc["collisions"] += float(bool(info.get("collision", False)))
-                acc["intrusions"] += float(info.get("min_pedestrian_distance", np.inf) < 1.2)
+                acc["intrusions"] += float(
+                    info.get("min_pedestrian_distance", np.inf) < PERSONAL_SPACE_M
+                )
                 if "frame_latency_ms" in info:
                     acc["latency_sum"] += float(info["frame_latency_ms"])
                     acc["latency_n"] += 1
@@ -308,6 +380,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
     import torch
     from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
 
+    from rover_train.threads import PhaseThreads
+
     torch.set_num_threads(max(args.threads, 1))
     args.logdir.mkdir(parents=True, exist_ok=True)
     monitor_dir = args.logdir / "monitor"
@@ -317,6 +391,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
         model = build_model(args, venv, args.logdir / "tb")
         metrics_cb = make_metrics_callback()
         callbacks = [metrics_cb]
+        if args.algo == "ppo" and args.update_threads != args.threads:
+            callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
         if args.checkpoint_every > 0:
             every = max(args.checkpoint_every // args.n_envs, 1)
             callbacks.append(
@@ -347,7 +423,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
         "episodes": len(episodes),
         "mean_return_last20": float(np.mean([e["return"] for e in recent])) if recent else None,
         "success_rate_last20": float(np.mean([e["success"] for e in recent])) if recent else None,
-        "args": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(args).items()},
+        "hyperparameters": hyperparameters(args),
+        "args": plain(args),
         "episode_log": episodes,
     }
     (args.logdir / "metrics.json").write_text(json.dumps(metrics, indent=2))
@@ -360,8 +437,9 @@ def train(args: TrainArgs) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     args = parse_args(argv)
+    logging.basicConfig(level=args.log_level,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")  # fmt: skip
     problem = check_daemon(args)
     if problem:
         print(problem, file=sys.stderr)

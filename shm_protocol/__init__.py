@@ -17,6 +17,7 @@ from .errors import (
     InvalidNameError,
     LayoutError,
     NonFiniteError,
+    SegmentBusyError,
     SegmentNotFoundError,
     ShmError,
     WriterGoneError,
@@ -31,7 +32,20 @@ from .layout import (
     channel_to_depth,
     depth_to_channel,
 )
-from .names import camera_name, slot_name, validate_name
+from .multiwait import AVAILABLE as MULTIWAIT_AVAILABLE
+from .multiwait import MultiWaiter
+from .names import (
+    DEFAULT_NAME,
+    SHM_DIR,
+    camera_name,
+    default_name,
+    default_slots,
+    existing_segments,
+    segment_path,
+    segments_of,
+    slot_name,
+    validate_name,
+)
 from .reader import Frame, FrameReader
 from .writer import FrameWriter
 
@@ -39,6 +53,7 @@ __all__ = [
     "CHANNEL_DEPTH",
     "CHANNEL_GRAY",
     "CHANNEL_HEATMAP",
+    "DEFAULT_NAME",
     "DEPTH_MAX_M",
     "FUSED_DTYPE",
     "FUSED_SHAPE",
@@ -48,13 +63,22 @@ __all__ = [
     "FrameWriter",
     "InvalidNameError",
     "LayoutError",
+    "MULTIWAIT_AVAILABLE",
+    "MultiWaiter",
     "NonFiniteError",
+    "SHM_DIR",
+    "SegmentBusyError",
     "SegmentNotFoundError",
     "ShmError",
     "WriterGoneError",
     "camera_name",
     "channel_to_depth",
+    "default_name",
+    "default_slots",
     "depth_to_channel",
+    "existing_segments",
+    "segment_path",
+    "segments_of",
     "slot_name",
     "validate_name",
 ]

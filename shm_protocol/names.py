@@ -14,6 +14,15 @@ from .errors import InvalidNameError
 SHM_DIR = "/dev/shm"
 """Where POSIX shared memory lives on Linux (``shm_open`` names are files here)."""
 
+DEFAULT_NAME = "rl_observation"
+"""The seed's segment base name (``rl_obs_name='rl_observation'``), used by every CLI."""
+
+NAME_ENV_VAR = "ROVERAV_SHM_NAME"
+"""Set by ``rover-pair`` for its trainer: the daemon's segment base name."""
+
+SLOTS_ENV_VAR = "ROVERAV_SLOTS"
+"""Set by ``rover-pair`` for its trainer: how many slots the daemon serves."""
+
 MAX_NAME_LENGTH = 128
 """Longest accepted name. NAME_MAX is 255; the margin leaves room for the ``_<slot>`` and
 ``_camera`` suffixes and for the hidden temporary name used while a segment is created."""
@@ -67,6 +76,43 @@ def camera_name(name: str) -> str:
     return validate_name(f"{name}{CAMERA_SUFFIX}")
 
 
+def segments_of(base: str, slots: int) -> list[str]:
+    """Every segment a daemon serving ``base`` with ``slots`` slots owns: for each slot its
+    fused segment, then that segment's camera segment."""
+    if isinstance(slots, bool) or not isinstance(slots, int) or slots < 1:
+        raise ValueError(f"slots must be an int >= 1, got {slots!r}")
+    names: list[str] = []
+    for i in range(slots):
+        fused = slot_name(base, i)
+        names += [fused, camera_name(fused)]
+    return names
+
+
+def existing_segments(base: str) -> list[str]:
+    """The segments in :data:`SHM_DIR` that belong to base name ``base``, any slot count
+    (``base``, ``base_<i>`` and their ``_camera`` twins), sorted."""
+    validate_name(base)
+    pattern = re.compile(rf"^{re.escape(base)}(_\d+)?({re.escape(CAMERA_SUFFIX)})?$")
+    try:
+        return sorted(n for n in os.listdir(SHM_DIR) if pattern.match(n))
+    except FileNotFoundError:
+        return []
+
+
+def default_name() -> str:
+    """``$ROVERAV_SHM_NAME`` (set by rover-pair) or :data:`DEFAULT_NAME`."""
+    return os.environ.get(NAME_ENV_VAR) or DEFAULT_NAME
+
+
+def default_slots() -> int:
+    """``$ROVERAV_SLOTS`` (set by rover-pair) or 1."""
+    text = os.environ.get(SLOTS_ENV_VAR, "")
+    try:
+        return max(int(text), 1) if text else 1
+    except ValueError:
+        return 1
+
+
 def segment_path(name: str) -> str:
     """The file that holds segment ``name`` (validated)."""
     return os.path.join(SHM_DIR, validate_name(name))
@@ -74,10 +120,17 @@ def segment_path(name: str) -> str:
 
 __all__ = [
     "CAMERA_SUFFIX",
+    "DEFAULT_NAME",
+    "NAME_ENV_VAR",
+    "SLOTS_ENV_VAR",
     "MAX_NAME_LENGTH",
     "SHM_DIR",
     "camera_name",
+    "default_name",
+    "default_slots",
+    "existing_segments",
     "segment_path",
+    "segments_of",
     "slot_name",
     "validate_name",
 ]

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 
 from rover_env.controller import HeadingPID, wrap_angle
 from rover_env.reward import (
     RewardConfig,
     collision_penalty,
-    heatmap_center_penalty,
     progress_reward,
     turn_penalty,
     velocity_bonus,
@@ -80,10 +78,6 @@ def test_fused_reward_config() -> None:
     assert (cfg.stuck_window, cfg.stuck_threshold) == (5000, 0.0001)
     assert cfg.distance_delta_scale == 0.9
     assert RewardConfig.fused(stuck_window=7).stuck_window == 7
-    heat = np.zeros((96, 96), dtype=np.float32)
-    heat[:, 46:50] = 1.0
-    heat[:, 0] = 5.0  # outside the centre columns: ignored
-    assert heatmap_center_penalty(heat, cfg) == pytest.approx(-0.1 * 96 * 4)
 
 
 def test_reward_config_validates() -> None:

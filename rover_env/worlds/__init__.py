@@ -19,13 +19,15 @@ _BUILDERS: dict[str, Callable[[], WorldSpec]] = {
     maze.NAME: maze.build,
 }
 WORLD_NAMES: tuple[str, ...] = tuple(_BUILDERS)
+WORLD_CHOICES: tuple[str, ...] = (*WORLD_NAMES, *WORLD_ALIASES)
+"""Every accepted ``world_n``: the names and the seed's aliases (for CLI choices)."""
 
 
 def canonical_world_name(name: str) -> str:
     """``name`` with the seed's alias applied ('island' -> 'moon'); ValueError if unknown."""
     canonical = WORLD_ALIASES.get(name, name)
     if canonical not in _BUILDERS:
-        choices = sorted([*WORLD_NAMES, *WORLD_ALIASES])
+        choices = sorted(WORLD_CHOICES)
         raise ValueError(f"unknown world {name!r}; choose one of {choices}")
     return canonical
 
@@ -41,6 +43,7 @@ def make_world(name: str) -> WorldSpec:
 
 
 __all__ = [
+    "WORLD_CHOICES",
     "WORLD_NAMES",
     "Box",
     "Circle",

@@ -1,56 +1,44 @@
-"""Test helper: a real av-daemon subprocess."""
+"""Test helper: a real av-daemon subprocess, started through the project's one launcher."""
 
 from __future__ import annotations
 
-import collections
-import os
 import signal
 import subprocess
-import sys
-import threading
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from active_vision.launcher import ChildProcess, start_daemon
+from shm_protocol import SHM_DIR, existing_segments
 
 
 class Daemon:
-    """A real `python -m active_vision` process serving ``name``."""
+    """A real ``python -m active_vision`` process serving ``name`` (one torch thread)."""
 
-    def __init__(self, name: str, slots: int = 1) -> None:
+    def __init__(self, name: str, slots: int = 1, extra_args: tuple[str, ...] = ()) -> None:
         self.name = name
         self.slots = slots
-        self.proc: subprocess.Popen[str] | None = None
-        self.log: collections.deque[str] = collections.deque(maxlen=200)
+        self.extra_args = extra_args
+        self.child: ChildProcess | None = None
+
+    @property
+    def proc(self) -> subprocess.Popen[bytes] | None:
+        """The daemon's Popen (pid, poll, send_signal in tests)."""
+        return None if self.child is None else self.child.proc
+
+    @property
+    def log(self) -> list[str]:
+        return [] if self.child is None else list(self.child.tail)
 
     def start(self) -> Daemon:
-        env = dict(os.environ, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "active_vision", "--name", self.name,
-             "--slots", str(self.slots), "--threads", "1"],
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env, cwd=ROOT,
-        )  # fmt: skip
-        assert self.proc.stdout is not None
-        lines = []
-        for line in self.proc.stdout:
-            lines.append(line)
-            if "ready" in line:
-                # keep draining its output, or a chatty daemon blocks on a full pipe
-                threading.Thread(target=self._drain, args=(self.proc,), daemon=True).start()
-                return self
-        raise RuntimeError("daemon died before ready:\n" + "".join(lines))
-
-    def _drain(self, proc: subprocess.Popen[str]) -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            self.log.append(line)
+        self.child = start_daemon(self.name, self.slots,
+                                  extra_args=["--threads", "1", *self.extra_args])  # fmt: skip
+        return self
 
     def remove_leftovers(self) -> None:
         """Unlink any segment of this daemon's name (after a SIGKILL test)."""
-        for p in Path("/dev/shm").glob(f"{self.name}*"):
-            p.unlink(missing_ok=True)
+        for seg in existing_segments(self.name):
+            (Path(SHM_DIR) / seg).unlink(missing_ok=True)
 
     def stop(self, sig: int = signal.SIGTERM) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            self.proc.wait(15)
-        self.proc = None
+        if self.child is not None:
+            self.child.stop(15.0, sig=sig)
+        self.child = None
