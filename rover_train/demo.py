@@ -29,10 +29,10 @@ from typing import Any
 
 from rover_train import zoo
 from rover_train.distill import DAggerConfig, make_training_env, run_dagger
-from rover_train.envs import default_shm_name
 from rover_train.evaluate import format_table, summarise, write_video
 from rover_train.progress import StatusLine
 from rover_train.zoo_eval import RandomAgent, evaluate_agent
+from shm_protocol import default_name
 
 
 def save_still(video: Path, png: Path) -> None:
@@ -113,7 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     name = f"fused-{args.world}"
-    shm = default_shm_name()
+    shm = default_name()
     t_start = time.monotonic()
     agent = zoo.load(name)
     print(f"demo: starting from zoo entry {name} ({zoo.command(name)})", flush=True)

@@ -409,7 +409,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--synthetic-per-goal", type=int, default=200)
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--threads", type=int, default=1, help="torch threads")
-    p.add_argument("--shm-name", default=None, help="daemon name (default: $ROVERAV_SHM_NAME)")
+    p.add_argument(
+        "--name", dest="shm_name", default=None,
+        help="daemon name for fused entries (default: $ROVERAV_SHM_NAME, set by rover-pair)",
+    )  # fmt: skip
+    p.add_argument("--shm-name", dest="shm_name", help=argparse.SUPPRESS)
     p.add_argument("--slot", type=int, default=0)
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)

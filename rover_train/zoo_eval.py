@@ -99,7 +99,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--expert", action="store_true", help="evaluate the planner expert instead")
     p.add_argument("--random", action="store_true", help="evaluate a seeded random policy")
     p.add_argument("--file", help="a student file instead of the shipped entry")
-    p.add_argument("--rl-obs-name", help="daemon name for fused entries")
+    p.add_argument(
+        "--name", dest="daemon_name", help="daemon name for fused entries (default: "
+        "$ROVERAV_SHM_NAME, set by rover-pair)"
+    )
+    p.add_argument("--rl-obs-name", dest="daemon_name", help=argparse.SUPPRESS)
     p.add_argument("--json", action="store_true", help="print the summary as JSON last")
     p.add_argument(
         "--dump", help="write every episode's result to this JSON file (to merge split runs)"
@@ -109,11 +113,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     spec = zoo.ENTRIES[args.entry]
-    overrides = {"rl_obs_name": args.rl_obs_name} if args.rl_obs_name else {}
-    if spec.kind == "fused" and not overrides:
-        from rover_train.envs import default_shm_name
+    overrides = {}
+    if spec.kind == "fused":
+        from shm_protocol import default_name
 
-        overrides["rl_obs_name"] = default_shm_name()
+        overrides["rl_obs_name"] = args.daemon_name or default_name()
     env = zoo.make_env(args.entry, **overrides)
     try:
         if args.expert:
