@@ -373,7 +373,8 @@ class PlannerExpert:
         fi = np.clip(((rx[:, -1] - grid.x0) / grid.res).astype(int), 0, grid.shape[0] - 1)
         fj = np.clip(((ry[:, -1] - grid.y0) / grid.res).astype(int), 0, grid.shape[1] - 1)
         here = field.value(x, y)
-        progress = (here - field.field[fi, fj]) * grid.res
+        with np.errstate(invalid="ignore"):  # inf - inf inside an obstacle: no progress
+            progress = (here - field.field[fi, fj]) * grid.res
         progress = np.where(np.isfinite(progress), progress, -100.0)
         clear = grid.clearance_at(rx, ry).min(axis=1)
         wall = np.where(clear < HARD_CLEARANCE, 20.0 + 50.0 * (HARD_CLEARANCE - clear), 0.0)
