@@ -30,11 +30,12 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 	$(PY) -m pip install -q -c constraints.txt -e '.[train,dev,onnx,ray]'
 	@touch $(STAMP)
 
-# The main job: a supervised daemon + trainer pair trains PPO on RoverEnvFused (maze),
-# then evaluates it; outputs (model, curve, metrics, table, video) land in runs/demo/.
-DEMO_STEPS ?= 20000
+# The main job: a supervised daemon + trainer pair fine-tunes the zoo's fused-maze navigator
+# (DAgger, daemon in the loop), then evaluates it against a seeded random policy; outputs
+# (student, curve, metrics, table, video) land in runs/demo/.
+DEMO_STEPS ?= 4000
 demo: setup
-	$(PY) launch/run_pair.py --name roverav_demo -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --out runs/demo
+	$(PY) launch/run_pair.py --name roverav_demo --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --out runs/demo
 
 test: setup
 	$(PY) -m pytest -q

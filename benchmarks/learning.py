@@ -1,7 +1,16 @@
-"""Does PPO learn? PPO against the random policy on RoverEnv (maze) and RoverEnvFused.
+"""Does it learn? PPO against the random policy, and learning curves of the zoo's recipe.
 
     python benchmarks/learning.py                      # lidar: 3 seeds x 100k steps; fused: 2 x 20k
     python benchmarks/learning.py --lidar-steps 30000 --seeds 1 --fused-steps 0   # quick look
+    python benchmarks/learning.py --curves --world maze --budget 30000 --points 3 --episodes 10
+
+``--curves`` trains, in one run and with the same env-step budget on RoverEnv, the zoo's
+recipe (DAgger from the planner expert, ``rover_train.distill``) and rover-train's PPO
+defaults, evaluating both after every ``budget / points`` steps on the same evaluation
+episodes (the zoo's seeds and 600-step rule). DAgger also gets the recipe's 30,000
+expert-labelled states drawn without driving (not env steps; their time is in its wall
+clock). It prints a table (steps, wall-clock s of training, success, collisions, SPL) and
+writes the curves to ``docs/learning_curves.png``.
 
 For each seed it trains with rover-train's own code, then evaluates the trained policy and
 the random policy on the same fixed evaluation seeds (rover-eval's code) and prints one
@@ -87,8 +96,116 @@ def run(
     return rows
 
 
+def _zoo_eval(env: object, act: object, episodes: int) -> dict:
+    from rover_train.zoo import EVAL_MAX_STEPS, EVAL_SEED_BASE
+
+    results = [
+        evaluate.run_episode(env, act, EVAL_SEED_BASE + i, EVAL_MAX_STEPS, None)
+        for i in range(episodes)
+    ]
+    return evaluate.summarise(results)
+
+
+def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[dict]:
+    from rover_train.distill import DAggerConfig, feature_spec, make_training_env, run_dagger
+    from rover_train.zoo import StudentAgent, StudentNet
+
+    env = make_training_env("lidar", world)
+    eval_env = make_env("lidar", world=world)
+    rows: list[dict] = []
+    history: list[dict] = []
+    try:
+        agent = StudentAgent(StudentNet(feature_spec("lidar", world, env)))
+
+        def on_round(steps: int, student: StudentAgent) -> None:
+            s = _zoo_eval(eval_env, student.act, episodes)
+            rows.append({"steps": steps, **s})
+
+        cfg = DAggerConfig(
+            iterations=points, steps=budget // points, epochs=8, status_every=30.0,
+            synthetic_goals=150, synthetic_per_goal=200,
+        )  # fmt: skip
+        run_dagger(env, world, agent, cfg, "curve dagger", history, on_round)
+    finally:
+        env.close()
+        eval_env.close()
+    for row, h in zip(rows, history, strict=True):
+        row["wall_s"] = h["wall_s"]
+    return rows
+
+
+def curve_ppo(world: str, budget: int, points: int, episodes: int) -> list[dict]:
+    from rover_train.train import build_model, build_vec_env
+
+    rows: list[dict] = []
+    eval_env = make_env("lidar", world=world)
+    with tempfile.TemporaryDirectory() as tmp:
+        args = TrainArgs(
+            env="lidar", world=world, timesteps=budget, logdir=Path(tmp), checkpoint_every=0,
+            progress=False, length=1000, n_envs=4,
+        )  # fmt: skip
+        venv = build_vec_env(args, Path(tmp))
+        try:
+            model = build_model(args, venv, Path(tmp) / "tb")
+            wall = 0.0
+            for k in range(points):
+                t0 = time.perf_counter()
+                model.learn(budget // points, reset_num_timesteps=k == 0)
+                wall += time.perf_counter() - t0
+                s = _zoo_eval(
+                    eval_env, lambda o: model.predict(o, deterministic=True)[0], episodes
+                )
+                rows.append({"steps": model.num_timesteps, "wall_s": wall, **s})
+                print(f"curve ppo: {model.num_timesteps} steps, success "
+                      f"{s['success_rate']:.0%}", flush=True)  # fmt: skip
+        finally:
+            venv.close()
+            eval_env.close()
+    return rows
+
+
+def curves(world: str, budget: int, points: int, episodes: int, png: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    results = {
+        "DAgger from the planner expert (zoo recipe)": curve_dagger(
+            world, budget, points, episodes
+        ),
+        "PPO, rover-train defaults": curve_ppo(world, budget, points, episodes),
+    }
+    print("\n| recipe | env steps | train wall s | success | collisions | SPL |\n"
+          "|---|---|---|---|---|---|")  # fmt: skip
+    fig, ax = plt.subplots(figsize=(6.4, 3.8))
+    for label, rows in results.items():
+        for r in rows:
+            print(f"| {label} | {r['steps']} | {r['wall_s']:.0f} | {r['success_rate']:.0%} | "
+                  f"{r['collision_rate']:.0%} | {r['spl']:.2f} |")  # fmt: skip
+        ax.plot(
+            [r["steps"] for r in rows], [100 * r["success_rate"] for r in rows], "o-",
+            label=f"{label} ({rows[-1]['wall_s']:.0f} s)",
+        )  # fmt: skip
+    ax.set_xlabel("env steps (RoverEnv)")
+    ax.set_ylabel(f"evaluation success (%), {episodes} episodes")
+    ax.set_ylim(-5, 105)
+    ax.set_title(f"learning curves, {world}, same budget (train wall-clock in brackets)")
+    ax.legend(fontsize=8, loc="center right")
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=100)
+    print(f"wrote {png}")
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--curves", action="store_true", help="DAgger vs PPO learning curves")
+    p.add_argument("--budget", type=int, default=30_000, help="--curves: env steps each")
+    p.add_argument("--points", type=int, default=3, help="--curves: evaluations per curve")
+    p.add_argument(
+        "--png", type=Path, default=Path(__file__).resolve().parents[1] / "docs/learning_curves.png"
+    )
     p.add_argument("--world", default="maze")
     p.add_argument("--lidar-steps", type=int, default=400_000)
     p.add_argument("--fused-steps", type=int, default=20_000)
@@ -97,6 +214,12 @@ def main() -> int:
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--max-steps", type=int, default=600)
     a = p.parse_args()
+    if a.curves:
+        import torch
+
+        torch.set_num_threads(1)
+        curves(a.world, a.budget, a.points, a.episodes, a.png)
+        return 0
     header = (
         "| env | world | train steps | seed | train s | PPO success | PPO return | PPO SPL "
         "| random success | random return |\n|---|---|---|---|---|---|---|---|---|---|"

@@ -1,33 +1,38 @@
-"""The main job: train PPO on RoverEnvFused for a short budget, then evaluate it.
+"""The main job: fine-tune the zoo's fused navigator with the daemon in the loop, evaluate it.
 
 Run under the supervisor so the daemon is there (``make demo`` does this):
 
-    rover-pair -- python -m rover_train.demo --timesteps 20000
+    rover-pair -- python -m rover_train.demo --timesteps 4000
 
-Leaves under ``--out`` (default ``runs/demo``): ``model.zip``, ``metrics.json``,
-``learning_curve.png``, ``eval.txt`` (the evaluation table, trained and random policy),
-``eval.mp4`` (chase view beside the three fused channels) and ``eval_still.png``.
+It starts from the shipped zoo entry ``fused-<world>`` (a student distilled from the
+privileged planner expert, see ``rover_train.distill``), fine-tunes it for ``--timesteps``
+env steps of DAgger on RoverEnvFused with the daemon's fused images, then evaluates it and
+a seeded random policy on the same evaluation episodes (reset seeds from 100000, never used
+in training; each ends at the first goal, a termination or ``--max-steps``).
+
+Leaves under ``--out`` (default ``runs/demo``): ``student.pt`` (the fine-tuned agent,
+loadable with ``rover_train.zoo.StudentAgent.load``), ``metrics.json``,
+``learning_curve.png``, ``eval.txt`` (the table: trained against random), ``eval.mp4``
+(chase view beside the three fused channels) and ``eval_still.png``.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
+import json
+import logging
 import sys
+import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
-from rover_train import evaluate, train
-
-
-def _eval(argv: list[str]) -> str:
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf):
-        code = evaluate.main(argv)
-    if code != 0:
-        raise SystemExit(f"rover-eval {' '.join(argv)} failed with status {code}")
-    return buf.getvalue()
+from rover_train import zoo
+from rover_train.distill import DAggerConfig, make_training_env, run_dagger
+from rover_train.evaluate import format_table, summarise, write_video
+from rover_train.progress import StatusLine
+from rover_train.zoo_eval import RandomAgent, evaluate_agent
+from shm_protocol import default_name
 
 
 def save_still(video: Path, png: Path) -> None:
@@ -56,35 +61,128 @@ def save_still(video: Path, png: Path) -> None:
     cv2.imwrite(str(png), best)
 
 
+def plot_curve(
+    history: list[dict[str, float]], trained: dict[str, Any], random: dict[str, Any], path: Path
+) -> None:
+    """Success of the fine-tuning rounds' episodes against env steps, with the evaluation."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.6))
+    steps = [h["steps"] for h in history]
+    success = [100 * h["success"] for h in history]
+    ax.plot(steps, success, "o-", label="DAgger rounds (training episodes, end of round)")
+    ax.axhline(100 * trained["success_rate"], color="g", ls="--", label="fine-tuned, evaluation")
+    ax.axhline(100 * random["success_rate"], color="r", ls=":", label="random, evaluation")
+    ax.set_xlabel("fine-tuning env steps (daemon in the loop)")
+    ax.set_ylabel("episodes reaching the goal (%)")
+    ax.set_ylim(-5, 105)
+    ax.legend(loc="lower right", fontsize=8)
+    ax.set_title("fused navigator: fine-tuned from the zoo entry")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def quiet_logs() -> None:
+    """A normal run shows status lines and warnings, not library INFO chatter."""
+    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s")
+    for name in ("OpenGL", "OpenGL.acceleratesupport", "shm_protocol", "rover_env"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    quiet_logs()
     p = argparse.ArgumentParser(prog="rover_train.demo", description=__doc__.split("\n")[0])
-    p.add_argument("--env", choices=["fused", "discrete", "lidar"], default="fused")
-    p.add_argument("--world", default="maze")
-    p.add_argument("--timesteps", type=int, default=20_000)
-    p.add_argument("--episodes", type=int, default=5)
-    p.add_argument("--max-steps", type=int, default=400)
+    p.add_argument("--world", choices=["inspect", "maze"], default="maze")
+    p.add_argument(
+        "--timesteps", type=int, default=4000, help="fine-tuning env steps (0: evaluate only)"
+    )
+    p.add_argument("--rounds", type=int, default=2, help="DAgger rounds the steps are split in")
+    p.add_argument("--episodes", type=int, default=20, help="evaluation episodes per policy")
+    p.add_argument("--max-steps", type=int, default=zoo.EVAL_MAX_STEPS)
+    p.add_argument("--seed", type=int, default=0, help="seeds fine-tuning and the random policy")
+    p.add_argument("--video-episodes", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
     args = p.parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)
     out = args.out
-    code = train.main(
-        [
-            "--env", args.env, "--world", args.world, "--algo", "ppo",
-            "--timesteps", str(args.timesteps), "--logdir", str(out), "--length", "1000",
-            "--checkpoint-every", str(max(args.timesteps // 2, 1)), "--no-progress",
-        ]
-    )  # fmt: skip
-    if code != 0:
-        return code
-    common = ["--env", args.env, "--world", args.world, "--episodes", str(args.episodes),
-              "--max-steps", str(args.max_steps)]  # fmt: skip
-    trained = _eval([str(out / "model.zip"), *common, "--video", str(out / "eval.mp4"),
-                     "--video-episodes", str(args.episodes)])  # fmt: skip
-    random = _eval(["--policy", "random", *common])
-    report = trained + "\n" + random
-    (out / "eval.txt").write_text(report)
-    save_still(out / "eval.mp4", out / "eval_still.png")
+    out.mkdir(parents=True, exist_ok=True)
+    name = f"fused-{args.world}"
+    shm = default_name()
+    t_start = time.monotonic()
+    agent = zoo.load(name)
+    print(f"demo: starting from zoo entry {name} ({zoo.command(name)})", flush=True)
+
+    history: list[dict[str, float]] = []
+    if args.timesteps > 0:
+        env = make_training_env("fused", args.world, shm_name=shm)
+        try:
+            rounds = max(1, args.rounds)
+            cfg = DAggerConfig(
+                iterations=rounds,
+                steps=max(1, args.timesteps // rounds),
+                epochs=4,
+                beta0=0.3,
+                first_round_expert=False,
+                image_only=True,
+                seed=args.seed + 1,
+            )
+            run_dagger(env, args.world, agent, cfg, label="demo fine-tune", history=history)
+        finally:
+            env.close()
+    agent.meta = {**agent.meta, "fine_tuned_steps": args.timesteps}
+    agent.save(out / "student.pt")
+    t_train = time.monotonic() - t_start
+
+    env = zoo.make_env(name, rl_obs_name=shm, render_mode="rgb_array")
+    frames: list[Any] = []
+    try:
+        total = args.episodes * args.max_steps
+        trained_res = evaluate_agent(
+            env, agent, args.episodes, zoo.EVAL_SEED_BASE, args.max_steps, frames,
+            args.video_episodes, StatusLine("demo eval (trained)", total),
+        )  # fmt: skip
+        random_res = evaluate_agent(
+            env, RandomAgent(env.action_space, args.seed), args.episodes, zoo.EVAL_SEED_BASE,
+            args.max_steps, status=StatusLine("demo eval (random)", total),
+        )  # fmt: skip
+        fps = 1.0 / float(env.unwrapped.control_dt)
+    finally:
+        env.close()
+    trained, random = summarise(trained_res), summarise(random_res)
+    seeds = f"seeds {zoo.EVAL_SEED_BASE}..{zoo.EVAL_SEED_BASE + args.episodes - 1}"
+    report = (
+        format_table(trained, f"fine-tuned {name} ({args.timesteps} steps) on {seeds}")
+        + "\n\n"
+        + format_table(random, f"random policy (seed {args.seed}) on {seeds}")
+    )
+    (out / "eval.txt").write_text(report + "\n")
+    if frames:
+        write_video(frames, out / "eval.mp4", fps)
+        save_still(out / "eval.mp4", out / "eval_still.png")
+    plot_curve(history, trained, random, out / "learning_curve.png")
+    wall = time.monotonic() - t_start
+    metrics = {
+        "entry": name,
+        "fine_tune_steps": args.timesteps,
+        "history": history,
+        "trained": trained,
+        "random": random,
+        "train_wall_s": t_train,
+        "wall_s": wall,
+    }
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     print(report)
-    print(f"demo outputs in {out}/: model.zip metrics.json learning_curve.png eval.txt eval.mp4")
+    print(
+        f"demo: done in {wall / 60:.1f} min; outputs in {out}/: student.pt metrics.json "
+        "learning_curve.png eval.txt eval.mp4 eval_still.png",
+        flush=True,
+    )
     return 0
 
 

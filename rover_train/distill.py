@@ -1,0 +1,453 @@
+"""Distil the privileged planner expert into zoo students with DAgger.
+
+    python -m rover_train.distill lidar-maze                     # LIDAR student, no daemon
+    rover-pair --name distill_maze -- python -m rover_train.distill fused-maze
+
+DAgger (Ross et al. 2011): iteration 0 drives with the expert; each later iteration drives
+with the student (the expert's action is taken instead with probability beta, halved each
+iteration), and the expert labels every state the student visits. The student is refit on
+everything collected so far after each iteration.
+
+A fused entry is made in two stages. Stage 1 fits the student's state network (pose, IMU,
+target, odometry: the same keys in RoverEnv and RoverEnvFused, with the same dynamics) by
+DAgger in RoverEnv, which needs no daemon and runs ~20x faster. Stage 2 turns on the image
+branch (its projection starts at zero, so the student starts as the stage-1 policy) and
+continues DAgger in RoverEnvFused with the daemon in the loop, fitting everything.
+
+Training episodes use reset seeds below ``EVAL_SEED_BASE`` (evaluation starts there) and
+run ``TRAIN_LENGTH`` steps, carrying on past goals (the env draws a new one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from rover_train.expert import PlannerExpert
+from rover_train.progress import StatusLine
+from rover_train.zoo.agent import (
+    FeatureSpec,
+    StudentAgent,
+    StudentNet,
+    encode_action,
+    image_features,
+    state_features,
+)
+from rover_train.zoo.registry import ENTRIES, EVAL_SEED_BASE
+
+log = logging.getLogger("rover_train.distill")
+
+TRAIN_LENGTH = 600
+EXIT_NO_DAEMON = 1
+
+
+@dataclass
+class DAggerConfig:
+    """One DAgger run."""
+
+    iterations: int = 3
+    """Collection rounds (the first one drives with the expert)."""
+    steps: int = 6_000
+    """Env steps per round."""
+    epochs: int = 8
+    """Passes over the aggregate data set after each round."""
+    batch: int = 256
+    lr: float = 1e-3
+    beta0: float = 0.5
+    """Chance the expert drives in round 1 (halved each round; round 0 is all expert)."""
+    seed: int = 0
+    """Seeds the torch init and the episode seeds (``seed * 10_000 + ...``)."""
+    first_round_expert: bool = True
+    """Round 0 drives with the expert (off when starting from a trained student)."""
+    status_every: float = 5.0
+    """Seconds between status lines."""
+    synthetic_goals: int = 0
+    """Before round 0, add expert-labelled states drawn without driving: this many goals
+    (state students only; see :func:`synthetic_samples`)."""
+    synthetic_per_goal: int = 200
+    image_only: bool = False
+    """Fit only the image branch (CNN and its projection), keeping the state network: for
+    a fused student whose routing was learnt in stage 1 from far more data than a fused
+    round gives (refitting everything on the fused rounds alone made it forget)."""
+
+
+@dataclass
+class Dataset:
+    """Aggregated (features, expert target) pairs of one feature spec; images stored
+    pooled as uint8."""
+
+    spec: FeatureSpec
+    states: list[np.ndarray]
+    images: list[np.ndarray]
+    targets: list[np.ndarray]
+
+    @classmethod
+    def empty(cls, spec: FeatureSpec) -> Dataset:
+        return cls(spec, [], [], [])
+
+    def __len__(self) -> int:
+        return len(self.targets)
+
+    def tensors(self) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor]:
+        s = torch.from_numpy(np.stack(self.states))
+        t = torch.from_numpy(np.stack(self.targets))
+        i = torch.from_numpy(np.stack(self.images)) if self.images else None
+        return s, i, t
+
+
+def feature_spec(kind: str, world: str, env: Any) -> FeatureSpec:
+    """The feature spec of a student for ``kind`` (lidar, fused, or state) in ``env``'s world."""
+    base = env.unwrapped
+    rect = base.world.goal
+    centre = ((rect.x[0] + rect.x[1]) / 2, (rect.y[0] + rect.y[1]) / 2)
+    scale = max(rect.x[1] - rect.x[0], rect.y[1] - rect.y[0]) / 2
+    low, high = env.action_space.low, env.action_space.high
+    return FeatureSpec(
+        centre=centre,
+        scale=scale,
+        lidar_points=base.lidar_points if kind == "lidar" else 0,
+        image=kind == "fused",
+        max_speed=float(high[0]),
+        min_speed=float(low[0]),
+    )
+
+
+def collect(
+    env: Any,
+    expert: PlannerExpert,
+    agent: StudentAgent | None,
+    beta: float,
+    n_steps: int,
+    data: Dataset,
+    seed_base: int,
+    rng: np.random.Generator,
+    status: StatusLine | None = None,
+) -> dict[str, float]:
+    """Drive ``n_steps`` (student with prob. 1 - beta per step, else the expert), label
+    every state with the expert, append to ``data``. Returns episode statistics."""
+    spec = data.spec
+    episodes = successes = 0
+    steps = 0
+    while steps < n_steps:
+        obs, _ = env.reset(seed=seed_base + episodes)
+        expert.reset()
+        first_goal = False
+        for _ in range(TRAIN_LENGTH):
+            label = expert.act_env(env)
+            data.states.append(state_features(obs, spec))
+            if spec.image:
+                data.images.append(image_features(obs))
+            data.targets.append(encode_action(label, spec))
+            if agent is None or rng.random() < beta:
+                action = label
+            else:
+                action = agent.act(obs)
+            obs, _, terminated, truncated, info = env.step(action)
+            steps += 1
+            if status is not None:
+                status.step()
+            if info.get("goals_reached", 0) > 0 and not first_goal:
+                first_goal = True
+            if terminated or truncated or steps >= n_steps:
+                break
+        episodes += 1
+        successes += first_goal
+        if status is not None:
+            status.episode(first_goal)
+    return {"episodes": episodes, "success": successes / max(episodes, 1)}
+
+
+def synthetic_samples(
+    env: Any,
+    expert: PlannerExpert,
+    data: Dataset,
+    n_goals: int,
+    per_goal: int,
+    rng: np.random.Generator,
+) -> None:
+    """Append expert-labelled states drawn without driving (state-space coverage).
+
+    For each of ``n_goals`` goals drawn like the env draws them, ``per_goal`` rover poses
+    uniform over the free part of the goal square plus a metre (random yaw and odometry),
+    with each pedestrian, half of the time, stood somewhere 0.8-3 m from the rover. The
+    observation keys are computed as the env computes them (the LIDAR by ray casting in the
+    env's own sim), the label is the expert's action. Only for students without the image
+    (the fused image needs the daemon and a real trajectory).
+    """
+    spec = data.spec
+    if spec.image:
+        raise ValueError("synthetic samples have no fused image: use them for state students")
+    base = env.unwrapped
+    world, sim = base.world, base.sim
+    area = world.goal.expanded(1.0)
+    env.reset(seed=int(rng.integers(EVAL_SEED_BASE)))
+    n_peds = len(sim.pedestrian_positions)
+    for _ in range(n_goals):
+        goal = world.sample_free(rng, world.goal, 0.3)
+        for _ in range(per_goal):
+            x, y = world.sample_free(rng, area, 0.36)
+            yaw = float(rng.uniform(-np.pi, np.pi))
+            sim.set_rover_pose(x, y, yaw)
+            peds = None
+            if n_peds:
+                for i in range(n_peds):
+                    if rng.random() < 0.5:
+                        r, a = rng.uniform(0.8, 3.0), rng.uniform(-np.pi, np.pi)
+                        px, py = x + r * np.cos(a), y + r * np.sin(a)
+                    else:
+                        px, py = x + 40.0, y + 40.0 + i  # out of the way
+                    sim.place_pedestrian(i, px, py, float(rng.uniform(-np.pi, np.pi)))
+                peds = sim.pedestrian_positions
+            expert.reset()
+            label = expert.act((x, y), yaw, goal, peds, None)
+            dist = float(np.hypot(goal[0] - x, goal[1] - y))
+            bearing = float(np.angle(np.exp(1j * (np.arctan2(goal[1] - y, goal[0] - x) - yaw))))
+            obs = {
+                "pose": np.array([x, y, sim.position[2]], np.float32),
+                "imu": np.array([0.0, 0.0, yaw], np.float32),
+                "target": np.array([dist, bearing], np.float32),
+                "velocities": np.array(
+                    [rng.uniform(-0.2, 1.0), rng.uniform(-1.5, 1.5)], np.float32
+                ),
+            }
+            if spec.lidar_points:
+                obs["lidar"] = sim.lidar(base.lidar_points, base.max_lidar_range)
+            data.states.append(state_features(obs, spec))
+            data.targets.append(encode_action(label, spec))
+
+
+def fit(net: StudentNet, data: Dataset, cfg: DAggerConfig, gen: torch.Generator) -> float:
+    """Refit ``net`` on ``data`` (MSE on speed, cos and sin of the heading). Returns the
+    last epoch's mean loss."""
+    states, images, targets = data.tensors()
+    if cfg.image_only and net.spec.image:
+        params = list(net.cnn.parameters()) + list(net.img_proj.parameters())
+    else:
+        params = list(net.parameters())
+    opt = torch.optim.Adam(params, lr=cfg.lr)
+    loss_fn = nn.MSELoss()
+    net.train()
+    n = len(targets)
+    mean = 0.0
+    for _ in range(cfg.epochs):
+        order = torch.randperm(n, generator=gen)
+        total = 0.0
+        for start in range(0, n, cfg.batch):
+            idx = order[start : start + cfg.batch]
+            img = images[idx] if (images is not None and net.spec.image) else None
+            if img is not None:
+                # random shifts of up to 2 pooled pixels (augmentation)
+                dx, dy = torch.randint(-2, 3, (2,), generator=gen).tolist()
+                img = torch.roll(img, shifts=(dy, dx), dims=(2, 3))
+            pred = net(states[idx], img)
+            loss = loss_fn(pred, targets[idx])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            total += float(loss.detach()) * len(idx)
+        mean = total / n
+    net.eval()
+    return mean
+
+
+def run_dagger(
+    env: Any,
+    world: str,
+    agent: StudentAgent,
+    cfg: DAggerConfig,
+    label: str = "dagger",
+    history: list[dict[str, float]] | None = None,
+    on_round: Callable[[int, StudentAgent], None] | None = None,
+) -> StudentAgent:
+    """DAgger on ``env`` starting from ``agent`` (trained in place); returns it.
+
+    :param history: if given, one dict per round is appended: ``round``, ``steps`` (env
+        steps so far), ``success`` (first-goal success of that round's episodes),
+        ``episodes``, ``beta``, ``loss``, ``wall_s`` (since the start).
+    :param on_round: called with (env steps so far, agent) after each round's fit (e.g. to
+        evaluate); its time is not counted in ``wall_s``.
+    """
+    expert = PlannerExpert(world)
+    data = Dataset.empty(agent.spec)
+    rng = np.random.default_rng(cfg.seed)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    start = time.monotonic()
+    paused = 0.0
+    if cfg.synthetic_goals:
+        synthetic_samples(env, expert, data, cfg.synthetic_goals, cfg.synthetic_per_goal, rng)
+        print(
+            f"{label}: {len(data)} synthetic expert-labelled states in "
+            f"{time.monotonic() - start:.0f} s",
+            flush=True,
+        )
+    status = StatusLine(label, cfg.iterations * cfg.steps, every=cfg.status_every)
+    for it in range(cfg.iterations):
+        if it == 0 and cfg.first_round_expert:
+            driver, beta = None, 1.0
+        else:
+            driver = agent
+            beta = cfg.beta0 * 0.5 ** (it - (1 if cfg.first_round_expert else 0))
+        seed_base = cfg.seed * 10_000 + it * 1_000
+        if seed_base + 1_000 > EVAL_SEED_BASE:
+            raise ValueError("training seeds would reach the evaluation seeds")
+        t0 = time.monotonic()
+        stats = collect(env, expert, driver, beta, cfg.steps, data, seed_base, rng, status)
+        t1 = time.monotonic()
+        loss = fit(agent.net, data, cfg, gen)
+        print(
+            f"{label}: round {it + 1}/{cfg.iterations}: drove {stats['episodes']} episodes "
+            f"(beta {beta:.2f}, first-goal success {stats['success']:.0%}) in "
+            f"{t1 - t0:.0f} s; fit {len(data)} samples in {time.monotonic() - t1:.0f} s, "
+            f"loss {loss:.4f}",
+            flush=True,
+        )
+        if history is not None:
+            history.append(
+                {
+                    "round": it + 1,
+                    "steps": (it + 1) * cfg.steps,
+                    "success": stats["success"],
+                    "episodes": stats["episodes"],
+                    "beta": beta,
+                    "loss": loss,
+                    "wall_s": time.monotonic() - start - paused,
+                }
+            )
+        if on_round is not None:
+            t2 = time.monotonic()
+            on_round((it + 1) * cfg.steps, agent)
+            paused += time.monotonic() - t2
+    return agent
+
+
+def make_training_env(kind: str, world: str, **kwargs: Any) -> Any:
+    from rover_train.envs import make_env
+
+    return make_env(kind, world=world, length=TRAIN_LENGTH, **kwargs)
+
+
+def distill_entry(
+    name: str,
+    out: Path,
+    cfg: DAggerConfig,
+    fused_cfg: DAggerConfig | None = None,
+    init: Path | None = None,
+    shm_name: str | None = None,
+    slot: int = 0,
+) -> StudentAgent:
+    """Make zoo entry ``name`` (see the module docstring) and save it to ``out``."""
+    entry = ENTRIES[name]
+    torch.manual_seed(cfg.seed)
+    if entry.kind == "lidar":
+        env = make_training_env("lidar", entry.world)
+        try:
+            if init is not None:
+                agent = StudentAgent.load(init)
+            else:
+                agent = StudentAgent(StudentNet(feature_spec("lidar", entry.world, env)))
+            run_dagger(env, entry.world, agent, cfg, label=f"distill {name}")
+        finally:
+            env.close()
+    else:
+        if init is not None:
+            agent = StudentAgent.load(init)
+        else:
+            # stage 1: the state network in RoverEnv (fast, no daemon)
+            env = make_training_env("lidar", entry.world)
+            try:
+                fused_spec = replace(
+                    feature_spec("lidar", entry.world, env),
+                    lidar_points=0,
+                    image=True,
+                    min_speed=-0.6,
+                )
+                state_agent = StudentAgent(StudentNet(replace(fused_spec, image=False)))
+                run_dagger(env, entry.world, state_agent, cfg, label=f"distill {name} stage 1")
+            finally:
+                env.close()
+            net = StudentNet(fused_spec)
+            net.load_state_dict(state_agent.net.state_dict(), strict=False)
+            agent = StudentAgent(net)
+        # stage 2: everything, with the daemon's fused images
+        env = make_training_env("fused", entry.world, shm_name=shm_name, slot=slot)
+        try:
+            stage2 = fused_cfg if fused_cfg is not None else cfg
+            run_dagger(env, entry.world, agent, stage2, label=f"distill {name} stage 2")
+        finally:
+            env.close()
+    agent.meta = {"name": name, "command": entry.command, "kind": entry.kind, "world": entry.world}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    agent.save(out)
+    print(f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB)", flush=True)
+    return agent
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s")
+    p = argparse.ArgumentParser(prog="rover_train.distill", description=__doc__.split("\n")[0])
+    p.add_argument("entry", choices=sorted(ENTRIES))
+    p.add_argument("--out", type=Path, help="default: the zoo's entry file")
+    p.add_argument("--init", type=Path, help="start from this student file (fine-tune)")
+    d = DAggerConfig()
+    p.add_argument("--iterations", type=int, default=d.iterations)
+    p.add_argument("--steps", type=int, default=d.steps, help="env steps per DAgger round")
+    p.add_argument("--epochs", type=int, default=d.epochs)
+    p.add_argument("--fused-iterations", type=int, default=3)
+    p.add_argument("--fused-steps", type=int, default=3_000)
+    p.add_argument("--synthetic-goals", type=int, default=150,
+                   help="goals of expert-labelled states drawn without driving (0: none)")
+    p.add_argument("--synthetic-per-goal", type=int, default=200)
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--threads", type=int, default=1, help="torch threads")
+    p.add_argument(
+        "--name", dest="shm_name", default=None,
+        help="daemon name for fused entries (default: $ROVERAV_SHM_NAME, set by rover-pair)",
+    )  # fmt: skip
+    p.add_argument("--shm-name", dest="shm_name", help=argparse.SUPPRESS)
+    p.add_argument("--slot", type=int, default=0)
+    args = p.parse_args(argv)
+    torch.set_num_threads(args.threads)
+    entry = ENTRIES[args.entry]
+    cfg = DAggerConfig(
+        iterations=args.iterations, steps=args.steps, epochs=args.epochs, seed=args.seed,
+        synthetic_goals=args.synthetic_goals, synthetic_per_goal=args.synthetic_per_goal,
+    )  # fmt: skip
+    fused_cfg = replace(
+        cfg,
+        synthetic_goals=0,
+        image_only=True,
+        iterations=args.fused_iterations,
+        steps=args.fused_steps,
+        first_round_expert=False,
+        beta0=0.3,
+    )
+    from shm_protocol.errors import ShmError
+
+    try:
+        distill_entry(
+            args.entry,
+            args.out or entry.path,
+            cfg,
+            fused_cfg,
+            init=args.init,
+            shm_name=args.shm_name,
+            slot=args.slot,
+        )
+    except ShmError as exc:
+        print(f"{exc}\n\n{args.entry} needs the daemon: {entry.command}", file=sys.stderr)
+        return EXIT_NO_DAEMON
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

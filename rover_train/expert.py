@@ -1,0 +1,395 @@
+"""A privileged planner expert: the teacher the zoo's students are distilled from.
+
+It knows what no policy observes: the world's obstacle footprints (from the
+:class:`~rover_env.worlds.WorldSpec`) and the pedestrians' true positions (from the sim).
+
+- **Map.** An occupancy grid of the world's goal square plus a margin (``GRID_RES`` m
+  cells). Each cell's cost grows as its clearance from the nearest footprint falls below
+  ``PREFERRED_CLEARANCE``, and is prohibitive below ``HARD_CLEARANCE`` (the seed's collision
+  test is a LIDAR return under 0.3 m from the rover's centre).
+- **Plan.** A cost-to-go field from the goal (8-connected Dijkstra, done as vectorised
+  relaxation sweeps), computed once per goal and cached.
+- **Track.** Pure pursuit: walk the field's steepest descent ``LOOKAHEAD`` m ahead and
+  steer at the farthest point of that path the rover can see in a straight line.
+- **Pedestrians.** With a pedestrian within ``PED_RANGE``, a small local planner scores
+  candidate (speed, heading) pairs, reverse included, by the progress they make on the
+  cost-to-go field over the next second against how far they bring the rover inside
+  ``PERSONAL_SPACE`` of each pedestrian's predicted position (linear extrapolation of its
+  last motion) and how close they come to obstacles. Standing still inside someone's
+  personal space scores badly too, so a pedestrian that stopped for the rover gets room.
+
+The expert's action is ``[speed m/s, heading relative to the rover's yaw rad]``, the
+action of every continuous roverav env.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from rover_env.controller import wrap_angle
+from rover_env.worlds import WorldSpec, make_world
+
+GRID_RES = 0.1  # m per grid cell
+GRID_MARGIN = 2.5  # m of map around the goal square
+HARD_CLEARANCE = 0.34  # m: below this a cell is (almost) impassable
+PREFERRED_CLEARANCE = 0.75  # m: below this a cell costs more (keeps to corridor middles)
+WALL_COST = 6.0  # extra cost per cell at HARD_CLEARANCE, falling linearly to 0
+BLOCKED_COST = 200.0  # per cell closer than HARD_CLEARANCE (finite: a rover there gets out)
+LOOKAHEAD = 1.2  # m of planned path the pursuit point may be taken from
+SIGHT_CLEARANCE = 0.3  # m: the straight segment to the pursuit point keeps this clearance
+PERSONAL_SPACE = 1.2  # m (the evaluation's personal-space radius)
+PED_RANGE = 2.6  # m: pedestrians farther than this are ignored
+PED_HORIZON = 0.8  # s: how far ahead pedestrian positions are extrapolated
+STALL_TIME = 2.0  # s without progress near a pedestrian before a detour is planned
+STALL_PROGRESS = 0.3  # m of planned path that counts as progress
+DETOUR_TIME = 4.0  # s a detour plan is followed
+DETOUR_COST = 40.0  # extra cost per cell inside a blocking pedestrian's personal space
+_SQRT2 = math.sqrt(2.0)
+_SIGHT_SAMPLES = 14  # points checked along a line of sight (every <= 0.1 m at LOOKAHEAD)
+_CANDIDATE_HEADINGS = np.linspace(-math.pi, math.pi, 16, endpoint=False)
+_CANDIDATE_SPEEDS = (0.0, 0.35, 0.7, 1.0)
+_HORIZON_TIMES = np.array([0.25, 0.5, 0.75, 1.0]) * PED_HORIZON / 0.8 * 1.0
+
+
+@dataclass
+class ExpertConfig:
+    """The expert's driving parameters."""
+
+    max_speed: float = 1.0
+    """m/s on a clear straight."""
+    min_speed: float = -0.6
+    """m/s, the most reverse it ever commands (the fused envs' action floor)."""
+    pedestrian_aware: bool = True
+    """Steer around and yield to pedestrians using their true positions."""
+    personal_weight: float = 6.0
+    """Local planner: cost per squared metre of predicted personal-space intrusion."""
+    zone: float = PERSONAL_SPACE + 0.15
+    """Local planner: the radius (m) kept from predicted pedestrian positions."""
+    trigger: float = PED_RANGE
+    """The local planner takes over when a pedestrian is closer than this (m)."""
+
+
+class CostToGo:
+    """Cost-to-go field of one goal on a world's occupancy grid."""
+
+    def __init__(
+        self, grid: OccupancyGrid, goal: tuple[float, float], extra: np.ndarray | None = None
+    ) -> None:
+        self.grid = grid
+        self.goal = (float(goal[0]), float(goal[1]))
+        self.field = grid.cost_to_go(self.goal, extra)
+
+    def value(self, x: float, y: float) -> float:
+        i, j = self.grid.cell(x, y)
+        return float(self.field[i, j])
+
+    def descent(self, x: float, y: float, length: float) -> list[tuple[float, float]]:
+        """Cell centres along steepest descent from (x, y), about ``length`` m long."""
+        grid, field = self.grid, self.field
+        i, j = grid.cell(x, y)
+        points: list[tuple[float, float]] = []
+        walked = 0.0
+        n_i, n_j = field.shape
+        while walked < length:
+            best, bi, bj, step = field[i, j], i, j, 0.0
+            for di, dj, d in _NEIGHBOURS:
+                a, b = i + di, j + dj
+                if 0 <= a < n_i and 0 <= b < n_j and field[a, b] < best:
+                    best, bi, bj, step = field[a, b], a, b, d
+            if step == 0.0:
+                break
+            i, j = bi, bj
+            walked += step * grid.res
+            points.append(grid.centre(i, j))
+        return points
+
+
+_NEIGHBOURS = (
+    (1, 0, 1.0),
+    (-1, 0, 1.0),
+    (0, 1, 1.0),
+    (0, -1, 1.0),
+    (1, 1, _SQRT2),
+    (1, -1, _SQRT2),
+    (-1, 1, _SQRT2),
+    (-1, -1, _SQRT2),
+)
+
+
+class OccupancyGrid:
+    """Per-cell traversal cost of a world's goal square plus a margin.
+
+    Rows index x, columns index y: cell (i, j) has its centre at
+    ``(x0 + (i + 0.5) res, y0 + (j + 0.5) res)``.
+    """
+
+    def __init__(self, world: WorldSpec, res: float = GRID_RES, margin: float = GRID_MARGIN):
+        self.world = world
+        self.res = float(res)
+        rect = world.goal.expanded(margin)
+        b = world.bounds
+        x_lo, x_hi = max(rect.x[0], b.x[0]), min(rect.x[1], b.x[1])
+        y_lo, y_hi = max(rect.y[0], b.y[0]), min(rect.y[1], b.y[1])
+        self.x0, self.y0 = x_lo, y_lo
+        self.shape = (int(math.ceil((x_hi - x_lo) / res)), int(math.ceil((y_hi - y_lo) / res)))
+        xs = x_lo + (np.arange(self.shape[0]) + 0.5) * res
+        ys = y_lo + (np.arange(self.shape[1]) + 0.5) * res
+        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        self.clearance = world.clearance_many(gx, gy)
+        extra = WALL_COST * np.clip(
+            (PREFERRED_CLEARANCE - self.clearance) / (PREFERRED_CLEARANCE - HARD_CLEARANCE), 0, 1
+        )
+        self.cost = 1.0 + extra
+        self.cost[self.clearance < HARD_CLEARANCE] = BLOCKED_COST
+        self.cost[self.clearance <= 0.0] = np.inf  # inside an obstacle
+
+    def cell(self, x: float, y: float) -> tuple[int, int]:
+        i = int((x - self.x0) / self.res)
+        j = int((y - self.y0) / self.res)
+        return min(max(i, 0), self.shape[0] - 1), min(max(j, 0), self.shape[1] - 1)
+
+    def clearance_at(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+        """Clearance of the cells under points (nearest cell; outside the grid: its edge)."""
+        i = np.clip(((np.asarray(xs) - self.x0) / self.res).astype(int), 0, self.shape[0] - 1)
+        j = np.clip(((np.asarray(ys) - self.y0) / self.res).astype(int), 0, self.shape[1] - 1)
+        return self.clearance[i, j]
+
+    def discs_cost(self, centres: np.ndarray, radius: float, cost: float) -> np.ndarray:
+        """A per-cell extra cost of ``cost`` inside discs of ``radius`` around ``centres``."""
+        xs = self.x0 + (np.arange(self.shape[0]) + 0.5) * self.res
+        ys = self.y0 + (np.arange(self.shape[1]) + 0.5) * self.res
+        extra = np.zeros(self.shape)
+        for cx, cy in np.asarray(centres).reshape(-1, 2):
+            inside = (xs[:, None] - cx) ** 2 + (ys[None, :] - cy) ** 2 < radius**2
+            extra[inside] = cost
+        return extra
+
+    def centre(self, i: int, j: int) -> tuple[float, float]:
+        return self.x0 + (i + 0.5) * self.res, self.y0 + (j + 0.5) * self.res
+
+    def cost_to_go(
+        self, goal: tuple[float, float], extra: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Dijkstra-equivalent field: relaxation sweeps over the 8 neighbours until stable.
+
+        Edge cost between neighbours is the mean of their cell costs times the step length.
+        Every cell within the success radius' inner part (0.25 m) of the goal is a source,
+        so a goal placed close to a wall still has a reachable free source.
+        """
+        cost = self.cost if extra is None else self.cost + extra
+        gi, gj = self.cell(*goal)
+        field = np.full(self.shape, np.inf)
+        r = max(1, int(0.25 / self.res))
+        src = (slice(max(gi - r, 0), gi + r + 1), slice(max(gj - r, 0), gj + r + 1))
+        field[src] = np.where(np.isfinite(cost[src]), 0.0, np.inf)
+        if not np.isfinite(field).any():
+            field[gi, gj] = 0.0
+        n_i, n_j = self.shape
+        before = field.copy()
+        for sweep in range(4 * (n_i + n_j)):
+            for di, dj, d in _NEIGHBOURS:
+                # dst cells [a0:a1, b0:b1] take from src cells shifted by (di, dj)
+                a0, a1 = max(0, -di), n_i - max(0, di)
+                b0, b1 = max(0, -dj), n_j - max(0, dj)
+                dst = field[a0:a1, b0:b1]
+                src_f = field[a0 + di : a1 + di, b0 + dj : b1 + dj]
+                edge = 0.5 * (cost[a0:a1, b0:b1] + cost[a0 + di : a1 + di, b0 + dj : b1 + dj])
+                np.minimum(dst, src_f + d * edge, out=dst)
+            if sweep % 8 == 7:
+                if np.array_equal(before, field):
+                    break
+                before = field.copy()
+        return field
+
+
+class PlannerExpert:
+    """The privileged expert for one world.
+
+    Use :meth:`act_env` with a roverav env (reads the rover's pose, the goal and the
+    pedestrians from the env), or :meth:`act` with those values directly. Call
+    :meth:`reset` at each episode start (it forgets pedestrian motion history).
+    """
+
+    def __init__(self, world: str | WorldSpec, config: ExpertConfig | None = None) -> None:
+        self.world = make_world(world) if isinstance(world, str) else world
+        self.config = config if config is not None else ExpertConfig()
+        self.grid = OccupancyGrid(self.world)
+        self._fields: dict[tuple[float, float], CostToGo] = {}
+        self._last_peds: np.ndarray | None = None
+        self._last_time: float | None = None
+        self.reset()
+
+    def reset(self) -> None:
+        self._last_peds = None
+        self._last_time = None
+        self._detour = None
+        self._detour_until = -1.0
+        self._progress_log: list[tuple[float, float]] = []
+
+    def field(self, goal: tuple[float, float]) -> CostToGo:
+        key = (round(float(goal[0]), 3), round(float(goal[1]), 3))
+        if self._detour is not None and self._detour.goal == key:
+            return self._detour
+        f = self._fields.get(key)
+        if f is None:
+            if len(self._fields) > 64:
+                self._fields.clear()
+            f = self._fields[key] = CostToGo(self.grid, key)
+        return f
+
+    def pursuit_point(self, x: float, y: float, goal: tuple[float, float]) -> tuple[float, float]:
+        """The point the rover steers at: the goal when in plain sight and near, else the
+        farthest visible point of the planned path within ``LOOKAHEAD``."""
+        if math.hypot(goal[0] - x, goal[1] - y) < LOOKAHEAD:
+            t = np.linspace(0.0, 1.0, _SIGHT_SAMPLES)
+            xs, ys = x + (goal[0] - x) * t, y + (goal[1] - y) * t
+            if self.grid.clearance_at(xs, ys).min() > SIGHT_CLEARANCE:
+                return goal
+        path = self.field(goal).descent(x, y, LOOKAHEAD)
+        if not path:
+            return goal
+        pts = np.asarray(path)
+        t = np.linspace(0.0, 1.0, _SIGHT_SAMPLES)
+        xs = x + (pts[:, 0, None] - x) * t[None, :]
+        ys = y + (pts[:, 1, None] - y) * t[None, :]
+        visible = np.flatnonzero(self.grid.clearance_at(xs, ys).min(axis=1) > SIGHT_CLEARANCE)
+        k = int(visible[-1]) if len(visible) else 0
+        return float(pts[k, 0]), float(pts[k, 1])
+
+    def act(
+        self,
+        position: tuple[float, float],
+        yaw: float,
+        goal: tuple[float, float],
+        pedestrians: np.ndarray | None = None,
+        time: float | None = None,
+    ) -> np.ndarray:
+        """``[speed, relative heading]`` for a rover at ``position`` facing ``yaw``.
+
+        :param pedestrians: (P, 2) true pedestrian positions (ignored unless
+            ``config.pedestrian_aware``).
+        :param time: simulated time (s), to estimate pedestrian velocities between calls.
+        """
+        cfg = self.config
+        x, y = float(position[0]), float(position[1])
+        px, py = self.pursuit_point(x, y, goal)
+        heading = wrap_angle(math.atan2(py - y, px - x) - yaw)
+        speed = cfg.max_speed * max(0.0, math.cos(heading)) ** 3
+        # slower where the corridor is tight
+        clear = float(self.grid.clearance_at(x, y))
+        speed *= float(np.clip((clear - 0.2) / 0.5, 0.35, 1.0))
+        if cfg.pedestrian_aware and pedestrians is not None and len(pedestrians):
+            peds = np.asarray(pedestrians, dtype=np.float64)[:, :2]
+            vel = np.zeros_like(peds)
+            if (
+                self._last_peds is not None
+                and time is not None
+                and self._last_time is not None
+                and time > self._last_time
+                and self._last_peds.shape == peds.shape
+            ):
+                vel = (peds - self._last_peds) / (time - self._last_time)
+            self._last_peds, self._last_time = peds.copy(), time
+            near = np.hypot(peds[:, 0] - x, peds[:, 1] - y) < cfg.trigger
+            self._watch_stall(x, y, goal, peds, near, time)
+            if near.any():
+                speed, heading = self._local_plan(
+                    x, y, yaw, goal, peds[near], vel[near], heading, speed
+                )
+        speed = float(np.clip(speed, cfg.min_speed, cfg.max_speed))
+        return np.array([speed, heading], dtype=np.float32)
+
+    def _watch_stall(
+        self,
+        x: float,
+        y: float,
+        goal: tuple[float, float],
+        peds: np.ndarray,
+        near: np.ndarray,
+        time: float | None,
+    ) -> None:
+        """Detour around pedestrians that block the way: when the planned cost-to-go has
+        not dropped by ``STALL_PROGRESS`` over ``STALL_TIME`` s with a pedestrian near,
+        plan once more with the pedestrians' discs made expensive, and follow that plan for
+        ``DETOUR_TIME`` s."""
+        if time is None:
+            return
+        if self._detour is not None and time > self._detour_until:
+            self._detour = None
+        key = (round(float(goal[0]), 3), round(float(goal[1]), 3))
+        value = self._fields[key].value(x, y) if key in self._fields else self.field(goal).value(
+            x, y
+        )
+        log = self._progress_log
+        log.append((time, value))
+        while log and log[0][0] < time - STALL_TIME:
+            log.pop(0)
+        if self._detour is None and near.any() and log[0][0] <= time - STALL_TIME + 0.1:
+            if log[0][1] - value < STALL_PROGRESS / self.grid.res:
+                extra = self.grid.discs_cost(peds[near], PERSONAL_SPACE, DETOUR_COST)
+                self._detour = CostToGo(self.grid, key, extra)
+                self._detour_until = time + DETOUR_TIME
+                log.clear()
+
+    def _local_plan(
+        self,
+        x: float,
+        y: float,
+        yaw: float,
+        goal: tuple[float, float],
+        peds: np.ndarray,
+        vel: np.ndarray,
+        pursuit_heading: float,
+        pursuit_speed: float,
+    ) -> tuple[float, float]:
+        """Pick (speed, relative heading) among candidates by predicted progress on the
+        cost-to-go field minus a personal-space penalty over the next ``PED_HORIZON`` s."""
+        rel = np.concatenate([_CANDIDATE_HEADINGS, [pursuit_heading]])
+        speeds = np.array(_CANDIDATE_SPEEDS)
+        h, v = np.meshgrid(rel, speeds, indexing="ij")
+        h, v = h.ravel(), v.ravel()
+        # reverse straight back
+        h = np.concatenate([h, [0.0]])
+        v = np.concatenate([v, [self.config.min_speed * 0.6]])
+        align = np.where(v >= 0, np.maximum(np.cos(h), 0.0) ** 2, 1.0)
+        eff = v * align
+        theta = yaw + h
+        ts = _HORIZON_TIMES
+        # rover positions (C, T)
+        rx = x + eff[:, None] * ts[None, :] * np.cos(theta)[:, None]
+        ry = y + eff[:, None] * ts[None, :] * np.sin(theta)[:, None]
+        # pedestrian positions (P, T)
+        qx = peds[:, 0, None] + vel[:, 0, None] * ts[None, :]
+        qy = peds[:, 1, None] + vel[:, 1, None] * ts[None, :]
+        d = np.hypot(rx[:, None, :] - qx[None], ry[:, None, :] - qy[None])  # (C, P, T)
+        intrude = np.clip(self.config.zone - d, 0.0, None)
+        ped_cost = (intrude**2).sum(axis=(1, 2)) * self.config.personal_weight
+        ped_cost += (d < 0.6).sum(axis=(1, 2)) * 5.0
+        field = self.field(goal)
+        grid = field.grid
+        fi = np.clip(((rx[:, -1] - grid.x0) / grid.res).astype(int), 0, grid.shape[0] - 1)
+        fj = np.clip(((ry[:, -1] - grid.y0) / grid.res).astype(int), 0, grid.shape[1] - 1)
+        here = field.value(x, y)
+        with np.errstate(invalid="ignore"):  # inf - inf inside an obstacle: no progress
+            progress = (here - field.field[fi, fj]) * grid.res
+        progress = np.where(np.isfinite(progress), progress, -100.0)
+        clear = grid.clearance_at(rx, ry).min(axis=1)
+        wall = np.where(clear < HARD_CLEARANCE, 20.0 + 50.0 * (HARD_CLEARANCE - clear), 0.0)
+        score = 2.0 * progress - ped_cost - wall - 0.05 * np.abs(h)
+        best = int(np.argmax(score))
+        return float(v[best]), float(h[best])
+
+    def act_env(self, env: object) -> np.ndarray:
+        """The expert action for the current state of a roverav env (or a wrapper of one)."""
+        base = getattr(env, "unwrapped", env)
+        pos = base.position
+        return self.act(
+            (pos[0], pos[1]),
+            float(base.orientation[2]),
+            base.goal,
+            base.sim.pedestrian_positions,
+            base.sim.time,
+        )

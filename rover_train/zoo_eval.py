@@ -1,0 +1,154 @@
+"""Evaluate zoo entries (or the planner expert) the way the zoo's targets are defined.
+
+    python -m rover_train.zoo_eval lidar-maze --episodes 100
+    python -m rover_train.zoo_eval lidar-maze --expert          # the teacher on the same episodes
+    rover-pair --name zoo_eval -- python -m rover_train.zoo_eval fused-maze --episodes 100
+
+Episode i is ``reset(seed=EVAL_SEED_BASE + i)`` (no training episode uses these seeds), then
+steps until the first goal (``info["is_success"]``), a termination, a truncation or 600
+steps. The metrics are rover-eval's (success, episodes with a collision, SPL, time to goal,
+personal-space intrusion rate, ...).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import logging
+import sys
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from rover_train import zoo
+from rover_train.evaluate import EpisodeResult, format_table, run_episode, summarise
+from rover_train.expert import PlannerExpert
+from rover_train.progress import StatusLine
+
+
+def evaluate_agent(
+    env: Any,
+    agent: Any,
+    episodes: int,
+    seed: int = zoo.EVAL_SEED_BASE,
+    max_steps: int = zoo.EVAL_MAX_STEPS,
+    frames: list[np.ndarray] | None = None,
+    video_episodes: int = 0,
+    status: StatusLine | None = None,
+) -> list[EpisodeResult]:
+    """Run ``episodes`` evaluation episodes of ``agent`` (``reset()``/``act(obs)``) on
+    seeds ``seed``, ``seed + 1``, ..."""
+    results = []
+    for i in range(episodes):
+        agent.reset()
+        act: Callable[[Any], Any] = agent.act
+        if status is not None:
+
+            def act(obs: Any, _act: Callable[[Any], Any] = agent.act) -> Any:
+                status.step()
+                return _act(obs)
+
+        record = frames if (frames is not None and i < video_episodes) else None
+        result = run_episode(env, act, seed + i, max_steps, record)
+        if status is not None:
+            status.episode(result.success)
+        results.append(result)
+    return results
+
+
+class ExpertAgent:
+    """The planner expert behind the agent interface (it reads the env's privileged state)."""
+
+    def __init__(self, env: Any, world: str) -> None:
+        self.env = env
+        self.expert = PlannerExpert(world)
+
+    def reset(self) -> None:
+        self.expert.reset()
+
+    def act(self, obs: Any) -> np.ndarray:
+        del obs
+        return self.expert.act_env(self.env)
+
+
+class RandomAgent:
+    """Uniform random actions from a generator seeded once (the same seed, the same row)."""
+
+    def __init__(self, action_space: Any, seed: int) -> None:
+        self.space = action_space
+        self.seed = seed
+        self.space.seed(seed)
+
+    def reset(self) -> None:
+        return None
+
+    def act(self, obs: Any) -> np.ndarray:
+        del obs
+        return self.space.sample()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s")
+    p = argparse.ArgumentParser(prog="rover_train.zoo_eval", description=__doc__.split("\n")[0])
+    p.add_argument("entry", choices=sorted(zoo.ENTRIES))
+    p.add_argument("--episodes", type=int, default=100)
+    p.add_argument("--seed", type=int, default=zoo.EVAL_SEED_BASE)
+    p.add_argument("--expert", action="store_true", help="evaluate the planner expert instead")
+    p.add_argument("--random", action="store_true", help="evaluate a seeded random policy")
+    p.add_argument("--file", help="a student file instead of the shipped entry")
+    p.add_argument(
+        "--name", dest="daemon_name", help="daemon name for fused entries (default: "
+        "$ROVERAV_SHM_NAME, set by rover-pair)"
+    )
+    p.add_argument("--rl-obs-name", dest="daemon_name", help=argparse.SUPPRESS)
+    p.add_argument("--json", action="store_true", help="print the summary as JSON last")
+    p.add_argument(
+        "--dump", help="write every episode's result to this JSON file (to merge split runs)"
+    )
+    args = p.parse_args(argv)
+    import torch
+
+    torch.set_num_threads(1)
+    spec = zoo.ENTRIES[args.entry]
+    overrides = {}
+    if spec.kind == "fused":
+        from shm_protocol import default_name
+
+        overrides["rl_obs_name"] = args.daemon_name or default_name()
+    env = zoo.make_env(args.entry, **overrides)
+    try:
+        if args.expert:
+            agent: Any = ExpertAgent(env, spec.world)
+            who = "planner expert"
+        elif args.random:
+            agent = RandomAgent(env.action_space, args.seed)
+            who = "random policy"
+        elif args.file:
+            agent = zoo.StudentAgent.load(args.file)
+            who = args.file
+        else:
+            agent = zoo.load(args.entry)
+            who = f"zoo {args.entry}"
+        status = StatusLine(f"eval {who}", args.episodes * zoo.EVAL_MAX_STEPS, every=10.0)
+        t0 = time.monotonic()
+        results = evaluate_agent(env, agent, args.episodes, args.seed, status=status)
+        wall = time.monotonic() - t0
+    finally:
+        env.close()
+    summary = summarise(results)
+    summary["wall_s"] = wall
+    if args.dump:
+        with open(args.dump, "w") as f:
+            json.dump([dataclasses.asdict(r) for r in results], f)
+    last = args.seed + args.episodes - 1
+    print(format_table(summary, f"{who} on {args.entry}, seeds {args.seed}..{last}"))
+    if args.json:
+        print(json.dumps(summary))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,160 @@
+"""The policy zoo, its students and the planner expert they are distilled from."""
+
+from __future__ import annotations
+
+import io
+import math
+import uuid
+
+import numpy as np
+import pytest
+from helpers.daemon import Daemon
+
+from rover_train import zoo
+from rover_train.distill import DAggerConfig, feature_spec, make_training_env, run_dagger
+from rover_train.expert import PlannerExpert
+from rover_train.progress import StatusLine
+from rover_train.zoo_eval import RandomAgent, evaluate_agent
+
+REQUIRED = ("fused-inspect", "fused-maze", "lidar-inspect", "lidar-maze")
+
+
+def test_the_zoo_ships_the_four_entries_in_a_few_megabytes() -> None:
+    assert set(REQUIRED) <= set(zoo.names())
+    total = sum(zoo.ENTRIES[n].path.stat().st_size for n in zoo.names())
+    assert total < 5 * 2**20
+    for name in zoo.names():
+        assert "rover_train.distill" in zoo.command(name) and name in zoo.command(name)
+
+
+def test_an_unknown_entry_names_the_ones_there_are() -> None:
+    with pytest.raises(zoo.UnknownEntryError, match="lidar-maze"):
+        zoo.load("lidar-mars")
+
+
+@pytest.mark.parametrize("name", ["lidar-maze", "lidar-inspect"])
+def test_lidar_entry_env_has_the_seed_spaces_and_the_agent_drives(name: str) -> None:
+    env = zoo.make_env(name, length=150)
+    try:
+        space = env.observation_space
+        assert space["lidar"].shape == (32,)
+        assert {"pose", "imu", "target", "velocities"} <= set(space.spaces)
+        np.testing.assert_allclose(env.action_space.low, [-1.0, -math.pi], rtol=1e-6)
+        assert env.unwrapped.world_name == name.split("-")[1]
+        assert env.unwrapped.length == 150  # the override reached the constructor
+        agent = zoo.load(name)
+        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+        agent.reset()
+        first = agent.act(obs)
+        np.testing.assert_array_equal(first, agent.act(obs))  # deterministic
+        path = 0.0
+        for _ in range(150):
+            action = agent.act(obs)
+            assert env.action_space.contains(action)
+            before = np.array(obs["pose"][:2])
+            obs, _, terminated, truncated, _ = env.step(action)
+            path += float(np.hypot(*(np.array(obs["pose"][:2]) - before)))
+            if terminated or truncated:
+                break
+        assert path > 1.0  # in 7.5 s it drives somewhere, not in place
+    finally:
+        env.close()
+
+
+def test_fused_entry_env_has_the_seed_spaces_and_the_agent_acts_on_daemon_frames() -> None:
+    d = Daemon(f"test_zoo_{uuid.uuid4().hex[:8]}").start()
+    try:
+        env = zoo.make_env("fused-maze", rl_obs_name=d.name, slot=0)
+        try:
+            assert env.observation_space["fused_image"].shape == (96, 96, 3)
+            np.testing.assert_allclose(env.action_space.low, [-0.6, -math.pi], rtol=1e-6)
+            assert env.unwrapped.rl_obs_name == d.name
+            agent = zoo.load("fused-maze")
+            obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+            agent.reset()
+            for _ in range(5):
+                action = agent.act(obs)
+                assert env.action_space.contains(action)
+                obs, *_ = env.step(action)
+            # the image branch is live: a blank image changes the action
+            blank = dict(obs, fused_image=np.zeros_like(obs["fused_image"]))
+            assert not np.allclose(agent.act(blank), agent.act(obs))
+        finally:
+            env.close()
+    finally:
+        d.stop()
+        d.remove_leftovers()
+
+
+def test_student_file_round_trip_gives_the_same_actions(tmp_path) -> None:
+    agent = zoo.load("lidar-maze")
+    path = tmp_path / "student.pt"
+    agent.save(path)
+    again = zoo.StudentAgent.load(path)
+    env = zoo.make_env("lidar-maze")
+    try:
+        obs, _ = env.reset(seed=3)
+        np.testing.assert_allclose(again.act(obs), agent.act(obs), atol=1e-3)
+    finally:
+        env.close()
+
+
+def test_expert_goes_around_the_maze_wall() -> None:
+    """Start and goal on either side of the central wall (x = 0, y in [-3, 3]): the
+    straight line is blocked, the expert drives around and arrives."""
+    env = make_training_env("lidar", "maze")
+    expert = PlannerExpert("maze")
+    try:
+        env.reset(seed=5, options={"rover_pose": (-1.0, 0.0, 0.0), "goal": (1.0, 0.0)})
+        field = expert.field((1.0, 0.0))
+        assert field.value(1.0, 0.0) == 0.0
+        # the planned cost from the start exceeds 5 m: the way round, not the 2 m line
+        assert field.value(-1.0, 0.0) * expert.grid.res > 5.0
+        expert.reset()
+        reached = False
+        for _ in range(600):
+            _, _, terminated, truncated, info = env.step(expert.act_env(env))
+            if info["goals_reached"]:
+                reached = True
+                break
+            assert not terminated
+        assert reached
+    finally:
+        env.close()
+
+
+def test_dagger_fits_a_student_that_imitates_the_expert(tmp_path) -> None:
+    env = make_training_env("lidar", "inspect")
+    try:
+        agent = zoo.StudentAgent(zoo.StudentNet(feature_spec("lidar", "inspect", env)))
+        history: list[dict[str, float]] = []
+        cfg = DAggerConfig(iterations=2, steps=300, epochs=3, status_every=1e9)
+        run_dagger(env, "inspect", agent, cfg, label="test", history=history)
+        assert [h["round"] for h in history] == [1, 2]
+        assert history[0]["beta"] == 1.0 and history[1]["beta"] < 1.0
+        assert history[-1]["loss"] < 0.5  # untrained, the MSE on (speed, cos, sin) is ~1
+    finally:
+        env.close()
+
+
+def test_random_agent_is_reproducible_from_its_seed() -> None:
+    env = zoo.make_env("lidar-inspect")
+    try:
+        rows = []
+        for _ in range(2):
+            results = evaluate_agent(env, RandomAgent(env.action_space, 7), 2, max_steps=30)
+            rows.append([(r.path_length, r.ret) for r in results])
+        assert rows[0] == rows[1]
+    finally:
+        env.close()
+
+
+def test_status_line_reports_steps_rate_eta_and_success() -> None:
+    out = io.StringIO()
+    status = StatusLine("job", total=100, every=0.0, stream=out)
+    status.episode(True)
+    status.episode(False)
+    status.step(10)
+    line = out.getvalue().strip().splitlines()[-1]
+    assert line.startswith("job: 10/100 steps")
+    assert "steps/s" in line and "ETA" in line and "50% of the last 2" in line
