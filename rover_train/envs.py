@@ -96,18 +96,28 @@ class DaemonRecovery(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
-def env_factory(kind: str, monitor_dir: str | None = None, **kwargs: Any) -> Callable[[], gym.Env]:
-    """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker."""
+def env_factory(
+    kind: str, monitor_dir: str | None = None, append_monitor: bool = False, **kwargs: Any
+) -> Callable[[], gym.Env]:
+    """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker.
+
+    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``: ``EpisodeRng`` lets a
+    resumed run restart each episode in flight from its start. ``append_monitor`` appends
+    to the slot's ``monitor.csv`` (a resumed run) instead of starting it afresh.
+    """
 
     def _thunk() -> gym.Env:
         from stable_baselines3.common.monitor import Monitor
 
+        from rover_train.checkpoint import EpisodeRng
+
         env = make_env(kind, **kwargs)
         if kind in FUSED_KINDS:
             env = DaemonRecovery(env)
+        env = EpisodeRng(env)
         filename = None
         if monitor_dir is not None:
             filename = os.path.join(monitor_dir, f"slot{kwargs.get('slot', 0)}")
-        return Monitor(env, filename=filename)
+        return Monitor(env, filename=filename, override_existing=not append_monitor)
 
     return _thunk
