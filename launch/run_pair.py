@@ -217,6 +217,8 @@ class Supervisor:
         """Restart the daemon under ``policy`` until it is ready; False on a crash loop."""
         cfg = self.cfg
         while True:
+            if self.trainer is not None and self.trainer.poll() is not None:
+                return True  # nothing to serve: the main loop reports the trainer's exit
             decision = policy.on_crash(time.monotonic())
             if not decision.restart:
                 assert self.daemon is not None

@@ -73,15 +73,22 @@ class DaemonRecovery(gym.Wrapper):
         from shm_protocol.errors import ShmError
 
         deadline = time.monotonic() + self.recover_timeout
+        tries = 0
         while True:
             try:
                 obs, info = self.env.reset(**kwargs)
                 self._last_obs = obs
+                if tries:
+                    log.warning("reset: the daemon is back after %d retries", tries)
                 return obs, info
             except ShmError as exc:
                 if time.monotonic() > deadline:
                     raise
-                log.warning("reset: daemon not available (%s); retrying", exc)
+                # once per outage at WARNING; the retries every 0.5 s at DEBUG
+                (log.debug if tries else log.warning)(
+                    "reset: daemon not available (%s); retrying for up to %.0f s",
+                    exc, self.recover_timeout)  # fmt: skip
+                tries += 1
                 time.sleep(0.5)
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
