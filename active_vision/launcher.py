@@ -31,6 +31,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 from shm_protocol.names import DEFAULT_NAME
 
@@ -204,24 +205,19 @@ def spawn_daemon(
     name: str = DEFAULT_NAME,
     slots: int = 1,
     *,
-    extra_args: Sequence[str] = (),
-    ready_timeout: float = DEFAULT_READY_TIMEOUT,
-    on_line: Callable[[str], None] | None = None,
-    env: Mapping[str, str] | None = None,
     grace: float = DEFAULT_GRACE,
+    **options: Any,
 ) -> Iterator[ChildProcess]:
     """Run an av-daemon for the ``with`` block: started and ready on entry, stopped on exit.
 
     :param name: segment base name (``--name``).
     :param slots: slots served (``--slots``), one per env.
-    :param extra_args: more daemon flags, e.g. ``["--threads", "1", "--depth", "render"]``.
-    :param ready_timeout: seconds to wait for the ready line.
-    :param on_line: receives every line the daemon prints (default: kept in ``.tail`` only).
-    :param env: the daemon's environment (default: this process's).
     :param grace: seconds between SIGTERM and SIGKILL on exit.
+    :param options: :func:`start_daemon`'s keywords: ``extra_args`` (more daemon flags, e.g.
+        ``["--threads", "1", "--depth", "render"]``), ``ready_timeout``, ``on_line`` (receives
+        every line the daemon prints; default: kept in ``.tail`` only), ``env``, ``python``.
     """
-    child = start_daemon(name, slots, extra_args=extra_args, ready_timeout=ready_timeout,
-                         on_line=on_line, env=env)  # fmt: skip
+    child = start_daemon(name, slots, **options)
     try:
         yield child
     finally:

@@ -240,10 +240,6 @@ class RoverEnvBase(gym.Env):
         bearing = math.atan2(self.goal[1] - self.position[1], self.goal[0] - self.position[0])
         return wrap_angle(bearing - self.orientation[2])
 
-    def target_info(self) -> np.ndarray:
-        """The seed's get_target_info(): [distance m, relative angle rad] (float32)."""
-        return np.array((self.distance_to_goal, self.relative_goal_angle()), dtype=_F32)
-
     def min_pedestrian_distance(self) -> float:
         """Distance (m) from the rover to the nearest pedestrian (inf with none)."""
         peds = self.sim.pedestrians.positions

@@ -206,8 +206,3 @@ class Lidar:
         d[(d < 0) | (d > self.max_range)] = self.max_range
         np.min(d.reshape(self.n_points, self.rays_per_point), axis=1, out=self._scan)
         return self._scan
-
-    @property
-    def hit_geoms(self) -> np.ndarray:
-        """Geom id hit by each raw ray in the last scan (-1: nothing)."""
-        return self._geomid

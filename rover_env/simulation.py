@@ -434,16 +434,6 @@ class RoverSim:
         np.take(self.data.qvel, self._wheel_dofs, out=self._wheel_speeds)
         return np.array(rover.wheel_odometry(self._wheel_speeds))
 
-    @property
-    def body_velocity(self) -> np.ndarray:
-        """True chassis (forward m/s, yaw rate rad/s) in the body frame (new array)."""
-        v = self._qvel
-        lin_world = self.data.qvel[v : v + 3]
-        yaw = self.yaw
-        forward = math.cos(yaw) * lin_world[0] + math.sin(yaw) * lin_world[1]
-        # freejoint angular velocity is in the body frame; z is the yaw rate when level.
-        return np.array([forward, self.data.qvel[v + 5]])
-
     def lidar(self, n_points: int, max_range: float) -> np.ndarray:
         """Planar LIDAR scan: (n_points,) float32 in [0, max_range], min per segment.
 

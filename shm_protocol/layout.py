@@ -77,7 +77,6 @@ FLAG_SHUTTING_DOWN = 1 << 0
 FLAG_CHECKSUM = 1 << 1
 """Set when the writer stores ``crc32(payload, seq)`` at ``T_CHECKSUM`` (checksum mode,
 the ordering safeguard for weakly ordered CPUs; see docs/protocol.md)."""
-KNOWN_FLAGS = FLAG_SHUTTING_DOWN | FLAG_CHECKSUM
 
 U32_MAX = 0xFFFF_FFFF
 U64_MAX = 0xFFFF_FFFF_FFFF_FFFF
@@ -146,11 +145,6 @@ def normalize_shape(shape: Any) -> tuple[int, int, int]:
     if not all(1 <= d <= U32_MAX for d in dims):
         raise LayoutError(f"every dimension must be in 1..{U32_MAX}, got {dims}")
     return dims  # type: ignore[return-value]
-
-
-def dtype_name(dtype: np.dtype[Any]) -> str:
-    """``float32`` / ``uint8`` (byte order implied: the wire is little-endian)."""
-    return np.dtype(dtype).name
 
 
 # --- one segment's layout --------------------------------------------------------------

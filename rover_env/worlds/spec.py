@@ -22,7 +22,6 @@ import numpy as np
 
 from rover_env.constants import WORLD_RECTANGLES
 
-GROUP_SCENERY = 0
 GROUP_PEDESTRIAN = 1
 GROUP_VISUAL = 2  # rendered, not scanned, no collision
 GROUP_GROUND = 2
@@ -233,16 +232,6 @@ class WorldSpec:
             f"{rect} after {_MAX_SAMPLE_BATCHES * _SAMPLE_BATCH} tries; the obstacles cover "
             "the rectangle"
         )
-
-    def segment_is_free(
-        self, a: tuple[float, float], b: tuple[float, float], clearance: float, step: float = 0.25
-    ) -> bool:
-        """True when every point of segment a-b (sampled every ``step`` m) is free."""
-        length = math.hypot(b[0] - a[0], b[1] - a[1])
-        t = np.linspace(0.0, 1.0, max(2, int(length / step) + 2))
-        xs = a[0] + t * (b[0] - a[0])
-        ys = a[1] + t * (b[1] - a[1])
-        return bool(np.all(self.clearance_many(xs, ys) > clearance))
 
 
 def seed_areas(name: str) -> dict[str, Rect]:
