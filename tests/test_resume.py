@@ -187,3 +187,40 @@ def test_supervisor_giving_up_makes_the_trainer_save(tmp_path: Path) -> None:
     record = json.loads((tmp_path / "run.json").read_text())
     assert record["status"] == "interrupted" and record["num_timesteps"] >= 32
     assert not [p for p in os.listdir("/dev/shm") if p.startswith(name)]
+
+
+def test_env_whose_first_reset_meets_a_dead_daemon_recovers(tmp_path: Path) -> None:
+    # the daemon dies between the env's construction and its first reset (a resumed run's
+    # first reset during a crash): DaemonRecovery retries the reset until a new daemon serves
+    # the same segments, and the first step works (Gymnasium's passive checker used to fail
+    # it, unpacking reset data it never got)
+    import threading
+
+    from active_vision.launcher import start_daemon
+    from rover_train.envs import env_factory
+
+    name = f"test_resil_{uuid.uuid4().hex[:8]}"
+    first = start_daemon(name, 1, extra_args=["--threads", "1"])
+    second = []
+    env = None
+    try:
+        env = env_factory("fused", world="inspect", shm_name=name, slot=0, connect_timeout=30.0)()
+        os.kill(first.pid, signal.SIGKILL)
+        first.stop()
+        starter = threading.Thread(
+            target=lambda: second.append(start_daemon(name, 1, extra_args=["--threads", "1"])))
+        starter.start()
+        obs, info = env.reset(seed=3)
+        assert "episode_rng_state" in info
+        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+        assert obs["fused_image"].shape == (96, 96, 3) and "daemon_error" not in info
+        starter.join()
+    finally:
+        if env is not None:
+            env.close()
+        first.stop()
+        for d in second:
+            d.stop()
+        for seg in os.listdir("/dev/shm"):
+            if seg.startswith(name):
+                os.unlink(os.path.join("/dev/shm", seg))
