@@ -197,12 +197,32 @@ def main(argv: list[str] | None = None) -> int:
     print(f"soak: {timesteps} steps, {args.slots} slot(s), {len(faults)} faults over "
           f"{args.minutes:g} min (seed {args.seed}); log {log_path}", flush=True)
 
+    quiet = Path("/tmp/roverav_quiet")
+    while quiet.exists():  # someone is measuring speed: do not start a CPU-heavy run now
+        print("soak: waiting for the quiet window (/tmp/roverav_quiet) to end", flush=True)
+        time.sleep(10)
     t0 = time.monotonic()
-    current = Pair(pair + first, log_path, env)
+    pair_runs = [Pair(pair + first, log_path, env)]
+    try:
+        return _soak(args, name, run_dir, env, pair, resume, faults, log_path, timesteps, t0,
+                     pair_runs)  # fmt: skip
+    except KeyboardInterrupt:
+        print("soak: interrupted; stopping the run (rover-pair cleans up)", flush=True)
+        current = pair_runs[-1]
+        if current.proc.poll() is None:
+            os.killpg(current.proc.pid, signal.SIGTERM)
+        current.wait(180)
+        return 130
+
+
+def _soak(args: argparse.Namespace, name: str, run_dir: Path, env: dict[str, str],
+          pair: list[str], resume: list[str], faults: list[Fault], log_path: Path,
+          timesteps: int, t0: float, pair_runs: list[Pair]) -> int:  # fmt: skip
+    """The fault loop and the report (see the module docstring)."""
+    current = pair_runs[0]
     progress = Progress(name, args.slots)
     pending = list(faults)
     last_fault: Fault | None = None
-    pair_runs = [current]
     unlinked: str | None = None
     stop_info: dict[str, object] = {}
     trainer_fault: Fault | None = None
@@ -260,6 +280,10 @@ def main(argv: list[str] | None = None) -> int:
     left = existing_segments(name)
     strays = orphans(name, run_dir)
 
+    if not (run_dir / "metrics.json").exists():
+        print(f"soak: the run wrote no metrics.json (rover-pair status {final_status}); "
+              f"see {log_path}", flush=True)  # fmt: skip
+        return 1
     metrics = json.loads((run_dir / "metrics.json").read_text())
     record = json.loads((run_dir / "run.json").read_text())
     stop_steps = [h for h in record["history"] if h.get("status") == "interrupted"]
