@@ -288,7 +288,6 @@ class Checkpointer:
         self.env_rng[env_index] = reset_info.get(EPISODE_RNG_KEY)
 
     def on_rollout_start(self) -> None:
-        self.stop.phase = "collect"
         model = self.model
         if not is_off_policy(model):
             self.boundary = Boundary(
@@ -303,9 +302,10 @@ class Checkpointer:
         if self.every > 0 and model.num_timesteps >= self._next_due:
             self.save("periodic")
             self._next_due = (int(model.num_timesteps) // self.every + 1) * self.every
+        self.stop.phase = "collect"  # after the save: the deadline never cuts a file short
 
     def on_rollout_end(self) -> None:
-        self.stop.phase = "update"
+        self.stop.phase = "update"  # from here to the next rollout's start, and its checkpoint
 
     # writing ----------------------------------------------------------------------------------
     def rewind_to_boundary(self) -> int:
@@ -441,6 +441,7 @@ class GracefulStop:
     def learning_block(self) -> Iterator[None]:
         """Marks ``model.learn``: the only time the deadline may interrupt."""
         self.learning = True
+        self.phase = "collect"  # learn() begins by resetting the envs, before any update
         try:
             yield
         finally:

@@ -224,3 +224,21 @@ def test_env_whose_first_reset_meets_a_dead_daemon_recovers(tmp_path: Path) -> N
         for seg in os.listdir("/dev/shm"):
             if seg.startswith(name):
                 os.unlink(os.path.join("/dev/shm", seg))
+
+
+def test_off_policy_resume_keeps_the_replay_buffer(tmp_path: Path) -> None:
+    from stable_baselines3.common.save_util import load_from_pkl
+
+    sac = ["--env", "lidar", "--algo", "sac", "--learning-starts", "32", "--batch-size", "16",
+           "--length", "64", "--checkpoint-every", "0", "--no-progress"]  # fmt: skip
+    res = _train(*sac, "--timesteps", "64", "--logdir", str(tmp_path))
+    assert res.returncode == 0, res.stdout + res.stderr
+    res = _train("--resume", str(tmp_path), "--timesteps", "96", "--no-progress")
+    assert res.returncode == 0, res.stdout + res.stderr
+    state = _state(tmp_path)
+    assert state["num_timesteps"] == 96 and state["replay_buffer"] == "sac_96_steps.replay.pkl"
+    assert [p.name for p in (tmp_path / "checkpoints").glob("*.replay.pkl")] == [
+        "sac_96_steps.replay.pkl"
+    ]
+    buffer = load_from_pkl(tmp_path / "checkpoints" / state["replay_buffer"])
+    assert buffer.pos == 96 and not buffer.full  # 64 from the first run + 32 after the resume
