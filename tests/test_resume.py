@@ -189,41 +189,31 @@ def test_supervisor_giving_up_makes_the_trainer_save(tmp_path: Path) -> None:
     assert not [p for p in os.listdir("/dev/shm") if p.startswith(name)]
 
 
-def test_env_whose_first_reset_meets_a_dead_daemon_recovers(tmp_path: Path) -> None:
-    # the daemon dies between the env's construction and its first reset (a resumed run's
-    # first reset during a crash): DaemonRecovery retries the reset until a new daemon serves
-    # the same segments, and the first step works (Gymnasium's passive checker used to fail
-    # it, unpacking reset data it never got)
+def test_env_whose_first_reset_meets_a_stalled_daemon_recovers() -> None:
+    # the daemon stalls between the env's construction and its first reset (a resumed run's
+    # first reset during a fault): DaemonRecovery retries the reset until frames come back,
+    # and the first step works (Gymnasium's passive checker used to fail it, unpacking reset
+    # data it never got)
     import threading
 
-    from active_vision.launcher import start_daemon
+    from active_vision.launcher import spawn_daemon
     from rover_train.envs import env_factory
 
     name = f"test_resil_{uuid.uuid4().hex[:8]}"
-    first = start_daemon(name, 1, extra_args=["--threads", "1"])
-    second = []
-    env = None
-    try:
+    with spawn_daemon(name, 1, extra_args=["--threads", "1"]) as daemon:
         env = env_factory("fused", world="inspect", shm_name=name, slot=0, connect_timeout=30.0)()
-        os.kill(first.pid, signal.SIGKILL)
-        first.stop()
-        starter = threading.Thread(
-            target=lambda: second.append(start_daemon(name, 1, extra_args=["--threads", "1"])))
-        starter.start()
-        obs, info = env.reset(seed=3)
-        assert "episode_rng_state" in info
-        obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
-        assert obs["fused_image"].shape == (96, 96, 3) and "daemon_error" not in info
-        starter.join()
-    finally:
-        if env is not None:
+        try:
+            os.kill(daemon.pid, signal.SIGSTOP)
+            resume = threading.Timer(4.0, os.kill, (daemon.pid, signal.SIGCONT))
+            resume.start()
+            obs, info = env.reset(seed=3)  # the first try times out (2 s), a retry succeeds
+            resume.join()
+            assert "episode_rng_state" in info
+            obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+            assert obs["fused_image"].shape == (96, 96, 3) and "daemon_error" not in info
+        finally:
+            os.kill(daemon.pid, signal.SIGCONT)
             env.close()
-        first.stop()
-        for d in second:
-            d.stop()
-        for seg in os.listdir("/dev/shm"):
-            if seg.startswith(name):
-                os.unlink(os.path.join("/dev/shm", seg))
 
 
 def test_off_policy_resume_keeps_the_replay_buffer(tmp_path: Path) -> None:
