@@ -503,6 +503,14 @@ def train(args: TrainArgs) -> dict[str, Any]:
             record.status = "failed"
             record.save(run_dir)
             broken = True
+            if checkpointer.model is not None and stop.phase == "collect":
+                # failed while stepping envs (say, a daemon that never came back): the model
+                # is as it was at the rollout's start, so that boundary is worth keeping
+                try:
+                    checkpointer.rewind_to_boundary()
+                    checkpointer.save("failure", status="failed")
+                except Exception:  # the original error matters more than this save
+                    log.exception("could not write a checkpoint after the failure")
             raise
         finally:
             if record.history:
