@@ -9,7 +9,8 @@ frames and waits for the fused frame computed from each, like RoverEnvFused does
                         keep going: re-attach when the restarted daemon is back
     --kills N           with --kill-daemon-at K: kill N times, after frames K, 2K, ...
     --kill-gap S        ... and at least S seconds after the previous kill (the run goes on
-                        past --frames until every kill is done)
+                        past --frames until every kill is done and 2 frames came after
+                        the last one, from the restarted daemon)
 """
 
 from __future__ import annotations
@@ -57,8 +58,16 @@ def main() -> int:
     done = 0
     kills = 0
     last_kill = -float("inf")
-    kills_left = lambda: args.kill_daemon_at > 0 and kills < args.kills  # noqa: E731
-    while args.frames == 0 or done < args.frames or kills_left():
+    since_kill = 0
+
+    def more_to_do() -> bool:
+        if args.frames == 0 or done < args.frames:
+            return True
+        if args.kill_daemon_at > 0:  # every kill done, and the restarted daemon served us
+            return kills < args.kills or since_kill < 2
+        return False
+
+    while more_to_do():
         try:
             seq = cam.publish(frame)
             out = fused.wait_for(source_seq=seq, timeout=5.0)
@@ -70,10 +79,12 @@ def main() -> int:
             continue
         assert out.data.shape == (cam.shape[0], cam.shape[1], 3)
         done += 1
+        since_kill += 1
         print(f"frame {done} source_seq={out.source_seq}", flush=True)
         due = args.kill_daemon_at > 0 and done >= args.kill_daemon_at * (kills + 1)
         if due and kills < args.kills and time.monotonic() - last_kill >= args.kill_gap:
             kills += 1
+            since_kill = 0
             last_kill = time.monotonic()
             pid = fused.writer_pid
             print(f"killing daemon pid={pid}", flush=True)
