@@ -44,6 +44,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shutil
 import signal
 import sys
 import threading
@@ -72,7 +73,9 @@ from shm_protocol import (  # noqa: E402
     SHM_DIR,
     FrameReader,
     ShmError,
+    camera_name,
     existing_segments,
+    slot_name,
 )
 from shm_protocol.names import NAME_ENV_VAR, SLOTS_ENV_VAR  # noqa: E402
 
@@ -295,6 +298,29 @@ class Supervisor:
         return True
 
 
+def check_usage(
+    name: str, trainer: Sequence[str], ready_timeout: float, grace: float
+) -> str | None:
+    """What is wrong with these options (and how to fix it), or None. Checked before the
+    daemon starts, so a typo costs no daemon start-up."""
+    try:
+        camera_name(slot_name(name, 0))
+    except ValueError as exc:
+        return f"--name: {exc}"
+    if shutil.which(trainer[0]) is None:
+        where = "is not an executable file" if "/" in trainer[0] else "was not found on PATH"
+        return (
+            f"trainer command {trainer[0]!r} {where}: expected a program after '--', e.g. "
+            "-- rover-train --env fused. Check the spelling, give its path, or install the "
+            "project (pip install -e .) so rover-train is on PATH."
+        )
+    if not ready_timeout > 0:
+        return f"--ready-timeout must be > 0 seconds, got {ready_timeout}"
+    if not grace >= 0:
+        return f"--grace must be 0 or more seconds, got {grace}"
+    return None
+
+
 def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
     argv = list(sys.argv[1:] if argv is None else argv)
     if "--" in argv:
@@ -347,6 +373,9 @@ def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
     if not ns.restart_window > 0:
         parser.error(f"--restart-window must be a positive number of seconds (or inf), "
                      f"got {ns.restart_window}")  # fmt: skip
+    problem = check_usage(ns.name, trainer, ns.ready_timeout, ns.grace)
+    if problem:
+        parser.error(problem)
     return PairConfig(
         trainer=trainer,
         name=ns.name,

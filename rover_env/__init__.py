@@ -19,6 +19,7 @@ from gymnasium.envs.registration import register, registry  # noqa: E402
 
 from rover_env.core import RoverEnvBase  # noqa: E402
 from rover_env.discrete_env import DiscreteRoverEnvFused  # noqa: E402
+from rover_env.errors import EnvClosedError  # noqa: E402
 from rover_env.fused_env import RoverEnvFused  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
@@ -39,6 +40,7 @@ __all__ = [
     "CameraFrame",
     "Contacts",
     "DiscreteRoverEnvFused",
+    "EnvClosedError",
     "RewardConfig",
     "RoverEnv",
     "RoverEnvBase",

@@ -22,6 +22,7 @@ from gymnasium import spaces
 from rover_env import constants as c
 from rover_env import reward as rw
 from rover_env.controller import HeadingPID, wrap_angle
+from rover_env.errors import EnvClosedError, closed_env_message
 from rover_env.reward import RewardConfig
 from rover_env.simulation import PHYSICS_DT, RoverSim
 from rover_env.worlds import canonical_world_name
@@ -161,6 +162,7 @@ class RoverEnvBase(gym.Env):
         )
         self._clear_episode()
         self._needs_reset = True
+        self._closed = False
 
     # --- hooks --------------------------------------------------------------------------------
     def _decode_action(self, action: Any) -> tuple[float, float]:
@@ -323,6 +325,7 @@ class RoverEnvBase(gym.Env):
         ``options`` (all optional): ``rover_pose`` (x, y, yaw) places the rover there;
         ``goal`` (x, y) places the goal there.
         """
+        self._check_open("reset")
         super().reset(seed=seed)
         if seed is not None:
             self._total_steps = 0  # a seeded reset starts a reproducible run
@@ -345,6 +348,7 @@ class RoverEnvBase(gym.Env):
         return obs, self._info(0.0, "")
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        self._check_open("step")
         if self._needs_reset:
             raise RuntimeError("call reset() before step() (and after an episode ends)")
         speed, desired_heading = self._decode_action(action)
@@ -412,6 +416,7 @@ class RoverEnvBase(gym.Env):
 
     def render(self) -> np.ndarray | None:
         """``rgb_array``: a chase-camera frame (``render_size`` = (width, height))."""
+        self._check_open("render")
         if self.render_mode != "rgb_array":
             if self.render_mode is None:
                 gym.logger.warn(
@@ -421,6 +426,18 @@ class RoverEnvBase(gym.Env):
             return None
         return self.sim.render_chase(*self.render_size)
 
+    @property
+    def closed(self) -> bool:
+        """True after :meth:`close` (then reset/step/render raise :class:`EnvClosedError`)."""
+        return self._closed
+
+    def _check_open(self, method: str) -> None:
+        if self._closed:
+            raise EnvClosedError(closed_env_message(type(self).__name__, method))
+
     def close(self) -> None:
+        """Free the renderer. Idempotent; afterwards reset/step/render raise
+        :class:`~rover_env.errors.EnvClosedError`."""
+        self._closed = True
         self.sim.close()
         super().close()

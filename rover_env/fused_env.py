@@ -19,6 +19,8 @@ from shm_protocol import (
     CHANNEL_HEATMAP,
     FrameReader,
     FrameWriter,
+    LayoutError,
+    SegmentBusyError,
     SegmentNotFoundError,
     camera_name,
     depth_to_channel,
@@ -148,8 +150,12 @@ class RoverEnvFused(RoverEnvBase):
     ) -> None:
         del scan_topic, imu_topic, cmd_vel_topic  # ROS topics: accepted, no effect
         height, width = int(size[0]), int(size[1])
-        if slot < 0:
-            raise ValueError(f"slot must be >= 0, got {slot}")
+        if isinstance(slot, bool) or not isinstance(slot, (int, np.integer)) or slot < 0:
+            raise ValueError(
+                f"slot must be an int >= 0 (the daemon slot this env uses: 0..N-1 with "
+                f"av-daemon --slots N), got {slot!r}"
+            )
+        slot = int(slot)
         if not frame_timeout > 0:
             raise ValueError(f"frame_timeout must be > 0 s, got {frame_timeout}")
         self.rl_obs_name = slot_name(rl_obs_name, slot)
@@ -157,6 +163,7 @@ class RoverEnvFused(RoverEnvBase):
         self.frame_timeout = float(frame_timeout)
         self.report_latency = bool(report_latency)
         self.connection_check_timeout = float(connection_check_timeout)
+        self._size = (height, width)
         self._fused: FrameReader | None = None
         self._camera: FrameWriter | None = None
         # Attach before building the world: a missing daemon fails fast and cheaply.
@@ -195,6 +202,7 @@ class RoverEnvFused(RoverEnvBase):
         name, cam = self.rl_obs_name, camera_name(self.rl_obs_name)
         how = f"av-daemon --name {self._base_name()} --slots {self.slot + 1}"
         if not os.path.exists(segment_path(name)):
+            self._check_slot_served()
             log.warning(
                 "waiting up to %.0f s for the Active Vision daemon's segment '%s'; "
                 "start it with: %s (or run your trainer under rover-pair)",
@@ -214,10 +222,27 @@ class RoverEnvFused(RoverEnvBase):
                 exc.available,
             ) from None
         try:
+            self._check_size(fused.shape, "fused")
+            daemon_pid = fused.writer_pid
             camera = FrameWriter(
-                cam, create=False, attach_timeout=max(deadline - time.monotonic(), 1.0)
+                cam,
+                create=False,
+                attach_timeout=max(deadline - time.monotonic(), 1.0),
+                exclusive=True,
+                ignore_pids=() if daemon_pid is None else (daemon_pid,),
             )
+        except SegmentBusyError as exc:
+            fused.close()
+            raise SegmentBusyError(
+                self._slot_busy_message(exc.pid, exc.command), cam, exc.pid, exc.command
+            ) from None
         except BaseException:
+            fused.close()
+            raise
+        try:
+            self._check_size(camera.shape, "camera")
+        except BaseException:
+            camera.close()
             fused.close()
             raise
         self._fused, self._camera = fused, camera
@@ -230,6 +255,70 @@ class RoverEnvFused(RoverEnvBase):
         h, w, ch = camera.shape
         self._render_depth = ch == 4
         self._camera_buf = np.zeros((h, w, ch), dtype=np.uint8)
+
+    def _check_slot_served(self) -> None:
+        """Fail fast when a running daemon serves the base name with fewer slots than
+        ``slot + 1`` (instead of waiting ``connection_check_timeout`` for a segment that
+        will never come)."""
+        if self.slot == 0:
+            return
+        base = self._base_name()
+        # The daemon creates every fused segment before the first camera segment, so once
+        # slot 0's camera segment exists all of its fused segments do.
+        if not os.path.exists(segment_path(camera_name(base))):
+            return
+        try:
+            probe = FrameReader(base, attach_timeout=0.0)
+        except (SegmentNotFoundError, LayoutError):
+            return
+        try:
+            if not probe.is_writer_alive():
+                return
+            pid = probe.writer_pid
+        finally:
+            probe.close()
+        served = 1
+        while os.path.exists(segment_path(slot_name(base, served))):
+            served += 1
+        if self.slot < served:
+            return
+        raise SegmentNotFoundError(
+            f"slot={self.slot} is beyond the slots of the av-daemon serving '{base}' (pid "
+            f"{pid}): it serves {served} slot(s), 0..{served - 1}. Use slot= in "
+            f"0..{served - 1}, or restart the daemon with more slots: av-daemon --name {base} "
+            f"--slots {self.slot + 1} (or rover-pair --name {base} --slots {self.slot + 1} "
+            "-- <trainer command>).",
+            self.rl_obs_name,
+            [slot_name(base, i) for i in range(served)],
+        )
+
+    def _check_size(self, shape: tuple[int, int, int], which: str) -> None:
+        """LayoutError naming both sizes when the daemon's frames differ from ``size``."""
+        if tuple(shape[:2]) == self._size:
+            return
+        h, w = self._size
+        side = f"--size {h}" if h == w else f"a square --size (this env's size is {h}x{w})"
+        raise LayoutError(
+            f"size mismatch: this env was made with size=({h}, {w}) but the av-daemon serving "
+            f"'{self.rl_obs_name}' makes {shape[0]}x{shape[1]} frames (its {which} segment "
+            f"holds {shape[0]}x{shape[1]}x{shape[2]}; av-daemon --size {shape[0]}). Make the "
+            f"env with size=({shape[0]}, {shape[1]}), or restart the daemon with {side}."
+        )
+
+    def _slot_busy_message(self, pid: int, command: str) -> str:
+        who = (
+            "this process (another RoverEnvFused here that is not closed)"
+            if pid == os.getpid()
+            else f"another process ({command or 'command line unknown'})"
+        )
+        base = self._base_name()
+        return (
+            f"daemon slot {self.slot} of '{base}' is already in use: pid {pid}, {who}, holds "
+            f"its camera segment '{camera_name(self.rl_obs_name)}'. Each env needs its own "
+            f"slot: give each env a different slot= (0..N-1) and serve N slots with "
+            f"av-daemon --name {base} --slots N (or rover-pair --slots N), or close the "
+            "other env first. (A holder that crashed or closed does not block.)"
+        )
 
     def _base_name(self) -> str:
         suffix = f"_{self.slot}"

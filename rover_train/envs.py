@@ -65,7 +65,9 @@ class DaemonRecovery(gym.Wrapper):
     into the end of the episode (``truncated=True``, ``info["daemon_error"]`` says why), and
     its ``reset()`` retries for up to ``recover_timeout`` seconds while rover-pair restarts
     the daemon on the same segments. Truncation, not termination: the episode did not fail,
-    so value bootstrapping stays correct.
+    so value bootstrapping stays correct. Errors a daemon restart cannot fix (a daemon of
+    another ``--size``: ``LayoutError``; the slot taken by another env: ``SegmentBusyError``)
+    are raised at once.
     """
 
     def __init__(self, env: gym.Env, recover_timeout: float = 60.0):
@@ -74,7 +76,7 @@ class DaemonRecovery(gym.Wrapper):
         self._last_obs: Any = None
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
-        from shm_protocol.errors import ShmError
+        from shm_protocol.errors import LayoutError, SegmentBusyError, ShmError
 
         deadline = time.monotonic() + self.recover_timeout
         tries = 0
@@ -85,6 +87,8 @@ class DaemonRecovery(gym.Wrapper):
                 if tries:
                     log.warning("reset: the daemon is back after %d retries", tries)
                 return obs, info
+            except (LayoutError, SegmentBusyError):
+                raise
             except ShmError as exc:
                 if time.monotonic() > deadline:
                     raise

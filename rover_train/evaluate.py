@@ -58,7 +58,8 @@ class EpisodeResult:
 
 
 class PolicyLoadError(ValueError):
-    """A model file is missing or cannot be loaded (the message says which and what to do)."""
+    """A model file is missing, cannot be loaded, or was trained for another env (the message
+    says which and what to do)."""
 
 
 def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | None) -> Any:
@@ -87,10 +88,37 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
     for name in order:
         try:
             loaded = classes[name].load(model, device="cpu")
-            return lambda obs: loaded.predict(obs, deterministic=True)[0]
         except Exception as exc:  # noqa: BLE001 - try the next algorithm
             errors.append(f"{name}: {exc}")
+            continue
+        check_spaces(model, loaded, env)
+        return lambda obs: loaded.predict(obs, deterministic=True)[0]
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
+
+
+def check_spaces(path: Path, model: Any, env: Any) -> None:
+    """Raise :class:`PolicyLoadError` when ``model`` was made for other spaces than ``env``'s
+    (say a LIDAR policy evaluated on the fused env), naming both and the fix."""
+    for what in ("observation", "action"):
+        want = getattr(model, f"{what}_space")
+        have = getattr(env, f"{what}_space")
+        if want != have:
+            raise PolicyLoadError(
+                f"{path} was trained for another env: its {what} space is {_describe(want)}, "
+                f"but this env's (--env, --world) is {_describe(have)}. Evaluate it with the "
+                "--env it was trained on (see metrics.json beside the model), or train a "
+                "model for this env with rover-train."
+            )
+
+
+def _describe(space: Any) -> str:
+    from gymnasium import spaces
+
+    if isinstance(space, spaces.Dict):
+        return "Dict(" + ", ".join(f"{k}: {_describe(v)}" for k, v in space.spaces.items()) + ")"
+    if isinstance(space, spaces.Box):
+        return f"Box{tuple(space.shape)}"
+    return str(space)
 
 
 def _video_frame(env: Any, obs: Any) -> np.ndarray:
@@ -239,6 +267,21 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float) -> None:
         writer.release()
 
 
+def validate(args: argparse.Namespace) -> str | None:
+    """What else is wrong with rover-eval's arguments, and how to fix it; None if nothing."""
+    from shm_protocol import InvalidNameError, camera_name, slot_name
+
+    if args.max_steps < 1:
+        return f"--max-steps must be at least 1, got {args.max_steps}"
+    if args.slot < 0:
+        return f"--slot must be >= 0 (the first daemon slot to use), got {args.slot}"
+    try:
+        camera_name(slot_name(args.name, args.slot + args.slots - 1))
+    except InvalidNameError as exc:
+        return f"--name: {exc}"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="rover-eval", description=__doc__.split("\n")[0])
     p.add_argument("model", nargs="?", type=Path, help="a model .zip written by rover-train")
@@ -274,6 +317,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error("give exactly one of: a model .zip, or --policy random")
     if args.slots < 1 or args.episodes < 1:
         p.error(f"--slots and --episodes must be at least 1, got {args.slots} and {args.episodes}")
+    problem = validate(args)
+    if problem:
+        p.error(problem)
 
     from shm_protocol.errors import ShmError
 

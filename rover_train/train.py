@@ -234,6 +234,42 @@ def validate(args: TrainArgs) -> str | None:
         return "--algo sac needs continuous actions: use --env lidar|fused, or --algo ppo/dqn"
     if args.slots < 1 or args.timesteps < 1:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
+    return _validate_values(args) or _validate_device(args)
+
+
+def _validate_values(args: TrainArgs) -> str | None:
+    """Lengths, segment name and --resume (a complete checkpoint to continue from): each
+    message names the value and the fix."""
+    from shm_protocol import InvalidNameError, camera_name, slot_name
+
+    if args.length is not None and args.length < 1:
+        return f"--length must be at least 1 step (or omit it for the env's own), got {args.length}"
+    if args.algo == "ppo" and args.n_steps * args.slots < 2:
+        return (
+            f"--n-steps must be at least 2 for PPO (a rollout of n_steps x slots > 1 steps), "
+            f"got --n-steps {args.n_steps} with {args.slots} env(s)"
+        )
+    positive = {"--batch-size": args.batch_size, "--n-epochs": args.n_epochs,
+                "--buffer-size": args.buffer_size, "--learning-rate": args.learning_rate}
+    for flag, value in positive.items():
+        if value is not None and not value > 0:
+            return f"{flag} must be > 0 (or omit it for the algorithm's default), got {value}"
+    if not 0.0 < args.gamma <= 1.0:
+        return f"--gamma is a discount factor in (0, 1], got {args.gamma}"
+    if args.env in FUSED_KINDS:
+        try:
+            camera_name(slot_name(args.name, args.slots - 1))
+        except InvalidNameError as exc:
+            return f"--name: {exc}"
+    if args.resume is not None:
+        try:
+            latest_checkpoint(args.resume)
+        except ResumeError as exc:
+            return str(exc)
+    return None
+
+
+def _validate_device(args: TrainArgs) -> str | None:
     if args.device.startswith("cuda"):
         import torch
 

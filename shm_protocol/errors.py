@@ -40,6 +40,26 @@ class LayoutError(ShmError, ValueError):
     """A segment or an array does not have the expected size, shape, dtype or trailer."""
 
 
+class SegmentBusyError(ShmError):
+    """The segment already has a live writer, and this writer was asked to be the only one
+    (``FrameWriter(..., create=False, exclusive=True)``: an env attaching to a daemon slot
+    another env is using).
+
+    A writer that is gone does not count: one that closed (shutting-down flag set), or whose
+    process died (re-attaching after a crash works).
+
+    :ivar name: the segment name.
+    :ivar pid: the live writer's pid (may be this process's own).
+    :ivar command: that process's command line, shortened ("" when unknown).
+    """
+
+    def __init__(self, message: str, name: str = "", pid: int = 0, command: str = "") -> None:
+        super().__init__(message)
+        self.name = name
+        self.pid = pid
+        self.command = command
+
+
 class NonFiniteError(ShmError, ValueError):
     """A float frame passed to ``publish`` holds NaN or infinite values."""
 
@@ -84,6 +104,7 @@ __all__ = [
     "InvalidNameError",
     "LayoutError",
     "NonFiniteError",
+    "SegmentBusyError",
     "SegmentNotFoundError",
     "ShmError",
     "WriterGoneError",

@@ -17,7 +17,9 @@ import logging
 import operator
 import os
 import time
+import weakref
 import zlib
+from collections.abc import Collection
 from typing import Any
 
 import numpy as np
@@ -25,7 +27,7 @@ import numpy as np
 from ._futex import AVAILABLE as FUTEX_AVAILABLE
 from ._futex import TOTAL_STORE_ORDER, FutexWord, fence
 from ._segment import Segment, open_waiting, pid_alive
-from .errors import LayoutError, NonFiniteError, ShmError
+from .errors import LayoutError, NonFiniteError, SegmentBusyError, ShmError
 from .layout import (
     FLAG_CHECKSUM,
     FLAG_SHUTTING_DOWN,
@@ -46,6 +48,11 @@ from .names import segment_path, validate_name
 logger = logging.getLogger(__name__)
 
 _CREATE_ATTEMPTS = 8
+_CMDLINE_CHARS = 160
+
+# Open writers of this process: a second writer on the same inode in the same process has
+# the same pid as the first, so the trailer's pid alone cannot tell them apart.
+_open_writers: weakref.WeakSet[FrameWriter] = weakref.WeakSet()
 
 
 class FrameWriter:
@@ -59,11 +66,19 @@ class FrameWriter:
         (same inode, so attached readers simply continue). False: attach as the writer of a
         segment someone else created (the env writing the daemon's camera segment).
         Either way the writer stamps its pid in the trailer and clears the shutting-down
-        flag; one writer at a time is the caller's responsibility.
+        flag; one writer at a time is the caller's responsibility unless ``exclusive``.
     :param replace: with ``create=True``, an existing segment of another layout is unlinked
         and a new one created (readers re-attach and see the new layout). Without it that is
         a :class:`LayoutError`.
     :param attach_timeout: with ``create=False``, seconds to wait for the segment to appear.
+    :param exclusive: with ``create=False``, refuse (:class:`SegmentBusyError`, naming the
+        pid) when the segment already has a live writer: a process that is alive, whose pid
+        is in the trailer and that has not closed the segment, or another open writer of
+        this process. A writer that closed or died does not block. (Checked at attach; two
+        writers attaching in the same instant can both pass.)
+    :param ignore_pids: with ``exclusive``, pids whose stamp in the trailer does not count
+        as a live writer: the creator of a segment it never publishes into (the daemon of a
+        camera segment).
     :param check_finite: reject float frames holding NaN/inf (:class:`NonFiniteError`).
     :param checksum: store ``crc32(payload, seq)`` with every frame so readers can verify
         each copy independently of CPU memory ordering. Default: on where stores may be
@@ -83,6 +98,8 @@ class FrameWriter:
         attach_timeout: float = 0.0,
         check_finite: bool = True,
         checksum: bool | None = None,
+        exclusive: bool = False,
+        ignore_pids: Collection[int] = (),
     ) -> None:
         self.name = validate_name(name)
         self._closed = True
@@ -102,11 +119,14 @@ class FrameWriter:
             seg = open_waiting(self.name, True, attach_timeout)
             try:
                 layout = self._existing_layout(seg, shape, dtype)
+                if exclusive:
+                    self._check_no_live_writer(seg, ignore_pids)
             except BaseException:
                 seg.close()
                 raise
         self._bind(seg, layout, check_finite)
         self._claim()
+        _open_writers.add(self)
 
     # --- set-up ------------------------------------------------------------------------
 
@@ -176,6 +196,43 @@ class FrameWriter:
                 "matching settings."
             )
         return layout
+
+    def _check_no_live_writer(self, seg: Segment, ignore_pids: Collection[int]) -> None:
+        """Raise :class:`SegmentBusyError` if ``seg`` has a live writer (see ``exclusive``)."""
+        me = self._pid
+        for other in list(_open_writers):
+            oseg = other._seg
+            same = oseg is not None and (oseg.ino, oseg.dev) == (seg.ino, seg.dev)
+            if same and not other._closed:
+                if me in ignore_pids:
+                    break
+                raise SegmentBusyError(
+                    f"segment {self.name!r} already has a live writer in this process (pid "
+                    f"{me}): an open FrameWriter on the same segment. One writer at a time: "
+                    "close that writer first, or write to another segment.",
+                    self.name,
+                    me,
+                    _command_line(me),
+                )
+        info = seg.trailer_info()
+        pid, flags = (info.pid, info.flags) if info is not None else (0, 0)
+        if (
+            pid
+            and pid != me
+            and pid not in ignore_pids
+            and not flags & FLAG_SHUTTING_DOWN
+            and pid_alive(pid)
+        ):
+            command = _command_line(pid)
+            raise SegmentBusyError(
+                f"segment {self.name!r} already has a live writer: pid {pid} "
+                f"({command or 'command line unknown'}), which attached as its writer and "
+                "has not closed it. One writer at a time: close that writer or stop that "
+                "process first, or write to another segment.",
+                self.name,
+                pid,
+                command,
+            )
 
     def _bind(self, seg: Segment, layout: Layout, check_finite: bool) -> None:
         self._seg: Segment | None = seg
@@ -355,6 +412,17 @@ class FrameWriter:
     def __repr__(self) -> str:
         state = "closed" if self._closed else f"frame {self.seq}"
         return f"FrameWriter({self.name!r}, {describe(self.shape, self.dtype)}, {state})"
+
+
+def _command_line(pid: int) -> str:
+    """``pid``'s command line from ``/proc``, shortened ("" when unknown)."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            raw = f.read()
+    except OSError:
+        return ""
+    cmd = " ".join(raw.replace(b"\0", b" ").decode(errors="replace").split())
+    return cmd if len(cmd) <= _CMDLINE_CHARS else cmd[: _CMDLINE_CHARS - 3] + "..."
 
 
 def _initialise(seg: Segment, layout: Layout, pid: int) -> None:
