@@ -5,6 +5,8 @@ Camera frames (from the env's camera segment, a video, or a camera device) becom
 memory by the ``av-daemon`` (:mod:`active_vision.daemon`).
 
 - :class:`Perception` / :class:`PerceptionConfig`: batched frames -> fused frames.
+- ``BACKENDS`` / :class:`BackendError`: the network runs in ONNX Runtime or eager torch
+  (``PerceptionConfig.backend``, ``av-daemon --backend``; :mod:`active_vision.backends`).
 - :class:`AVNet`, :func:`load_model`, :class:`WeightsError`: the network and its weights.
 - :func:`spawn_daemon` / :func:`start_daemon` / :class:`ChildProcess`: run an av-daemon from
   another process (:mod:`active_vision.launcher`; standard library only, no torch).
@@ -35,6 +37,8 @@ from active_vision.launcher import (
 )
 
 _LAZY = {
+    "BACKENDS": "active_vision.backends",
+    "BackendError": "active_vision.backends",
     "AVNet": "active_vision.models",
     "AVNetConfig": "active_vision.models",
     "WeightsError": "active_vision.models",
@@ -54,9 +58,11 @@ def __getattr__(name: str) -> _Any:
 
 
 __all__ = [
+    "BACKENDS",
     "READY_MARKER",
     "AVNet",
     "AVNetConfig",
+    "BackendError",
     "ChildProcess",
     "DaemonStartError",
     "Perception",

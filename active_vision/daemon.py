@@ -1,7 +1,8 @@
 """av-daemon: camera frames in, fused 96x96x3 observations out, over shared memory.
 
     av-daemon [--name rl_observation] [--slots N] [--size 96] [--depth model|render]
-              [--threads 1] [--source camera|video:PATH|device:N] [--preview PATH]
+              [--backend auto|onnx|torch] [--threads 1]
+              [--source camera|video:PATH|device:N] [--preview PATH]
               [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
 
 (also ``python -m active_vision``). For each slot i it creates the fused segment
@@ -14,7 +15,10 @@ Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flu
 1. waits for new camera frames on any slot (futex wake-ups, short timeouts; idle costs
    almost no CPU);
 2. runs :class:`~active_vision.perception.Perception` on every slot that has a new frame,
-   as one batch;
+   as one batch, in ONNX Runtime or eager torch (``--backend``: ``auto``, the default, is
+   ONNX Runtime when it is installed, else torch with one log line saying so; the ONNX file
+   ships with the weights, or is exported once into the user cache for other weights, see
+   :mod:`active_vision.onnx_export`);
 3. publishes each fused frame into its slot's segment with ``source_seq`` = the camera
    frame's ``seq`` (the env waits on that with ``FrameReader.wait_for``);
 4. refreshes the fused segments' heartbeat while idle, and logs per-stage timings (gray,
@@ -87,7 +91,9 @@ class DaemonConfig:
     """``model``: depth channel from the network; ``render``: from the camera frame's 4th
     channel (the env sends RGB + depth)."""
     threads: int = 1
-    """torch threads for perception."""
+    """Threads of the perception network (torch threads / ONNX Runtime intra-op threads)."""
+    backend: str = "auto"
+    """``auto`` (ONNX Runtime when installed, else torch), ``onnx`` or ``torch``."""
     source: str = "camera"
     """``camera`` (segments written by envs), ``video:PATH`` or ``device:N``."""
     preview: Path | None = None
@@ -175,14 +181,16 @@ class Daemon:
         cfg = self.config
         self._check_not_served()
         # Perception first: a bad weights file fails before any segment exists.
+        from active_vision.backends import BackendError
         from active_vision.models import WeightsError
+        from active_vision.onnx_export import OnnxExportError
         from active_vision.perception import Perception, PerceptionConfig
 
         try:
             self.perception = Perception(PerceptionConfig(
                 size=cfg.size, depth=cfg.depth, threads=cfg.threads, weights=cfg.weights,
-                max_batch=cfg.slots))  # type: ignore[arg-type]
-        except WeightsError as exc:
+                max_batch=cfg.slots, backend=cfg.backend))  # type: ignore[arg-type]
+        except (WeightsError, BackendError, OnnxExportError) as exc:
             raise DaemonError(str(exc)) from exc
         from active_vision.sources import CameraSegmentSource, OpenCVSource, SourceError
 
@@ -236,6 +244,10 @@ class Daemon:
         batch = np.empty((cfg.slots, cfg.size, cfg.size, channels), dtype=np.uint8)
         seqs = [0] * cfg.slots
         slots = [0] * cfg.slots
+        # Batch views made once per size: the loop allocates no arrays per frame.
+        gathered = [batch[:n] for n in range(cfg.slots + 1)]
+        buffer = getattr(source, "frames_buffer", None)
+        direct = None if buffer is None else [buffer[:n] for n in range(cfg.slots + 1)]
         while self.stop.signal is None:
             new = source.poll(IDLE_POLL_S)  # type: ignore[attr-defined]
             now = time.monotonic()
@@ -249,11 +261,19 @@ class Daemon:
                     return
                 continue
             n = len(new)
-            for j, f in enumerate(new):
-                batch[j] = f.data
-                seqs[j] = f.seq
-                slots[j] = f.slot
-            out = perception(batch[:n])
+            if direct is not None and new[n - 1].slot == n - 1:
+                frames = direct[n]  # slots 0..n-1: already in the source's buffer, in order
+                for j in range(n):
+                    seqs[j] = new[j].seq
+                    slots[j] = j
+            else:
+                for j in range(n):
+                    f = new[j]
+                    batch[j] = f.data
+                    seqs[j] = f.seq
+                    slots[j] = f.slot
+                frames = gathered[n]
+            out = perception(frames)
             t0 = time.perf_counter()
             for j in range(n):
                 fused[slots[j]].publish(out[j], source_seq=seqs[j])
@@ -330,6 +350,8 @@ def _source(text: str) -> str:
 
 
 def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
+    from active_vision.backends import BACKENDS  # imports torch, which serving needs anyway
+
     d = DaemonConfig()
     p = argparse.ArgumentParser(
         prog="av-daemon",
@@ -342,7 +364,13 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     p.add_argument("--depth", choices=("model", "render"), default=d.depth,
                    help="depth channel from the network, or from the camera frame's 4th "
                         "channel (renderer's depth)")
-    p.add_argument("--threads", type=_positive_int, default=d.threads, help="torch threads")
+    p.add_argument("--backend", choices=BACKENDS, default=d.backend,
+                   help="inference backend of the perception network: auto (default: ONNX "
+                        "Runtime when onnxruntime is installed, else torch, with one log "
+                        "line), onnx (ONNX Runtime; the .onnx file ships with the weights or "
+                        "is exported once into ~/.cache/roverav) or torch (eager)")
+    p.add_argument("--threads", type=_positive_int, default=d.threads,
+                   help="threads of the perception network (torch / ONNX Runtime intra-op)")
     p.add_argument("--source", type=_source, default=d.source,
                    help="camera (segments written by envs), video:PATH or device:N")
     p.add_argument("--preview", type=Path, default=None,
@@ -364,7 +392,7 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     if not a.stale_after > 0:
         p.error("--stale-after must be > 0")
     return DaemonConfig(name=a.name, slots=a.slots, size=a.size, depth=a.depth,
-                        threads=a.threads, source=a.source, preview=a.preview,
+                        threads=a.threads, backend=a.backend, source=a.source, preview=a.preview,
                         log_every=max(0, a.log_every), stale_after=a.stale_after,
                         weights=a.weights, log_level=a.log_level.upper())
 
@@ -385,7 +413,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if stop.signal is None:
             names = daemon.segment_names()
             print(f"{READY_MARKER}: name={cfg.name} slots={cfg.slots} size={cfg.size} "
-                  f"depth={cfg.depth} source={cfg.source} pid={os.getpid()} "
+                  f"depth={cfg.depth} backend={daemon.perception.backend} "
+                  f"source={cfg.source} pid={os.getpid()} "
                   f"segments={','.join(names)}", flush=True)
             daemon.serve()
         if stop.signal is not None:

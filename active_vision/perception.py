@@ -11,8 +11,9 @@ indexed by ``shm_protocol.CHANNEL_GRAY`` / ``CHANNEL_HEATMAP`` / ``CHANNEL_DEPTH
 - depth: the AVNet depth head (default), or with ``depth="render"`` the frame's fourth
   channel divided by 255 (the renderer's true depth, already in the depth convention).
 
-All N frames go through the network in one forward pass, under ``torch.inference_mode``,
-with buffers allocated once and reused (they grow if a larger batch arrives).
+All N frames go through the network in one forward pass, in eager torch or ONNX Runtime
+(``backend``, see :mod:`active_vision.backends`), with buffers and their views allocated
+once and reused (they grow if a larger batch arrives).
 """
 
 from __future__ import annotations
@@ -21,12 +22,19 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, NamedTuple
 
 import cv2
 import numpy as np
 import torch
 
+from active_vision.backends import (
+    BackendError,
+    Network,
+    OnnxNetwork,
+    TorchNetwork,
+    resolve_backend,
+)
 from active_vision.models import (
     HEAD_DEPTH,
     HEAD_HEATMAP,
@@ -52,11 +60,16 @@ class PerceptionConfig:
     depth: DepthSource = "model"
     """``model``: depth from the network; ``render``: from the input frame's 4th channel."""
     threads: int | None = 1
-    """``torch.set_num_threads`` value (process-wide); None leaves torch's setting alone."""
+    """Threads for the network: ``torch.set_num_threads`` (process-wide) and ONNX Runtime's
+    ``intra_op_num_threads``; None leaves torch's setting alone (ONNX Runtime then uses 1)."""
     weights: Path | None = None
     """Weights file; None means the shipped ``active_vision/weights/avnet.pt``."""
     max_batch: int = 8
     """Batch size the buffers are first allocated for (they grow when needed)."""
+    backend: str = "auto"
+    """``auto`` | ``onnx`` | ``torch`` (:mod:`active_vision.backends`): ``auto`` is ONNX
+    Runtime when it imports (and the export is available), else torch. A ``model`` passed to
+    :class:`Perception` runs in torch unless ``onnx`` is asked for explicitly."""
 
 
 @dataclass
@@ -82,6 +95,18 @@ class StageTimes:
         return out
 
 
+class _Views(NamedTuple):
+    """Tensor views for one batch size, made once and reused by every call of that size."""
+
+    x: torch.Tensor  # network input (n, 3, S, S)
+    gray: torch.Tensor  # planes[:, CHANNEL_GRAY]
+    heat: torch.Tensor  # planes[:, CHANNEL_HEATMAP]
+    depth: torch.Tensor  # planes[:, CHANNEL_DEPTH]
+    planes_nhwc: torch.Tensor  # planes (n, 3, S, S) seen as (n, S, S, 3)
+    out_t: torch.Tensor  # (n, S, S, 3) output tensor
+    out: np.ndarray  # the same memory, what __call__ returns
+
+
 class Perception:
     """Batched fused-frame perception (see the module docstring).
 
@@ -89,6 +114,7 @@ class Perception:
     :param model: an already loaded network (for tests/training); loaded from
         ``config.weights`` when None.
     :raises active_vision.models.WeightsError: the weights file is missing or corrupt.
+    :raises active_vision.backends.BackendError: the requested backend cannot run here.
     """
 
     def __init__(self, config: PerceptionConfig | None = None, model: AVNet | None = None):
@@ -99,27 +125,62 @@ class Perception:
             raise ValueError(f"size must be a multiple of 16, got {self.config.size}")
         if self.config.threads is not None:
             torch.set_num_threads(int(self.config.threads))
-        self.model = model if model is not None else load_model(self.config.weights)
-        self.model.eval()
-        self.model.to(memory_format=torch.channels_last)
+        requested = self.config.backend
+        if model is not None and requested == "auto":
+            requested = "torch"
+        if model is not None and requested == "onnx":
+            raise BackendError(
+                "backend 'onnx' runs the ONNX export of a weights file, not a model object: "
+                "save the model (active_vision.save_weights) and pass its path as "
+                "PerceptionConfig.weights, or use backend 'torch' with model=."
+            )
+        backend, onnx_path = resolve_backend(requested, self.config.weights, self.config.size)
+        capacity = max(1, self.config.max_batch)
+        if backend == "onnx":
+            assert onnx_path is not None
+            self.model: AVNet | None = None
+            self.net: Network = OnnxNetwork(onnx_path, self.config.size,
+                                            threads=self.config.threads or 1, capacity=capacity)
+        else:
+            self.model = model if model is not None else load_model(self.config.weights)
+            self.net = TorchNetwork(self.model, self.config.size, capacity=capacity)
+        logger.info("perception backend: %s%s", backend,
+                    f" ({onnx_path.name})" if onnx_path is not None else "")
         self.timings = StageTimes()
-        self._luma = torch.tensor(_LUMA, dtype=torch.float32)
         self._capacity = 0
-        self._allocate(max(1, self.config.max_batch))
+        self._views: dict[int, _Views] = {}
+        self._allocate(capacity)
 
     @property
     def size(self) -> int:
         return self.config.size
 
+    @property
+    def backend(self) -> str:
+        """The backend that runs the network: ``onnx`` or ``torch``."""
+        return self.net.name
+
     def _allocate(self, n: int) -> None:
         s = self.config.size
         self._capacity = n
         self._resized = np.empty((n, s, s, 4), dtype=np.uint8)
-        # float RGB, NHWC storage: permuted to NCHW it is a channels_last tensor for the net.
-        self._rgb = torch.empty((n, s, s, 3), dtype=torch.float32)
-        self._gray = torch.empty((n, s, s), dtype=torch.float32)
+        # Each channel is computed into a contiguous plane (elementwise ops on strided
+        # outputs cost twice as much), then one interleaving copy makes the fused frame.
+        self._planes = torch.empty((n, 3, s, s), dtype=torch.float32)
         self._out = np.empty((n, s, s, 3), dtype=np.float32)
         self._out_t = torch.from_numpy(self._out)
+        self._views = {}
+        self.net.input(n)  # grows the backend's buffers too
+
+    def _views_for(self, n: int) -> _Views:
+        v = self._views.get(n)
+        if v is None:
+            planes = self._planes[:n]
+            v = self._views[n] = _Views(
+                self.net.input(n), planes[:, CHANNEL_GRAY], planes[:, CHANNEL_HEATMAP],
+                planes[:, CHANNEL_DEPTH], planes.permute(0, 2, 3, 1), self._out_t[:n],
+                self._out[:n])
+        return v
 
     def _input(self, frames: np.ndarray) -> np.ndarray:
         if frames.ndim == 3:
@@ -156,28 +217,31 @@ class Perception:
         t0 = time.perf_counter()
         frames = self._input(np.asarray(frames))
         n = frames.shape[0]
-        u8 = torch.from_numpy(np.ascontiguousarray(frames))
-        rgb = self._rgb[:n]
-        rgb.copy_(u8[..., :3])
-        out = self._out_t[:n]
-        torch.matmul(rgb, self._luma, out=self._gray[:n])
-        out[..., CHANNEL_GRAY] = self._gray[:n]
+        v = self._views_for(n)
+        u8 = torch.from_numpy(frames if frames.flags.c_contiguous else np.ascontiguousarray(frames))
+        x = v.x
+        # uint8 -> float straight into the network's input buffer (NCHW view), then the
+        # BT.601 luminance from its three planes and the [0, 1] scaling, all in place.
+        x.copy_(u8[..., :3].permute(0, 3, 1, 2))
+        gray = v.gray
+        torch.mul(x[:, 0], _LUMA[0], out=gray)
+        gray.add_(x[:, 1], alpha=_LUMA[1]).add_(x[:, 2], alpha=_LUMA[2])
         if self.config.depth == "render":
-            out[..., CHANNEL_DEPTH] = u8[..., 3]
-            out[..., CHANNEL_DEPTH] *= 1.0 / 255.0
-        rgb.mul_(1.0 / 255.0)
+            v.depth.copy_(u8[..., 3])
+            v.depth.mul_(1.0 / 255.0)
+        x.mul_(1.0 / 255.0)
         t1 = time.perf_counter()
-        raw = self.model(rgb.permute(0, 3, 1, 2))
-        # straight into the (strided) channels of the output buffer: no temporaries
-        torch.sigmoid(raw[:, HEAD_HEATMAP], out=out[..., CHANNEL_HEATMAP])
+        raw = self.net.run(n)
+        torch.sigmoid(raw[:, HEAD_HEATMAP], out=v.heat)
         if self.config.depth == "model":
-            log_depth_to_channel(raw[:, HEAD_DEPTH], out=out[..., CHANNEL_DEPTH])
+            log_depth_to_channel(raw[:, HEAD_DEPTH], out=v.depth)
+        v.out_t.copy_(v.planes_nhwc)
         t2 = time.perf_counter()
         self.timings.gray += t1 - t0
         self.timings.network += t2 - t1
         self.timings.frames += n
         self.timings.batches += 1
-        return self._out[:n]
+        return v.out
 
 
 def gray_of(frames: np.ndarray) -> np.ndarray:

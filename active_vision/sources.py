@@ -28,9 +28,11 @@ import cv2
 import numpy as np
 
 from shm_protocol import (
+    MULTIWAIT_AVAILABLE,
     FrameReader,
     FrameTimeoutError,
     FrameWriter,
+    MultiWaiter,
     ShmError,
     WriterGoneError,
     camera_name,
@@ -172,10 +174,13 @@ class CameraSegmentSource:
     :class:`FrameReader` per slot receives the frames.
 
     Waiting (:meth:`poll`): every slot is first looked at without blocking
-    (``FrameReader.latest`` into a preallocated buffer, compared with the last frame number
-    handed out); when none has a new frame, the call sleeps on one slot's futex
-    (``wait_next``), rotating over the slots that have a live writer, in slices of at most
-    ``slice_s`` (1 slot: the whole timeout), then looks at every slot again. After
+    (``FrameReader.next_frame`` into a preallocated buffer: a copy only when there is a new
+    frame); when none has a new frame, the call sleeps. With several slots where Linux
+    has ``futex_waitv`` (5.16+) it sleeps on every slot's wake word at once
+    (:class:`shm_protocol.MultiWaiter`), so any slot's frame wakes it at once. Otherwise it
+    sleeps on one slot's futex (``wait_next``), rotating over the slots that have a live
+    writer, in slices of at most ``slice_s`` (1 slot: the whole timeout), then looks at
+    every slot again. After
     ``IDLE_AFTER_S`` without any frame the slices grow to ``idle_slice_s`` (a woken slot
     still answers at once; a frame on another slot waits at most one slice). Slots whose env
     has gone (closed or died) are only looked at, never waited on, until a frame arrives.
@@ -203,30 +208,68 @@ class CameraSegmentSource:
             self.close(unlink=True)
             raise
         self.reused = [not w.created for w in self.writers]
-        self._buf = np.empty((slots, size, size, channels), dtype=np.uint8)
+        self.frames_buffer = np.empty((slots, size, size, channels), dtype=np.uint8)
+        """Slot i's newest frame is in row i: the daemon runs perception on ``[:n]`` directly
+        when the new frames are slots 0..n-1 (no gathering copy)."""
+        # One SourceFrame per slot and one result list, reused by every poll (the serve
+        # loop makes no SourceFrame or list per frame); a result is valid until the next poll.
+        self._frames = [SourceFrame(i, self.frames_buffer[i], 0) for i in range(slots)]
+        self._new: list[SourceFrame] = []
         # A frame already in a reused segment may be one the dead daemon never answered
         # (an env may still wait for it): it is handed out once more.
         self._done = [0] * slots
         self._writer_gone = [False] * slots
+        self._live = list(range(slots))
         self._turn = 0
+        # Several slots: sleep on all their wake words at once (futex_waitv), so a frame on
+        # any slot wakes the daemon at once; else rotate slices over the slots.
+        self._watch: MultiWaiter | None = None
+        if slots > 1 and MULTIWAIT_AVAILABLE and all(
+                r.wake_address is not None for r in self.readers):
+            self._watch = MultiWaiter(self.readers)
 
-    def _collect(self) -> list[SourceFrame]:
-        out = []
+    def _take(self, i: int, seq: int) -> None:
+        self._done[i] = seq
+        if self._writer_gone[i]:
+            self._writer_gone[i] = False
+            self._live = [j for j in range(self.slots) if not self._writer_gone[j]]
+        frame = self._frames[i]
+        frame.seq = seq
+        self._new.append(frame)
+
+    def _collect(self, skip: int = -1) -> list[SourceFrame]:
+        # next_frame copies only a frame newer than the reader's last: an unchanged slot
+        # costs a look at its seq, not a copy
+        buf, done = self.frames_buffer, self._done
         for i, r in enumerate(self.readers):
-            f = r.latest(out=self._buf[i])
-            if f is not None and f.seq != self._done[i]:
-                self._done[i] = f.seq
-                self._writer_gone[i] = False
-                out.append(SourceFrame(i, self._buf[i], f.seq))
-        return out
+            if i == skip:
+                continue
+            f = r.next_frame(out=buf[i])
+            if f is not None and f.seq != done[i]:
+                self._take(i, f.seq)
+        if skip >= 0:  # the woken slot first, so slot order matches the buffer's rows
+            self._new.sort(key=_slot_of)
+        return self._new
 
     def poll(self, timeout: float) -> list[SourceFrame]:
+        """New frames, at most one per slot (see the class docstring). The list and its
+        :class:`SourceFrame` objects are reused: valid until the next call."""
+        self._new.clear()
+        watch = self._watch
+        if watch is not None:
+            watch.arm()  # before looking: a frame published after this ends the wait at once
+            frames = self._collect()
+            if frames:
+                self._last_frame = time.monotonic()
+                return frames
+            watch.wait(timeout)
+            return self._collect()
         frames = self._collect()
         now = time.monotonic()
         if frames:
             self._last_frame = now
             return frames
-        live = [i for i in range(self.slots) if not self._writer_gone[i]]
+        live = self._live
         if not live:
             time.sleep(min(timeout, 0.02))
             return self._collect()
@@ -236,18 +279,27 @@ class CameraSegmentSource:
         wait = timeout if self.slots == 1 else min(
             timeout, self.idle_slice_s if idle else self.slice_s)
         try:
-            self.readers[i].wait_next(timeout=wait, out=self._buf[i])
-            self._last_frame = time.monotonic()
+            f = self.readers[i].wait_next(timeout=wait, out=self.frames_buffer[i])
         except FrameTimeoutError:
-            pass
+            return self._collect()
         except WriterGoneError as exc:
             logger.info("slot %d: camera writer gone (%s); waiting for an env to attach", i,
                         exc.reason)
-            self._writer_gone[i] = True
+            self._gone(i)
+            return self._collect()
         except ShmError as exc:
             logger.warning("slot %d: %s", i, exc)
-            self._writer_gone[i] = True
-        return self._collect()
+            self._gone(i)
+            return self._collect()
+        self._last_frame = time.monotonic()
+        if f.seq != self._done[i]:
+            self._take(i, f.seq)
+        # the woken slot's frame is already copied: look only at the other slots
+        return self._collect(skip=i) if self.slots > 1 else self._new
+
+    def _gone(self, i: int) -> None:
+        self._writer_gone[i] = True
+        self._live = [j for j in range(self.slots) if not self._writer_gone[j]]
 
     def close(self, unlink: bool = False) -> None:
         """Close readers and writers; ``unlink`` removes the camera segments."""
@@ -255,6 +307,10 @@ class CameraSegmentSource:
             r.close()
         for w in self.writers:
             w.close(unlink=unlink)
+
+
+def _slot_of(frame: SourceFrame) -> int:
+    return frame.slot
 
 
 __all__ = ["CameraSegmentSource", "FrameSource", "OpenCVSource", "SourceError", "SourceFrame"]

@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -243,6 +244,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         path = _save(model, cfg.out, meta)
     print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB) after {facts['epochs']:.0f} "
           f"epochs in {facts['seconds']:.0f} s")
+    # the ONNX backend's file, named for these exact weights (stale exports are removed)
+    from active_vision.onnx_export import OnnxExportError, write_export_beside
+
+    try:
+        print(f"wrote {write_export_beside(path)}")
+    except OnnxExportError as exc:
+        print(f"no ONNX export written beside the weights ({exc}); the daemon exports it "
+              "on first use, or run `python -m active_vision.onnx_export`", file=sys.stderr)
     return 0
 
 

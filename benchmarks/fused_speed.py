@@ -1,7 +1,16 @@
-"""End-to-end speed of RoverEnvFused with a live av-daemon, and where the time goes.
+"""End-to-end speed of RoverEnvFused with a live av-daemon, and where the time goes,
+for each perception backend (torch and onnx) side by side in one run.
 
-    python benchmarks/fused_speed.py                # 1 env, then 2 envs on 2 slots
-    python benchmarks/fused_speed.py --steps 500    # shorter
+    python benchmarks/fused_speed.py                     # both backends, 1 and 2 envs, training
+    python benchmarks/fused_speed.py --steps 500 --train-steps 0   # shorter, no training rows
+    python benchmarks/fused_speed.py --backends onnx     # one backend
+
+For each backend the daemon (``av-daemon --backend B``) serves 1 env, then 2 envs on 2
+slots; then ``rover-train --env fused`` (PPO, rover-train's defaults, 1 env) trains for
+``--train-steps`` steps against a daemon of that backend and its steps/s is read from its
+``metrics.json`` (plus one run of the last backend with the PPO update on every core,
+``--update-threads 0``). The onnx/torch ratio of 1-env steps/s is
+printed at the end.
 
 Per step the env advances physics (0.05 s of simulated time), renders its camera,
 publishes the frame and waits for the daemon's fused frame. The table splits a step into
@@ -23,6 +32,7 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -90,14 +100,14 @@ def run_env(name: str, slot: int, steps: int, world: str, out: mp.Queue) -> None
     )
 
 
-def perception_alone(threads: int, n: int = 300) -> float:
+def perception_alone(threads: int, backend: str, n: int = 300) -> float:
     """Seconds per frame of the daemon's perception, batch 1, in this process."""
     import torch
 
     from active_vision import Perception, PerceptionConfig
 
     torch.set_num_threads(threads)
-    perc = Perception(PerceptionConfig(threads=threads))
+    perc = Perception(PerceptionConfig(threads=threads, backend=backend))
     frame = np.random.default_rng(0).integers(0, 255, (1, 96, 96, 3), dtype=np.uint8)
     for _ in range(20):
         perc(frame)
@@ -146,60 +156,105 @@ def _ipc_child(name: str, n: int, q: mp.Queue) -> None:
     q.put(lat[10:])
 
 
+def daemon_args(threads: int, backend: str) -> list[str]:
+    return ["--threads", str(threads), "--backend", backend, "--log-level", "WARNING"]
+
+
+def run_envs(name: str, n_envs: int, steps: int, world: str) -> tuple[list[dict], float]:
+    ctx = mp.get_context("spawn")
+    q: mp.Queue = ctx.Queue()
+    procs = [ctx.Process(target=run_env, args=(name, i, steps, world, q)) for i in range(n_envs)]
+    t0 = time.perf_counter()
+    for pr in procs:
+        pr.start()
+    results = [q.get(timeout=600) for _ in procs]
+    for pr in procs:
+        pr.join()
+    return results, time.perf_counter() - t0
+
+
+def train_speed(backend: str, steps: int, threads: int, world: str,
+                extra: tuple[str, ...] = ()) -> float:
+    """rover-train --env fused steps/s (its own metrics.json) against a ``backend`` daemon."""
+    import json
+    import tempfile
+
+    name = f"bench_fused_train_{os.getpid()}_{backend}"
+    with spawn_daemon(name, 1, extra_args=daemon_args(threads, backend)):
+        with tempfile.TemporaryDirectory(prefix="roverav_bench_train_") as tmp:
+            env = dict(os.environ, PYTHONPATH=str(ROOT))
+            subprocess.run(
+                [sys.executable, "-m", "rover_train.train", "--env", "fused", "--world", world,
+                 "--timesteps", str(steps), "--name", name, "--logdir", tmp,
+                 "--no-progress", "--checkpoint-every", "0", *extra],
+                check=True, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+            )  # fmt: skip
+            metrics = json.loads((Path(tmp) / "metrics.json").read_text())
+    return float(metrics["steps_per_s"])
+
+
+def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
+    """The env-stepping table: per backend, 1 env then 2 envs on 2 slots."""
+    alone_ipc = ipc_handoff()
+    alone_perc = {b: perception_alone(a.threads, b) for b in backends}
+    print(
+        f"\nRoverEnvFused end to end ({a.world}, {a.steps} steps per env, "
+        f"daemon --threads {a.threads}); IPC hand-off alone (p50): {alone_ipc * 1e6:.0f} us"
+    )
+    print(
+        "\n| backend | envs | steps/s (all envs) | x seed (20/s) | ms/step | physics ms "
+        "| render ms | daemon round trip ms | perception alone ms | round trip - perception ms "
+        "| efficiency | reset ms |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
+    one: dict[str, float] = {}
+    for backend in backends:
+        for n_envs in (1, 2):
+            name = f"bench_fused_{os.getpid()}_{backend}_{n_envs}"
+            with spawn_daemon(name, n_envs, extra_args=daemon_args(a.threads, backend)):
+                results, _ = run_envs(name, n_envs, a.steps, a.world)
+            agg = sum(r["steps"] / r["wall"] for r in results)
+            r0 = results[0]
+            step_s = r0["wall"] / r0["steps"]
+            perc = alone_perc[backend]
+            stages = r0["physics"] + r0["render"] + perc + 2 * alone_ipc
+            if n_envs == 1:
+                one[backend] = agg
+            print(f"| {backend} | {n_envs} | {agg:.0f} | {agg / SEED_STEPS_PER_S:.1f}x | "
+                  f"{step_s * 1e3:.2f} | {r0['physics'] * 1e3:.2f} | {r0['render'] * 1e3:.2f} | "
+                  f"{r0['roundtrip'] * 1e3:.2f} | {perc * 1e3:.2f} | "
+                  f"{(r0['roundtrip'] - perc) * 1e3:.2f} | {stages / step_s:.2f} | "
+                  f"{r0['reset_s'] * 1e3:.1f} |", flush=True)  # fmt: skip
+    print("\nms/step, physics, render, round trip and efficiency are those of env 0.")
+    if "torch" in one and "onnx" in one:
+        print(f"onnx / torch, 1 env: {one['onnx'] / one['torch']:.2f}x", flush=True)
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=2000, help="steps per env")
     p.add_argument("--world", default="maze")
-    p.add_argument("--threads", type=int, default=1, help="daemon torch threads")
+    p.add_argument("--threads", type=int, default=1, help="daemon threads")
+    p.add_argument("--backends", default="torch,onnx", help="comma-separated, in run order")
+    p.add_argument("--train-steps", type=int, default=5120,
+                   help="rover-train --env fused steps per backend (0: skip)")
+    p.add_argument("--skip-envs", action="store_true", help="only the training rows")
     a = p.parse_args()
+    backends = [b.strip() for b in a.backends.split(",") if b.strip()]
 
-    alone_perc = perception_alone(a.threads)
-    alone_ipc = ipc_handoff()
-    rows = []
-    for n_envs in (1, 2):
-        name = f"bench_fused_{os.getpid()}_{n_envs}"
-        with spawn_daemon(name, n_envs,
-                          extra_args=["--threads", str(a.threads), "--log-level", "WARNING"]):
-            ctx = mp.get_context("spawn")
-            q: mp.Queue = ctx.Queue()
-            procs = [
-                ctx.Process(target=run_env, args=(name, i, a.steps, a.world, q))
-                for i in range(n_envs)
-            ]
-            t0 = time.perf_counter()
-            for pr in procs:
-                pr.start()
-            results = [q.get(timeout=600) for _ in procs]
-            for pr in procs:
-                pr.join()
-            total = time.perf_counter() - t0
-        agg = sum(r["steps"] / r["wall"] for r in results)
-        r0 = results[0]
-        step_s = r0["wall"] / r0["steps"]
-        stages = r0["physics"] + r0["render"] + alone_perc + 2 * alone_ipc
-        rows.append(
-            (n_envs, agg, agg / SEED_STEPS_PER_S, step_s * 1e3, r0["physics"] * 1e3,
-             r0["render"] * 1e3, r0["roundtrip"] * 1e3, alone_perc * 1e3, stages / step_s,
-             r0["reset_s"] * 1e3, total)
-        )  # fmt: skip
-
-    print(
-        f"\nRoverEnvFused end to end ({a.world}, {a.steps} steps per env, "
-        f"daemon --threads {a.threads})"
-    )
-    print(
-        f"perception alone: {alone_perc * 1e3:.2f} ms/frame; "
-        f"IPC hand-off alone (p50): {alone_ipc * 1e6:.0f} us\n"
-    )
-    print(
-        "| envs | steps/s (all envs) | x seed (20/s) | ms/step | physics ms | render ms "
-        "| daemon round trip ms | perception alone ms | efficiency | reset ms |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for r in rows:
-        print(f"| {r[0]} | {r[1]:.0f} | {r[2]:.1f}x | {r[3]:.2f} | {r[4]:.2f} | {r[5]:.2f} | "
-              f"{r[6]:.2f} | {r[7]:.2f} | {r[8]:.2f} | {r[9]:.1f} |")  # fmt: skip
-    print("\nms/step, physics, render, round trip and efficiency are those of env 0.")
+    if not a.skip_envs:
+        env_rows(a, backends)
+    if a.train_steps > 0:
+        print(f"\nrover-train --env fused ({a.world}, PPO defaults, 1 env, "
+              f"{a.train_steps} steps):\n")
+        print("| backend, PPO update threads | training steps/s |\n|---|---|", flush=True)
+        for b in backends:
+            sps = train_speed(b, a.train_steps, a.threads, a.world)
+            print(f"| {b}, update on 1 thread (default) | {sps:.0f} |", flush=True)
+        # the PPO update on every core (pays only when the other cores are idle)
+        b = backends[-1]
+        sps = train_speed(b, a.train_steps, a.threads, a.world, ("--update-threads", "0"))
+        print(f"| {b}, update on all cores (--update-threads 0) | {sps:.0f} |", flush=True)
     return 0
 
 

@@ -66,13 +66,15 @@ class Args:
     """Measure the daemon end to end."""
     yolo: bool = True
     """Time the YOLO11n-shaped comparison."""
+    backend: str = "auto"
+    """Perception backend (``auto``, ``onnx``, ``torch``) for the Perception and daemon rows."""
 
 
 # --- perception -----------------------------------------------------------------------------
 
 
 def bench_perception(threads: int, batch: int, args: Args) -> dict[str, float]:
-    p = Perception(PerceptionConfig(threads=threads, max_batch=batch))
+    p = Perception(PerceptionConfig(threads=threads, max_batch=batch, backend=args.backend))
     frames = np.random.default_rng(0).integers(0, 256, (batch, 96, 96, 3), dtype=np.uint8)
     iters = max(10, args.iters // (4 if batch > 1 else 1))
     for _ in range(20):
@@ -97,7 +99,8 @@ def bench_daemon(slots: int, args: Args) -> dict[str, float]:
     from shm_protocol import FrameReader, FrameWriter, camera_name, slot_name
 
     name = f"bench_av_{uuid.uuid4().hex[:8]}"
-    with spawn_daemon(name, slots, extra_args=["--threads", "1", "--log-level", "WARNING"]):
+    with spawn_daemon(name, slots, extra_args=["--threads", "1", "--backend", args.backend,
+                                               "--log-level", "WARNING"]):
         cams = [FrameWriter(camera_name(slot_name(name, i)), create=False) for i in range(slots)]
         fused = [FrameReader(slot_name(name, i)) for i in range(slots)]
         frame = np.random.default_rng(1).integers(0, 256, (96, 96, 3), dtype=np.uint8)
@@ -345,13 +348,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quick", action="store_true", help="fewer iterations (a smoke run)")
     p.add_argument("--no-daemon", action="store_true")
     p.add_argument("--no-yolo", action="store_true")
+    p.add_argument("--backend", choices=("auto", "onnx", "torch"), default="auto",
+                   help="perception backend (the daemon's default is auto: onnx if installed)")
     a = p.parse_args(argv)
-    args = Args(daemon=not a.no_daemon, yolo=not a.no_yolo)
+    args = Args(daemon=not a.no_daemon, yolo=not a.no_yolo, backend=a.backend)
     if a.quick:
         args.iters, args.repeats, args.daemon_frames = 40, 3, 100
     load = os.getloadavg()[0]
     print(f"machine: {os.cpu_count()} CPUs, load average {load:.2f} at start; torch "
           f"{torch.__version__}")
+    print(f"perception backend: {Perception(PerceptionConfig(backend=args.backend)).backend}")
     print()
     print("| configuration | gray | heatmap+depth | total ms/frame (best run) | frames/s |")
     print("|---|---:|---:|---:|---:|")

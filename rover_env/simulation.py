@@ -28,6 +28,14 @@ from rover_env.worlds.spec import (
 
 log = logging.getLogger(__name__)
 
+# Mesa's llvmpipe (the headless EGL renderer) rasterises on a pool of one thread per core by
+# default. A 96x96 camera frame is too small to split: the pool's hand-offs cost more than
+# they save, and on a 2-core machine its threads compete with the av-daemon and the other
+# envs. 0 renders in the calling thread (maze camera, one process: 0.49-0.51 ms instead of
+# 0.62-0.69 ms; see benchmarks/RESULTS.md). Read when the GL context is first made (lazily,
+# after this import); an LP_NUM_THREADS set by the user wins.
+os.environ.setdefault("LP_NUM_THREADS", "0")
+
 # s; implicitfast keeps wheel servos and contacts stable here (0.01 behaves the same:
 # drive speed, turn rates, flips; tested), and two steps per 0.05 s control period are cheap.
 PHYSICS_DT = 0.025

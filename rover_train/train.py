@@ -94,6 +94,10 @@ class TrainArgs:
     threads: int = 1
     """Torch intra-op threads of the trainer (small nets on CPU run best on one; the daemon
     and the env workers need the other cores)."""
+    update_threads: int = 1
+    """PPO: torch threads for the gradient epochs, while envs and daemon are idle (0: every
+    core this process may use). More than 1 pays only on an otherwise idle machine: with
+    other work on the cores a 2-thread update measured slower. Rollouts keep --threads."""
     log_level: str = field(default_factory=default_log_level,
                            metadata={"choices": LOG_LEVELS, "parse": str.upper})
     """Log level; defaults to $ROVERAV_LOG_LEVEL (set by rover-pair --log-level), else INFO."""
@@ -157,7 +161,8 @@ def hyperparameters(args: TrainArgs) -> dict[str, Any]:
 
 _EPILOG = ("Under rover-pair, --name and --slots default to the supervisor's. SIGINT/SIGTERM "
            "save a checkpoint and exit 130/143; --resume RUN_DIR continues the run.")
-RESUME_OPERATIONAL = ("name", "log_level", "progress", "device", "threads", "connect_timeout",
+RESUME_OPERATIONAL = ("name", "log_level", "progress", "device", "threads", "update_threads",
+                      "connect_timeout",
                       "vec_env")  # fmt: skip
 """Fields a resumed run takes from this invocation (flags, or rover-pair's environment)."""
 RESUME_EXTENDABLE = ("timesteps", "checkpoint_every", "slots")
@@ -475,6 +480,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
     import torch
     from stable_baselines3.common.callbacks import CallbackList
 
+    from rover_train.threads import PhaseThreads
+
     torch.set_num_threads(max(args.threads, 1))
     run_dir = args.logdir
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -510,15 +517,16 @@ def train(args: TrainArgs) -> dict[str, Any]:
             record.status = "running"
             record.save(run_dir)
             remaining = args.timesteps - start_steps
+            callbacks = [metrics_cb, make_checkpoint_callback(checkpointer)]
+            if args.algo == "ppo" and args.update_threads != args.threads:
+                callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
             start = time.perf_counter()
             if remaining > 0 and not stop.requested:
                 try:
                     with stop.learning_block():
                         model.learn(
                             total_timesteps=remaining,
-                            callback=CallbackList(
-                                [metrics_cb, make_checkpoint_callback(checkpointer)]
-                            ),
+                            callback=CallbackList(callbacks),
                             progress_bar=args.progress,
                             reset_num_timesteps=not resuming,
                             tb_log_name=record.tb_log_name,

@@ -32,6 +32,8 @@ from .layout import (
     channel_to_depth,
     depth_to_channel,
 )
+from .multiwait import AVAILABLE as MULTIWAIT_AVAILABLE
+from .multiwait import MultiWaiter
 from .names import (
     DEFAULT_NAME,
     SHM_DIR,
@@ -61,6 +63,8 @@ __all__ = [
     "FrameWriter",
     "InvalidNameError",
     "LayoutError",
+    "MULTIWAIT_AVAILABLE",
+    "MultiWaiter",
     "NonFiniteError",
     "SHM_DIR",
     "SegmentBusyError",

@@ -97,6 +97,11 @@ class FutexWord:
         self._ts = _Timespec()
         self._tsp = ctypes.addressof(self._ts)
 
+    @property
+    def address(self) -> int:
+        """The word's address in this process."""
+        return self._addr
+
     def wait(self, expected: int, timeout: float) -> None:
         """Sleep until woken, ``timeout`` s pass, or the word no longer equals ``expected``.
 

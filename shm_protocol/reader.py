@@ -314,6 +314,30 @@ class FrameReader:
             )
         return self._wait(timeout, out, int(source_seq))
 
+    def next_frame(self, out: np.ndarray | None = None) -> Frame | None:
+        """The newest frame if it is newer than the last one returned, else None; never
+        blocks (what :meth:`wait_next` returns, without waiting). For a process that waits
+        on several segments at once (:class:`~shm_protocol.multiwait.MultiWaiter`)."""
+        self._check_out(out)
+        f = self._read(out, True, None)
+        if f is None and time.monotonic() >= self._next_check:
+            self._next_check = time.monotonic() + LIVENESS_INTERVAL_S
+            if self._seg is not None and self._seg.replaced() and self._try_reattach():
+                f = self._read(out, True, None)
+        return f
+
+    @property
+    def wake_address(self) -> int | None:
+        """Address of the segment's futex wake word in this process (None: no futex)."""
+        fw = self._futex
+        return None if fw is None or self._closed else fw.address
+
+    @property
+    def wake_value(self) -> int:
+        """The wake word's current value (0 without a trailer)."""
+        t = self._t
+        return 0 if t is None or self._closed else int(t.wake)
+
     def latest(self, out: np.ndarray | None = None) -> Frame | None:
         """The newest complete frame (even one returned before), or None; never blocks."""
         self._check_out(out)
