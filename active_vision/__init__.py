@@ -10,7 +10,11 @@ memory by the ``av-daemon`` (:mod:`active_vision.daemon`).
 - :class:`AVNet`, :func:`load_model`, :class:`WeightsError`: the network and its weights.
 - :func:`spawn_daemon` / :func:`start_daemon` / :class:`ChildProcess`: run an av-daemon from
   another process (:mod:`active_vision.launcher`; standard library only, no torch).
-- ``python -m active_vision.dataset | train | evaluate``: data, training, quality figures.
+- :class:`SlotHistory`: the daemon's per-slot K-frame history, cut at episode starts.
+- :class:`Predictor`, :class:`PredictNet`, :func:`load_predictor`: ``--heatmap predict``
+  (occupancy over the next 1.5 s from the last K frames).
+- ``python -m active_vision.dataset | train | predict_train | evaluate``: data, training,
+  quality figures.
 
 The torch-backed names load on first use, so ``from active_vision import spawn_daemon``
 (a supervisor, a test) does not import torch.
@@ -47,6 +51,10 @@ _LAZY = {
     "Perception": "active_vision.perception",
     "PerceptionConfig": "active_vision.perception",
     "StageTimes": "active_vision.perception",
+    "SlotHistory": "active_vision.history",
+    "PredictNet": "active_vision.predict",
+    "Predictor": "active_vision.predict",
+    "load_predictor": "active_vision.predict",
 }
 
 
@@ -67,9 +75,13 @@ __all__ = [
     "DaemonStartError",
     "Perception",
     "PerceptionConfig",
+    "PredictNet",
+    "Predictor",
+    "SlotHistory",
     "StageTimes",
     "WeightsError",
     "load_model",
+    "load_predictor",
     "save_weights",
     "spawn_daemon",
     "start_daemon",

@@ -4,6 +4,7 @@
               [--backend auto|onnx|torch] [--threads 1]
               [--source camera|video:PATH|device:N] [--preview PATH]
               [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
+              [--heatmap detect|predict] [--predict-weights FILE]
 
 (also ``python -m active_vision``). For each slot i it creates the fused segment
 ``slot_name(name, i)`` (float32 ``size x size x 3``, written by the daemon) and, with
@@ -24,10 +25,20 @@ Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flu
 4. refreshes the fused segments' heartbeat while idle, and logs per-stage timings (gray,
    heatmap+depth, publish) every ``--log-every`` frames.
 
+Every slot keeps its own history of its last ``K`` (5) fused detection frames
+(:class:`~active_vision.history.SlotHistory`), cleared when a camera frame carries the
+episode-start flag (``Frame.episode_start``, set by the env on each episode's first frame).
+``--heatmap detect`` (default, seed 000) publishes channel 1 as this frame's detection;
+``--heatmap predict`` (seed 001) replaces it with the predicted occupancy over the next
+1.5 s computed from the slot's history (:mod:`active_vision.predict`). A daemon started
+mid-episode has an empty history and fills it from the frames it sees; nothing of a slot's
+history ever reaches another slot or survives an episode start.
+
 With ``--source video:PATH`` (or ``device:N``) no camera segment is made: the video plays at
 its frame rate into every slot's fused segment (``source_seq`` counts frames), for trying
 the pipeline without the simulator. ``--preview PATH`` writes slot 0's camera frame and its
-three fused channels side by side (PNG, refreshed twice a second, or an MP4 of every frame).
+three fused channels side by side (PNG, refreshed twice a second, or an MP4 of every frame);
+in ``predict`` mode the detection heatmap is shown next to the prediction.
 
 Start and stop: a live daemon already serving the name (its lock is held, or a fused
 segment's writer is alive with a fresh heartbeat) makes this one refuse with exit status 1.
@@ -55,6 +66,7 @@ import numpy as np
 
 from active_vision.launcher import READY_MARKER
 from shm_protocol import (
+    CHANNEL_HEATMAP,
     DEFAULT_NAME,
     FUSED_SHAPE,
     FrameReader,
@@ -106,6 +118,11 @@ class DaemonConfig:
     weights: Path | None = None
     """Network weights; default: the shipped ``active_vision/weights/avnet.pt``."""
     log_level: str = "INFO"
+    heatmap: str = "detect"
+    """Channel 1: ``detect`` (this frame's pedestrians) or ``predict`` (occupancy over the
+    next 1.5 s from the slot's last K frames)."""
+    predict_weights: Path | None = None
+    """Predictor weights; default: the shipped ``active_vision/weights/predict.pt``."""
 
 
 class DaemonError(RuntimeError):
@@ -154,6 +171,8 @@ class Daemon:
         self.stop = _Stop()
         self._lock: socket.socket | None = None
         self.preview = None
+        self.predictor = None
+        self.history = None
 
     # --- start-up -----------------------------------------------------------------------
 
@@ -190,8 +209,16 @@ class Daemon:
             self.perception = Perception(PerceptionConfig(
                 size=cfg.size, depth=cfg.depth, threads=cfg.threads, weights=cfg.weights,
                 max_batch=cfg.slots, backend=cfg.backend))  # type: ignore[arg-type]
+            if cfg.heatmap == "predict":
+                from active_vision.predict import Predictor
+
+                self.predictor = Predictor(weights=cfg.predict_weights)
         except (WeightsError, BackendError, OnnxExportError) as exc:
             raise DaemonError(str(exc)) from exc
+        from active_vision.history import SlotHistory
+        from active_vision.predict import K
+
+        self.history = SlotHistory(cfg.slots, K, (cfg.size, cfg.size, 3))
         from active_vision.sources import CameraSegmentSource, OpenCVSource, SourceError
 
         try:
@@ -248,6 +275,11 @@ class Daemon:
         gathered = [batch[:n] for n in range(cfg.slots + 1)]
         buffer = getattr(source, "frames_buffer", None)
         direct = None if buffer is None else [buffer[:n] for n in range(cfg.slots + 1)]
+        history = self.history
+        assert history is not None
+        predictor = self.predictor
+        windows = np.empty((cfg.slots, history.k, cfg.size, cfg.size, 3), np.float32)
+        detect_heat = np.empty((cfg.size, cfg.size), np.float32)
         while self.stop.signal is None:
             new = source.poll(IDLE_POLL_S)  # type: ignore[attr-defined]
             now = time.monotonic()
@@ -274,6 +306,16 @@ class Daemon:
                     slots[j] = f.slot
                 frames = gathered[n]
             out = perception(frames)
+            for j, f in enumerate(new):
+                if f.episode_start:
+                    logger.debug("slot %d: episode start at camera frame %d", f.slot, f.seq)
+                history.push(f.slot, out[j], episode_start=f.episode_start)
+            if predictor is not None:
+                if self.preview is not None and slots[0] == 0:
+                    detect_heat[:] = out[0, :, :, CHANNEL_HEATMAP]
+                for j in range(n):
+                    history.window(slots[j], out=windows[j])
+                out[:, :, :, CHANNEL_HEATMAP] = predictor(windows[:n])
             t0 = time.perf_counter()
             for j in range(n):
                 fused[slots[j]].publish(out[j], source_seq=seqs[j])
@@ -281,7 +323,8 @@ class Daemon:
             last_hb = now
             if self.preview is not None and slots[0] == 0:
                 if self.preview.video or now >= next_png:
-                    self.preview.write(batch[0], out[0])
+                    self.preview.write(frames[0], out[0],
+                                       detect_heat if predictor is not None else None)
                     next_png = now + PNG_PREVIEW_EVERY_S
             frames_since_log += n
             if cfg.log_every and frames_since_log >= cfg.log_every:
@@ -380,6 +423,11 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     p.add_argument("--stale-after", type=float, default=d.stale_after,
                    help="heartbeat age (s) after which an existing daemon counts as dead")
     p.add_argument("--weights", type=Path, default=None, help="network weights file")
+    p.add_argument("--heatmap", choices=("detect", "predict"), default=d.heatmap,
+                   help="channel 1: this frame's detection (default), or the predicted "
+                        "occupancy over the next 1.5 s from the slot's last 5 frames")
+    p.add_argument("--predict-weights", type=Path, default=None,
+                   help="predictor weights file (--heatmap predict)")
     p.add_argument("--log-level", default=d.log_level,
                    choices=("DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning",
                             "error"))
@@ -394,7 +442,8 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     return DaemonConfig(name=a.name, slots=a.slots, size=a.size, depth=a.depth,
                         threads=a.threads, backend=a.backend, source=a.source, preview=a.preview,
                         log_every=max(0, a.log_every), stale_after=a.stale_after,
-                        weights=a.weights, log_level=a.log_level.upper())
+                        weights=a.weights, log_level=a.log_level.upper(),
+                        heatmap=a.heatmap, predict_weights=a.predict_weights)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -414,7 +463,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             names = daemon.segment_names()
             print(f"{READY_MARKER}: name={cfg.name} slots={cfg.slots} size={cfg.size} "
                   f"depth={cfg.depth} backend={daemon.perception.backend} "
-                  f"source={cfg.source} pid={os.getpid()} "
+                  f"heatmap={cfg.heatmap} source={cfg.source} pid={os.getpid()} "
                   f"segments={','.join(names)}", flush=True)
             daemon.serve()
         if stop.signal is not None:

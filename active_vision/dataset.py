@@ -2,7 +2,7 @@
 
 ``python -m active_vision.dataset --out DIR --frames N --seed S`` renders N camera frames
 through :class:`rover_env.simulation.RoverSim` and writes
-``DIR/av_<worlds>_s<S>_n<N>_<size>px_v<version>.npz``
+``DIR/av_<worlds>_s<S>_n<N>_<size>px_d<drive %>_v<version>.npz``
 (compressed) with:
 
 ====================  ===================  =============================================
@@ -13,25 +13,36 @@ key                   shape / dtype        meaning
 ``mask``              (N, S, S) bool       pedestrian pixels (segmentation rendering)
 ``world``             (N,) int8            index into ``worlds``
 ``worlds``            (W,) str             world names
-``kind``              (N,) int8            0 empty, 1 walking, 2 placed (see below)
+``kind``              (N,) int8            0 empty, 1 walking, 2 placed, 3 driving
+``episode``           (N,) int32           driving episode (-1: posed frame)
+``step``              (N,) int16           control step within the episode (-1: posed)
 ``seed``              () int64             the seed the file was made from
 ====================  ===================  =============================================
 
-Every frame draws its own random generator from ``(seed, frame index)``, so a file is a pure
-function of ``(seed, frames, worlds, size)``. Frames cycle through the worlds (frame i in
-world ``i % W``). Per frame the script varies:
+A file is a pure function of ``(seed, frames, worlds, size, drive_fraction, appearance)``.
+The first ``round(frames * drive_fraction)`` frames (70 % by default) are **driving**
+frames: short episodes recorded while the rover drives (:mod:`active_vision.driving`:
+random smooth driving, approaching a pedestrian, driving into walls and rocks, watching a
+distant pedestrian; every 3rd control step kept), episode e in world ``e % W`` from
+``np.random.default_rng([seed, 1, e])``. These are the frames the agent sees. The rest are
+**posed** frames (frame j in world ``j % W`` from ``np.random.default_rng([seed, j])``),
+which vary per frame:
 
 - the rover pose: a free point (0.4 m clearance) near the pedestrian area or anywhere in
   bounds, random heading - so walls, rocks, panels and open ground all appear;
 - the pedestrians (see :class:`FrameRenderer`): walking figures seen from 0.8-9 m
   (uniform in log distance), standing figures pinned in view (1-3, some straddling the frame
-  edge, random headings and clothes), and ``p_empty`` of the frames with none in view;
-- the lighting: every light's diffuse/ambient/specular and the headlight scaled by random
-  factors (dim dusk to bright noon), with a random colour cast.
+  edge, random headings), and ``p_empty`` of the frames with none in view.
 
-The held-out split is by seed (``HELDOUT_SEED`` vs ``TRAIN_SEED``: no shared frame) and is
-reported by world (``evaluate`` prints figures per world; ``--worlds`` renders a subset so a
-network can be trained without one world and evaluated on it).
+Both kinds randomise the lighting (every light's diffuse/ambient/specular and the headlight
+scaled by random factors, dim dusk to bright noon, with a random colour cast:
+:func:`random_lighting`) and, with ``appearance="random"`` (the default), the pedestrians'
+clothing colours, height, girth and gait phase (``RoverSim(pedestrian_appearance=...)``).
+
+The held-out split (``evaluate.heldout``) is ``drive_fraction=1``: driving frames only,
+from ``HELDOUT_SEED`` (seeds, appearances and lighting never used in training), reported by
+world (``--worlds`` renders a subset so a network can be trained without one world and
+evaluated on it). Everything is read through public :class:`RoverSim` calls.
 """
 
 from __future__ import annotations
@@ -53,9 +64,9 @@ logger = logging.getLogger(__name__)
 WORLDS: tuple[str, ...] = ("inspect", "moon", "maze")
 TRAIN_SEED = 0
 HELDOUT_SEED = 1_000_003
-DATASET_VERSION = 3
+DATASET_VERSION = 4
 """Part of the cache file name: bump it when rendering changes, so stale files are not reused."""
-KIND_EMPTY, KIND_WALKING, KIND_PLACED = 0, 1, 2
+KIND_EMPTY, KIND_WALKING, KIND_PLACED, KIND_DRIVING = 0, 1, 2, 3
 _GROUND_CHECK_M = 3.0
 _GROUND_MIN_M = 0.12
 _SETTLE_S = 0.3
@@ -71,8 +82,8 @@ DEFAULT_DATA_DIR = (
 class DatasetConfig:
     """What :func:`render_dataset` renders."""
 
-    frames: int = 3000
-    """Number of frames (cycled over ``worlds``)."""
+    frames: int = 8000
+    """Number of frames."""
     seed: int = TRAIN_SEED
     """Base seed; frame i uses ``np.random.default_rng([seed, i])``."""
     worlds: tuple[str, ...] = WORLDS
@@ -87,6 +98,11 @@ class DatasetConfig:
     """Nearest pedestrian distance from the camera (m)."""
     max_distance: float = 9.0
     """Farthest pedestrian distance from the camera (m)."""
+    drive_fraction: float = 0.7
+    """Share of the frames recorded while driving (:mod:`active_vision.driving`); the rest
+    are posed views."""
+    appearance: str = "random"
+    """Pedestrian appearance (``RoverSim(pedestrian_appearance=...)``)."""
 
 
 @dataclass
@@ -100,6 +116,17 @@ class Dataset:
     worlds: tuple[str, ...]
     kind: np.ndarray
     seed: int
+    episode: np.ndarray | None = None
+    """(N,) driving episode of each frame (-1: a posed frame); None in old files."""
+    step: np.ndarray | None = None
+    """(N,) control step of each driving frame within its episode (-1: posed)."""
+
+    def __post_init__(self) -> None:
+        n = int(self.rgb.shape[0])
+        if self.episode is None:
+            self.episode = np.full(n, -1, np.int64)
+        if self.step is None:
+            self.step = np.full(n, -1, np.int64)
 
     def __len__(self) -> int:
         return int(self.rgb.shape[0])
@@ -117,6 +144,8 @@ class Dataset:
             worlds=np.array(self.worlds),
             kind=self.kind.astype(np.int8),
             seed=np.int64(self.seed),
+            episode=np.asarray(self.episode, np.int32),
+            step=np.asarray(self.step, np.int16),
         )
         tmp.replace(path)
         return path
@@ -132,56 +161,39 @@ class Dataset:
                 worlds=tuple(str(w) for w in z["worlds"]),
                 kind=z["kind"].astype(np.int64),
                 seed=int(z["seed"]),
+                episode=z["episode"].astype(np.int64) if "episode" in z else None,
+                step=z["step"].astype(np.int64) if "step" in z else None,
             )
 
     def subset(self, index: np.ndarray) -> Dataset:
         return Dataset(self.rgb[index], self.depth[index], self.mask[index], self.world[index],
-                       self.worlds, self.kind[index], self.seed)
+                       self.worlds, self.kind[index], self.seed,
+                       np.asarray(self.episode)[index], np.asarray(self.step)[index])
 
 
 def dataset_path(out_dir: Path, config: DatasetConfig) -> Path:
     """The file :func:`build` writes for ``config`` in ``out_dir``."""
     tag = "-".join(config.worlds)
+    drive = f"_d{round(100 * config.drive_fraction)}" + (
+        "" if config.appearance == "random" else f"_{config.appearance}")
     return Path(out_dir) / (f"av_{tag}_s{config.seed}_n{config.frames}_{config.size}px"
-                            f"_v{DATASET_VERSION}.npz")
+                            f"{drive}_v{DATASET_VERSION}.npz")
 
 
-class _Lighting:
-    """Random scaling of a model's lights; remembers the originals to restore them."""
-
-    def __init__(self, model: Any) -> None:
-        self.model = model
-        self.diffuse = model.light_diffuse.copy()
-        self.ambient = model.light_ambient.copy()
-        self.specular = model.light_specular.copy()
-        self.head_diffuse = model.vis.headlight.diffuse.copy()
-        self.head_ambient = model.vis.headlight.ambient.copy()
-
-    def randomise(self, rng: np.random.Generator) -> None:
-        m = self.model
-        level = rng.uniform(0.35, 1.35)
-        tint = 1.0 + rng.uniform(-0.15, 0.15, size=3)
-        amb = rng.uniform(0.5, 1.6)
-        m.light_diffuse[:] = np.clip(self.diffuse * level * tint, 0.0, 1.0)
-        m.light_ambient[:] = np.clip(self.ambient * amb * tint, 0.0, 1.0)
-        m.light_specular[:] = np.clip(self.specular * rng.uniform(0.3, 1.2), 0.0, 1.0)
-        m.vis.headlight.diffuse[:] = np.clip(self.head_diffuse * level * tint, 0.0, 1.0)
-        m.vis.headlight.ambient[:] = np.clip(self.head_ambient * amb * tint, 0.0, 1.0)
-
-    def restore(self) -> None:
-        m = self.model
-        m.light_diffuse[:] = self.diffuse
-        m.light_ambient[:] = self.ambient
-        m.light_specular[:] = self.specular
-        m.vis.headlight.diffuse[:] = self.head_diffuse
-        m.vis.headlight.ambient[:] = self.head_ambient
-
-
-def _camera_fov(sim: Any) -> float:
-    """Horizontal field of view of the rover camera (rad); square frames: equals fovy."""
-    from rover_env import rover
-
-    return math.radians(float(rover.CAMERA_FOVY))
+def random_lighting(sim: Any, rng: np.random.Generator) -> Any:
+    """The world's default lights scaled by random factors (dim dusk to bright noon) with a
+    random colour cast: a :class:`rover_env.simulation.Lighting` for ``sim.set_lighting``."""
+    base = sim.default_lighting
+    level = rng.uniform(0.35, 1.35)
+    tint = 1.0 + rng.uniform(-0.15, 0.15, size=3)
+    amb = rng.uniform(0.5, 1.6)
+    return type(base)(
+        diffuse=base.diffuse * level * tint,
+        ambient=base.ambient * amb * tint,
+        specular=base.specular * rng.uniform(0.3, 1.2),
+        head_diffuse=base.head_diffuse * level * tint,
+        head_ambient=base.head_ambient * amb * tint,
+    )
 
 
 class FrameRenderer:
@@ -204,15 +216,12 @@ class FrameRenderer:
         from rover_env.worlds.spec import Rect
 
         self.config = config
-        self.sim = RoverSim(world=world, camera_size=(config.size, config.size))
+        self.sim = RoverSim(world=world, camera_size=(config.size, config.size),
+                            pedestrian_appearance=config.appearance)
         self.world = self.sim.world
-        self.fov = _camera_fov(self.sim)
+        self.fov = self.sim.camera_fov
         self.clearance = float(rover.SPAWN_CLEARANCE)
-        self.lighting = _Lighting(self.sim.model)
         self.n_peds = int(self.sim.pedestrian_positions.shape[0])
-        self._scenery = np.zeros(6, np.uint8)
-        self._scenery[0] = 1  # geom group 0: ground, terrain, rocks, walls
-        self._geom = np.zeros(1, np.int32)
         ped, bounds = self.world.pedestrian_area.expanded(3.0), self.world.bounds
         near = Rect((max(ped.x[0], bounds.x[0]), min(ped.x[1], bounds.x[1])),
                     (max(ped.y[0], bounds.y[0]), min(ped.y[1], bounds.y[1])))
@@ -220,14 +229,6 @@ class FrameRenderer:
 
     def close(self) -> None:
         self.sim.close()
-
-    def _ground_z(self, x: float, y: float) -> float:
-        """Height of the rendered terrain at (x, y): a ray cast down onto the scenery."""
-        import mujoco
-
-        dist = mujoco.mj_ray(self.sim.model, self.sim.data, np.array([x, y, 100.0]),
-                             np.array([0.0, 0.0, -1.0]), self._scenery, 1, -1, self._geom)
-        return 100.0 - dist if dist >= 0 else self.world.ground_height(x, y)
 
     def _set_pose(self, x: float, y: float, yaw: float) -> None:
         """Put the rover at (x, y, yaw) resting on the terrain as rendered.
@@ -243,7 +244,7 @@ class FrameRenderer:
         from rover_env import rover
 
         c, s = math.cos(yaw), math.sin(yaw)
-        ground = max(self._ground_z(x + c * wx - s * wy, y + s * wx + c * wy)
+        ground = max(self.sim.terrain_height(x + c * wx - s * wy, y + s * wx + c * wy)
                      for wx in (-rover.WHEEL_X, 0.0, rover.WHEEL_X)
                      for wy in (-rover.WHEEL_Y, 0.0, rover.WHEEL_Y))
         self.sim.set_rover_pose(x, y, yaw, z=ground + rover.REST_HEIGHT + 0.02)
@@ -329,11 +330,11 @@ class FrameRenderer:
         """
         for _ in range(_POSE_TRIES):
             kind = self._compose(rng)
-            self.lighting.randomise(rng)
+            self.sim.set_lighting(random_lighting(self.sim, rng))
             try:
                 frame = self.sim.render_camera(depth=True, segmentation=True)
             finally:
-                self.lighting.restore()
+                self.sim.set_lighting(self.sim.default_lighting)
             s = self.config.size
             bottom = frame.depth[-max(1, s // 16):, s // 3: 2 * s // 3]
             pitch, roll, _ = self.sim.orientation
@@ -346,31 +347,62 @@ class FrameRenderer:
 
 
 def render_dataset(config: DatasetConfig, progress_every: int = 500) -> Dataset:
-    """Render ``config.frames`` frames (see the module docstring)."""
+    """Render ``config.frames`` frames (see the module docstring): first
+    ``round(frames * drive_fraction)`` driving frames (episode e in world ``e % W``, from
+    ``np.random.default_rng([seed, 1, e])``), then posed frames (frame i in world ``i % W``,
+    from ``np.random.default_rng([seed, i])``)."""
+    from active_vision.driving import DriveRecorder
+
     n, s = config.frames, config.size
+    if not 0.0 <= config.drive_fraction <= 1.0:
+        raise ValueError(f"drive_fraction must be in [0, 1], got {config.drive_fraction}")
+    n_drive = int(round(n * config.drive_fraction))
     rgb = np.zeros((n, s, s, 3), np.uint8)
     depth = np.zeros((n, s, s), np.float32)
     mask = np.zeros((n, s, s), bool)
     world = np.zeros(n, np.int64)
     kind = np.zeros(n, np.int64)
+    episode = np.full(n, -1, np.int64)
+    step = np.full(n, -1, np.int64)
     renderers: dict[str, FrameRenderer] = {}
+    recorders: dict[str, DriveRecorder] = {}
+
+    def renderer(name: str) -> FrameRenderer:
+        if name not in renderers:
+            renderers[name] = FrameRenderer(name, config)
+        return renderers[name]
+
     t0 = time.perf_counter()
     try:
-        for i in range(n):
-            w = i % len(config.worlds)
+        i, e = 0, 0
+        while i < n_drive:
+            w = e % len(config.worlds)
             name = config.worlds[w]
-            if name not in renderers:
-                renderers[name] = FrameRenderer(name, config)
-            rng = np.random.default_rng([config.seed, i])
-            rgb[i], depth[i], mask[i], kind[i] = renderers[name].render(rng)
+            if name not in recorders:
+                recorders[name] = DriveRecorder(renderer(name))
+            got = recorders[name].record(np.random.default_rng([config.seed, 1, e]))
+            k = min(len(got.rgb), n_drive - i)
+            rgb[i:i + k], depth[i:i + k], mask[i:i + k] = got.rgb[:k], got.depth[:k], got.mask[:k]
+            world[i:i + k], kind[i:i + k] = w, KIND_DRIVING
+            episode[i:i + k], step[i:i + k] = e, got.step[:k]
+            if progress_every and (i + k) // progress_every > i // progress_every:
+                logger.info("driving: %d/%d frames, %d episodes (%.1f s)", i + k, n_drive,
+                            e + 1, time.perf_counter() - t0)
+            i, e = i + k, e + 1
+        for j in range(n - n_drive):
+            w = j % len(config.worlds)
+            rng = np.random.default_rng([config.seed, j])
+            i = n_drive + j
+            rgb[i], depth[i], mask[i], kind[i] = renderer(config.worlds[w]).render(rng)
             world[i] = w
-            if progress_every and (i + 1) % progress_every == 0:
-                logger.info("rendered %d/%d frames (%.1f s)", i + 1, n,
+            if progress_every and (j + 1) % progress_every == 0:
+                logger.info("posed: %d/%d frames (%.1f s)", j + 1, n - n_drive,
                             time.perf_counter() - t0)
     finally:
         for r in renderers.values():
             r.close()
-    return Dataset(rgb, depth, mask, world, tuple(config.worlds), kind, config.seed)
+    return Dataset(rgb, depth, mask, world, tuple(config.worlds), kind, config.seed,
+                   episode, step)
 
 
 def build(out_dir: Path, config: DatasetConfig, *, reuse: bool = True) -> Path:
@@ -395,6 +427,8 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--worlds", default=",".join(WORLDS),
                    help="comma-separated worlds (default: all three)")
     p.add_argument("--size", type=int, default=96)
+    p.add_argument("--drive-fraction", type=float, default=DatasetConfig.drive_fraction,
+                   help="share of frames recorded while driving (held-out split: 1)")
     p.add_argument("--force", action="store_true", help="re-render even if the file exists")
     p.add_argument("--log-level", default="INFO")
     return p.parse_args(argv)
@@ -404,7 +438,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parse(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     worlds = tuple(w.strip() for w in args.worlds.split(",") if w.strip())
-    config = DatasetConfig(frames=args.frames, seed=args.seed, worlds=worlds, size=args.size)
+    config = DatasetConfig(frames=args.frames, seed=args.seed, worlds=worlds, size=args.size,
+                           drive_fraction=args.drive_fraction)
     path = build(args.out, config, reuse=not args.force)
     data = Dataset.load(path)
     empty = float(np.mean(~data.mask.reshape(len(data), -1).any(axis=1)))

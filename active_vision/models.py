@@ -51,7 +51,7 @@ logger = logging.getLogger(__name__)
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "avnet.pt"
-REGENERATE_COMMAND = "python -m active_vision.train both"
+REGENERATE_COMMAND = "python -m active_vision.train"
 WEIGHTS_FORMAT = "roverav.avnet"
 WEIGHTS_VERSION = 2  # 2: four encoder levels + global context, log-depth head
 

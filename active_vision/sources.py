@@ -51,6 +51,8 @@ class SourceFrame:
     """uint8 ``(S, S, 3)`` RGB or ``(S, S, 4)`` RGB + depth channel; owned by the caller."""
     seq: int
     """Sequence number of the camera frame (the fused frame's ``source_seq``)."""
+    episode_start: bool = False
+    """The env marked this frame as its episode's first (``Frame.episode_start``)."""
 
 
 class SourceError(RuntimeError):
@@ -228,13 +230,14 @@ class CameraSegmentSource:
                 r.wake_address is not None for r in self.readers):
             self._watch = MultiWaiter(self.readers)
 
-    def _take(self, i: int, seq: int) -> None:
+    def _take(self, i: int, seq: int, episode_start: bool = False) -> None:
         self._done[i] = seq
         if self._writer_gone[i]:
             self._writer_gone[i] = False
             self._live = [j for j in range(self.slots) if not self._writer_gone[j]]
         frame = self._frames[i]
         frame.seq = seq
+        frame.episode_start = episode_start
         self._new.append(frame)
 
     def _collect(self, skip: int = -1) -> list[SourceFrame]:
@@ -246,7 +249,7 @@ class CameraSegmentSource:
                 continue
             f = r.next_frame(out=buf[i])
             if f is not None and f.seq != done[i]:
-                self._take(i, f.seq)
+                self._take(i, f.seq, f.episode_start)
         if skip >= 0:  # the woken slot first, so slot order matches the buffer's rows
             self._new.sort(key=_slot_of)
         return self._new
@@ -293,7 +296,7 @@ class CameraSegmentSource:
             return self._collect()
         self._last_frame = time.monotonic()
         if f.seq != self._done[i]:
-            self._take(i, f.seq)
+            self._take(i, f.seq, f.episode_start)
         # the woken slot's frame is already copied: look only at the other slots
         return self._collect(skip=i) if self.slots > 1 else self._new
 

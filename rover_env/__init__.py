@@ -6,6 +6,8 @@ so rendering works headless, and registers the ``roverav/`` env ids:
 - ``roverav/RoverEnv-v0``: :class:`RoverEnv` (LIDAR)
 - ``roverav/RoverEnvFused-v0``: :class:`RoverEnvFused` (needs the av-daemon)
 - ``roverav/RoverEnvFusedDiscrete-v0``: :class:`DiscreteRoverEnvFused`
+- ``roverav/RoverEnvFusedGaze-v0``: :class:`RoverEnvFusedGaze` (drive and pan the camera)
+- ``roverav/RoverEnvFusedGazeDiscrete-v0``: :class:`DiscreteRoverEnvFusedGaze` (Discrete(180))
 
 Episode length is the envs' own ``length`` argument (they truncate themselves), so no
 ``TimeLimit`` wrapper is registered.
@@ -21,15 +23,20 @@ from rover_env.core import RoverEnvBase  # noqa: E402
 from rover_env.discrete_env import DiscreteRoverEnvFused  # noqa: E402
 from rover_env.errors import EnvClosedError  # noqa: E402
 from rover_env.fused_env import RoverEnvFused  # noqa: E402
+from rover_env.gaze_discrete_env import DiscreteRoverEnvFusedGaze  # noqa: E402
+from rover_env.gaze_env import RoverEnvFusedGaze  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
+from rover_env.pedestrians import Appearance  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
-from rover_env.simulation import CameraFrame, Contacts, RoverSim  # noqa: E402
+from rover_env.simulation import CameraFrame, Contacts, Lighting, RoverSim  # noqa: E402
 from rover_env.worlds import WORLD_NAMES, WorldSpec, make_world  # noqa: E402
 
 _ENVS = {
     "roverav/RoverEnv-v0": "rover_env.lidar_env:RoverEnv",
     "roverav/RoverEnvFused-v0": "rover_env.fused_env:RoverEnvFused",
     "roverav/RoverEnvFusedDiscrete-v0": "rover_env.discrete_env:DiscreteRoverEnvFused",
+    "roverav/RoverEnvFusedGaze-v0": "rover_env.gaze_env:RoverEnvFusedGaze",
+    "roverav/RoverEnvFusedGazeDiscrete-v0": "rover_env.gaze_discrete_env:DiscreteRoverEnvFusedGaze",
 }
 for _env_id, _entry_point in _ENVS.items():
     if _env_id not in registry:
@@ -37,14 +44,18 @@ for _env_id, _entry_point in _ENVS.items():
 
 __all__ = [
     "WORLD_NAMES",
+    "Appearance",
     "CameraFrame",
     "Contacts",
     "DiscreteRoverEnvFused",
+    "DiscreteRoverEnvFusedGaze",
     "EnvClosedError",
+    "Lighting",
     "RewardConfig",
     "RoverEnv",
     "RoverEnvBase",
     "RoverEnvFused",
+    "RoverEnvFusedGaze",
     "RoverSim",
     "WorldSpec",
     "make_world",

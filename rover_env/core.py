@@ -23,6 +23,7 @@ from rover_env import constants as c
 from rover_env import reward as rw
 from rover_env.controller import HeadingPID, wrap_angle
 from rover_env.errors import EnvClosedError, closed_env_message
+from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_env.reward import RewardConfig
 from rover_env.simulation import PHYSICS_DT, RoverSim
 from rover_env.worlds import canonical_world_name
@@ -102,6 +103,12 @@ class RoverEnvBase(gym.Env):
     :param reward_config: reward and termination constants (default ``RewardConfig()``).
     :param render_mode: None or ``"rgb_array"`` (chase camera).
     :param render_size: (width, height) of ``render()`` frames.
+    :param pedestrian_mode: ``walk`` (paths anywhere in the pedestrian area) or
+        ``crossing`` (paths across the line from the rover's start to its first goal,
+        walked from the side: see ``Pedestrians.lay_crossings``).
+    :param pedestrian_appearance: ``"fixed"`` (default, the seed's look) or ``"random"``
+        (clothing colours, height, girth and gait phase drawn per episode, deterministic
+        from the reset seed).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / c.CONTROL_DT))}
@@ -119,6 +126,8 @@ class RoverEnvBase(gym.Env):
         reward_config: RewardConfig | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
+        pedestrian_mode: str = "walk",
+        pedestrian_appearance: str = "fixed",
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
@@ -131,6 +140,11 @@ class RoverEnvBase(gym.Env):
             raise ValueError(f"control_dt must be > 0 s, got {control_dt}")
         if not physics_dt > 0:
             raise ValueError(f"physics_dt must be > 0 s, got {physics_dt}")
+        if pedestrian_mode not in PEDESTRIAN_MODES:
+            raise ValueError(
+                f"pedestrian_mode must be one of {PEDESTRIAN_MODES}, got {pedestrian_mode!r}"
+            )
+        self.pedestrian_mode = pedestrian_mode
         self.world_name = canonical_world_name(world_n)
         self.length = int(length)
         self.lidar_points = int(lidar_points)
@@ -146,6 +160,7 @@ class RoverEnvBase(gym.Env):
             self.world_name,
             camera_size=camera_size,
             physics_dt=self.control_dt / self.physics_substeps,
+            pedestrian_appearance=pedestrian_appearance,
         )
         self.world = self.sim.world
         self.pid = HeadingPID(dt=self.control_dt)
@@ -249,6 +264,14 @@ class RoverEnvBase(gym.Env):
             return math.inf
         return float(np.hypot(peds[:, 0] - self.position[0], peds[:, 1] - self.position[1]).min())
 
+    def nearest_pedestrian_index(self) -> int:
+        """Index of the pedestrian nearest the rover (-1 with none)."""
+        peds = self.sim.pedestrians.positions
+        if len(peds) == 0:
+            return -1
+        d = np.hypot(peds[:, 0] - self.position[0], peds[:, 1] - self.position[1])
+        return int(np.argmin(d))
+
     # --- state --------------------------------------------------------------------------------
     def _clear_episode(self) -> None:
         """Zero the per-episode counters (construction and every reset)."""
@@ -340,6 +363,9 @@ class RoverEnvBase(gym.Env):
             self.set_goal(*options["goal"])
         else:
             self._sample_goal()
+        if self.pedestrian_mode == "crossing":
+            start = (float(self.position[0]), float(self.position[1]))
+            self.sim.pedestrians.lay_crossings(self.np_random, start, self.goal)
         self._clear_episode()
         self._positions.append((float(self.position[0]), float(self.position[1])))
         self._needs_reset = False

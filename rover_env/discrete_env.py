@@ -20,11 +20,11 @@ N_DIRECTIONS = c.DISCRETE_N_DIRECTIONS  # 12
 DIRECTION_ANGLES = np.linspace(-np.pi, np.pi, N_DIRECTIONS, endpoint=False)  # absolute, rad
 
 
-def decode_action(action: Any) -> tuple[int, int]:
-    """(speed_idx, direction_idx) of a flat action in ``0..59``, as the seed decodes it.
+def action_index(action: Any, n: int) -> int:
+    """The integer in ``0..n-1`` that a discrete action names.
 
     Accepts a Python int, a numpy integer or a 0-d/size-1 integer array; anything else,
-    or an index outside ``0..59``, raises ``ValueError``.
+    or an index outside ``0..n-1``, raises ``ValueError``.
     """
     value = action
     if isinstance(value, np.ndarray):
@@ -35,12 +35,22 @@ def decode_action(action: Any) -> tuple[int, int]:
         value = value.reshape(()).item() if np.issubdtype(value.dtype, np.integer) else value.item()
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise ValueError(
-            f"a discrete action must be an integer in 0..{N_SPEEDS * N_DIRECTIONS - 1}, "
+            f"a discrete action must be an integer in 0..{n - 1}, "
             f"got {action!r} ({type(action).__name__})"
         )
     index = int(value)
-    if not 0 <= index < N_SPEEDS * N_DIRECTIONS:
-        raise ValueError(f"action {index} is outside 0..{N_SPEEDS * N_DIRECTIONS - 1}")
+    if not 0 <= index < n:
+        raise ValueError(f"action {index} is outside 0..{n - 1}")
+    return index
+
+
+def decode_action(action: Any) -> tuple[int, int]:
+    """(speed_idx, direction_idx) of a flat action in ``0..59``, as the seed decodes it.
+
+    Accepts a Python int, a numpy integer or a 0-d/size-1 integer array; anything else,
+    or an index outside ``0..59``, raises ``ValueError``.
+    """
+    index = action_index(action, N_SPEEDS * N_DIRECTIONS)
     return index // N_DIRECTIONS, index % N_DIRECTIONS
 
 

@@ -49,7 +49,10 @@ class RoverEnvFused(RoverEnvBase):
     renders its forward camera, publishes it to the daemon's camera segment
     ``<rl_obs_name>[_<slot>]_camera`` and waits for the fused frame computed from exactly
     that camera frame (``source_seq``), so observations are in lock-step with the physics
-    and reproducible for a fixed seed.
+    and reproducible for a fixed seed. The first camera frame of every episode carries the
+    episode-start flag, on which the daemon clears the slot's frame history (what
+    ``av-daemon --heatmap predict`` predicts from), so ``reset(seed=s)`` reproduces whole
+    episodes in either heatmap mode.
 
     Start the daemon first (``av-daemon --name rl_observation``), or run both under the
     supervisor (``rover-pair -- <your trainer>``).
@@ -104,7 +107,10 @@ class RoverEnvFused(RoverEnvBase):
     ``min_pedestrian_distance``, the reward terms) plus ``frame_latency_ms`` (camera
     publish to fused frame received), ``pedestrian_collision``,
     ``personal_space_intrusion`` (a pedestrian within 1.2 m), ``intimate_space_intrusion``
-    (within 0.45 m) and ``heatmap_center`` (the centre-column heatmap sum).
+    (within 0.45 m), ``heatmap_center`` (the centre-column heatmap sum),
+    ``pedestrian_in_view`` (some pedestrian stands inside the camera's horizontal field of
+    view, within the depth range of 10 m; geometric, occlusion not tested) and
+    ``nearest_pedestrian_in_view`` (the nearest one does).
 
     ## Arguments
 
@@ -114,6 +120,10 @@ class RoverEnvFused(RoverEnvBase):
     construction; ``rl_obs_name`` the daemon's segment base name; ``slot`` which daemon
     slot (``--slots N``) this env uses; ``frame_timeout`` seconds per fused frame;
     ``control_dt``; ``reward_config``; ``render_mode`` (``"rgb_array"``: chase camera);
+    ``pedestrian_mode`` ``"walk"`` (default) or ``"crossing"`` (pedestrians walk across the
+    line from the rover's start to its first goal, from the side, timed to meet it);
+    ``pedestrian_appearance`` ``"fixed"`` (default, the seed's figures) or ``"random"``
+    (clothing colours, height, girth and gait phase drawn per episode from the reset seed);
     ``report_latency`` (default True) puts the measured ``frame_latency_ms`` in ``info``.
     It is the one wall-clock value in ``info``, so two runs with the same seed and actions
     differ in it and nothing else; pass ``report_latency=False`` where infos are compared
@@ -146,6 +156,8 @@ class RoverEnvFused(RoverEnvBase):
         reward_config: RewardConfig | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
+        pedestrian_mode: str = "walk",
+        pedestrian_appearance: str = "fixed",
         report_latency: bool = True,
     ) -> None:
         del scan_topic, imu_topic, cmd_vel_topic  # ROS topics: accepted, no effect
@@ -180,6 +192,8 @@ class RoverEnvFused(RoverEnvBase):
                 reward_config=reward_config if reward_config is not None else RewardConfig.fused(),
                 render_mode=render_mode,
                 render_size=render_size,
+                pedestrian_mode=pedestrian_mode,
+                pedestrian_appearance=pedestrian_appearance,
             )
         except BaseException:
             self._disconnect()
@@ -192,6 +206,7 @@ class RoverEnvFused(RoverEnvBase):
         )
         self.action_space = float_box(c.FUSED_ACTION_LOW, c.FUSED_ACTION_HIGH)
         self._frame_latency_ms = 0.0
+        self._episode_start = False
         self._heatmap_center = 0.0
         self._pedestrian_collision = False
 
@@ -346,6 +361,10 @@ class RoverEnvFused(RoverEnvBase):
         if self._camera is None or not self._link_is_current():
             log.info("re-attaching to the daemon's segments for '%s'", self.rl_obs_name)
             self._connect(self.connection_check_timeout)
+        # reset()'s info describes the new episode, not the last step of the previous one
+        self._heatmap_center = 0.0
+        self._pedestrian_collision = False
+        self._episode_start = True  # the next camera frame opens the episode
 
     def _observe(self) -> dict[str, np.ndarray]:
         assert self._camera is not None and self._fused is not None
@@ -355,7 +374,8 @@ class RoverEnvFused(RoverEnvBase):
         if self._render_depth:
             np.rint(depth_to_channel(frame.depth) * 255.0, out=buf[:, :, 3], casting="unsafe")
         t0 = time.perf_counter()
-        seq = self._camera.publish(buf)
+        seq = self._camera.publish(buf, episode_start=self._episode_start)
+        self._episode_start = False
         fused = self._fused.wait_for(source_seq=seq, timeout=self.frame_timeout)
         while fused.seq <= self._stale_seq:
             fused = self._fused.wait_next(timeout=self.frame_timeout)
@@ -390,6 +410,11 @@ class RoverEnvFused(RoverEnvBase):
         info["personal_space_intrusion"] = bool(d_ped < c.PERSONAL_SPACE_M)
         info["intimate_space_intrusion"] = bool(d_ped < c.INTIMATE_SPACE_M)
         info["heatmap_center"] = self._heatmap_center
+        in_view = self.sim.pedestrians_in_view()
+        info["pedestrian_in_view"] = bool(in_view.any())
+        info["nearest_pedestrian_in_view"] = bool(
+            len(in_view) and in_view[self.nearest_pedestrian_index()]
+        )
         return info
 
     def close(self) -> None:

@@ -139,7 +139,11 @@ class RoverEnv(RoverEnvBase):
     | | | ``control_dt`` evenly |
     | ``reward_config`` | ``RewardConfig()`` | reward and termination constants |
     | ``render_mode`` | None | ``"rgb_array"``: ``render()`` returns a chase-camera frame |
+    | ``pedestrian_mode`` | ``"walk"`` | ``"crossing"``: pedestrians walk across the line |
+    | | | from the start to the first goal, from the side |
     | ``render_size`` | (480, 360) | (width, height) of rendered frames |
+    | ``pedestrian_appearance`` | ``"fixed"`` | ``"random"``: clothing colours, height, |
+    | | | girth and gait phase drawn per episode from the reset seed |
 
     ## Version history
 
@@ -164,6 +168,8 @@ class RoverEnv(RoverEnvBase):
         reward_config: RewardConfig | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = RENDER_SIZE,
+        pedestrian_mode: str = "walk",
+        pedestrian_appearance: str = "fixed",
     ) -> None:
         super().__init__(
             world_n=world_n,
@@ -176,6 +182,8 @@ class RoverEnv(RoverEnvBase):
             reward_config=reward_config,
             render_mode=render_mode,
             render_size=render_size,
+            pedestrian_mode=pedestrian_mode,
+            pedestrian_appearance=pedestrian_appearance,
         )
         # Kept for compatibility and introspection only (no ROS here).
         self.size = tuple(size)

@@ -10,6 +10,17 @@ the world's pedestrian area), a speed in [1.0, 1.5] m/s, a start point on the pa
 palette draw, all from the generator passed to :meth:`Pedestrians.reset` (the env's
 ``np_random``). Position at simulated time t is a closed form of t, so the figures move
 identically whatever the step size.
+
+Two modes (``PEDESTRIAN_MODES``): ``walk`` (the paths above, anywhere in the pedestrian
+area) and ``crossing`` (:meth:`Pedestrians.lay_crossings`: paths across the straight line
+from the rover to its goal, walked from the side, timed to meet the rover there), the
+scenario where a camera fixed straight ahead sees pedestrians late.
+Appearance (:data:`APPEARANCES`): ``"fixed"`` (the default, what the seed envs use) dresses
+every figure from the small palettes below and keeps the one body shape. ``"random"`` draws,
+per pedestrian and episode, continuous clothing and skin colours, a height scale
+(:data:`HEIGHT_SCALE_RANGE`), a girth scale (:data:`GIRTH_SCALE_RANGE`) and a gait phase,
+from the same generator after the paths: deterministic from the episode seed, so
+``reset(seed=s)`` reproduces it. :attr:`Pedestrians.appearance` reads the result out.
 """
 
 from __future__ import annotations
@@ -35,9 +46,21 @@ LEG_LENGTH = 0.85
 STEP_LENGTH = 0.7  # m per step: one leg cycle is two steps
 LEG_SWING = 0.45  # rad amplitude
 YIELD_DISTANCE = 1.0  # m: a pedestrian waits rather than walk into the rover
+HEIGHT_SCALE_RANGE = (0.85, 1.12)  # "random" appearance: figure height factor
+GIRTH_SCALE_RANGE = (0.8, 1.3)  # "random" appearance: torso/arm/leg thickness factor
+APPEARANCES = ("fixed", "random")
 _BATCH = 32  # candidate paths checked per batch
 _MAX_BATCHES = 20
 _PATH_SAMPLES = 33  # clearance checks along a path (every 0.25 m on an 8 m path)
+
+PEDESTRIAN_MODES = ("walk", "crossing")
+# crossing mode: each pedestrian walks across the rover's start-goal line
+CROSSING_FRACTION_RANGE = (0.3, 0.85)  # where along the line it crosses
+CROSSING_HALF_LENGTH_RANGE = (2.5, 4.0)  # m walked on either side of the line
+CROSSING_MIN_HALF_LENGTH = 1.5  # m: cluttered places settle for shorter crossings
+CROSSING_ANGLE_JITTER = math.radians(20.0)  # from perpendicular to the line
+CROSSING_ROVER_SPEED = 0.6  # m/s: a crossing is timed for a rover driving this fast
+_CROSSING_TRIES = 48  # candidate crossings per pedestrian before a normal path
 
 # Clothing and skin palettes (RGB). Shirts are saturated hues; the scenery is grey, sand,
 # beige and dark blue, the rover light grey with an orange accent.
@@ -52,6 +75,42 @@ SHIRTS = (
 )
 TROUSERS = ((0.10, 0.10, 0.25), (0.08, 0.08, 0.08), (0.35, 0.22, 0.12), (0.60, 0.55, 0.35))
 SKIN = ((0.96, 0.80, 0.69), (0.80, 0.60, 0.45), (0.55, 0.37, 0.25), (0.36, 0.24, 0.16))
+
+
+class Appearance(NamedTuple):
+    """How one pedestrian looks this episode (readout; colours RGB in [0, 1])."""
+
+    shirt: tuple[float, float, float]
+    trousers: tuple[float, float, float]
+    skin: tuple[float, float, float]
+    height: float
+    """Height factor (1 = the 1.71 m default figure)."""
+    girth: float
+    """Thickness factor of torso, arms and legs (1 = default)."""
+    gait_phase: float
+    """Leg-swing phase offset (rad)."""
+
+
+def _hsv_rgb(h: float, s: float, v: float) -> tuple[float, float, float]:
+    i = int(h * 6.0) % 6
+    f = h * 6.0 - math.floor(h * 6.0)
+    p, q, t = v * (1 - s), v * (1 - s * f), v * (1 - s * (1 - f))
+    r, g, b = [(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v), (v, p, q)][i]
+    return (float(r), float(g), float(b))
+
+
+def random_appearance(rng: np.random.Generator) -> Appearance:
+    """One ``"random"`` appearance: any shirt hue (some dull, some grey), trousers from dark
+    to light, a skin tone between the palette's extremes, height, girth and gait phase."""
+    shirt = _hsv_rgb(rng.random(), rng.uniform(0.0, 1.0), rng.uniform(0.25, 1.0))
+    trousers = _hsv_rgb(rng.random(), rng.uniform(0.0, 0.7), rng.uniform(0.08, 0.75))
+    a = rng.random()
+    skin = tuple(float(x) for x in (1 - a) * np.array(SKIN[0]) + a * np.array(SKIN[-1]))
+    return Appearance(
+        shirt, trousers, skin,  # type: ignore[arg-type]
+        float(rng.uniform(*HEIGHT_SCALE_RANGE)), float(rng.uniform(*GIRTH_SCALE_RANGE)),
+        float(rng.uniform(0.0, 2.0 * math.pi)),
+    )
 
 
 class _Path(NamedTuple):
@@ -103,8 +162,19 @@ def pedestrians_xml(n: int) -> str:
 class Pedestrians:
     """The pedestrians of one MuJoCo model: their paths, and their mocap poses over time."""
 
-    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData, world: WorldSpec) -> None:
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        data: mujoco.MjData,
+        world: WorldSpec,
+        appearance: str = "fixed",
+    ) -> None:
+        if appearance not in APPEARANCES:
+            raise ValueError(
+                f"pedestrian appearance must be one of {APPEARANCES}, got {appearance!r}"
+            )
         self._model, self._data, self._world = model, data, world
+        self.appearance_mode = appearance
         self.n = 0
         while mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, body_name(self.n)) >= 0:
             self.n += 1
@@ -129,6 +199,11 @@ class Pedestrians:
             )
             for part in ("torso", "head", "arm_l", "arm_r", "leg_l", "leg_r")
         }
+        parts = np.concatenate(list(self._geoms_by_part.values()))
+        self._size0 = model.geom_size[parts].copy()
+        self._pos0 = model.geom_pos[parts].copy()
+        self._rbound0 = model.geom_rbound[parts].copy()
+        self._parts = parts
         # Per pedestrian: a Path (plain floats: advance() runs every env step).
         self._paths = [_Path(0.0, 0.0, 1.0, 0.0, 0.0, SPEED_RANGE[0])] * self.n
         self._walked = [0.0] * self.n  # metres along each out-and-back cycle
@@ -136,6 +211,9 @@ class Pedestrians:
         self.headings = np.zeros(self.n)
         # Mocap rows in _write_poses() order: per pedestrian, upper body, left leg, right leg.
         self._order = self._mocap.T.reshape(-1).copy()
+        self._hip = [HIP_HEIGHT] * self.n
+        self._gait = [0.0] * self.n
+        self.appearance: list[Appearance] = []
 
     # --- episode set-up ------------------------------------------------------------------------
     def reset(self, rng: np.random.Generator, avoid: tuple[float, float] | None = None) -> None:
@@ -146,7 +224,48 @@ class Pedestrians:
             self._paths[i] = _Path(ax, ay, ux, uy, length, speed)
             self._walked[i] = phase
             self._recolour(i, rng)
+        self.appearance = [self._palette_appearance(i) for i in range(self.n)]
+        if self.appearance_mode == "random":
+            self.appearance = [random_appearance(rng) for _ in range(self.n)]
+        self._apply_appearance()
         self._write_poses()
+
+    def _palette_appearance(self, i: int) -> Appearance:
+        rgba = self._model.geom_rgba
+        part = self._geoms_by_part
+
+        def colour(p: str) -> tuple[float, float, float]:
+            r, g, b = rgba[part[p][i], :3]
+            return (float(r), float(g), float(b))
+
+        return Appearance(colour("torso"), colour("leg_l"), colour("head"), 1.0, 1.0, 0.0)
+
+    def _apply_appearance(self) -> None:
+        """Colours, body sizes and gait phases from :attr:`appearance` (sizes from the
+        originals, so a "fixed" episode after a "random" one has the default figure)."""
+        m = self._model
+        size, pos, rbound = self._size0.copy(), self._pos0.copy(), self._rbound0.copy()
+        for i, look in enumerate(self.appearance):
+            h, g = look.height, look.girth
+            self._hip[i] = HIP_HEIGHT * h
+            self._gait[i] = look.gait_phase
+            for j, name in enumerate(self._geoms_by_part):
+                row = j * self.n + i
+                if name == "head":
+                    pos[row, 2] *= h
+                    size[row, 0] *= 0.5 * (1.0 + h)
+                else:  # capsules: radius x girth, half length and centre height x height
+                    size[row, 0] *= g
+                    size[row, 1] *= h
+                    pos[row] *= h
+                rbound[row] *= max(h, g)
+            colours = {"torso": look.shirt, "arm_l": look.shirt, "arm_r": look.shirt,
+                       "head": look.skin, "leg_l": look.trousers, "leg_r": look.trousers}
+            for name, c in colours.items():
+                m.geom_rgba[self._geoms_by_part[name][i], :3] = c
+        m.geom_size[self._parts] = size
+        m.geom_pos[self._parts] = pos
+        m.geom_rbound[self._parts] = rbound
 
     def _sample_path(
         self, rng: np.random.Generator, avoid: tuple[float, float] | None
@@ -198,6 +317,65 @@ class Pedestrians:
                 break
         return (sx, sy), (1.0, 0.0), 0.0, 0.0
 
+    def lay_crossings(
+        self, rng: np.random.Generator, start: tuple[float, float], goal: tuple[float, float]
+    ) -> int:
+        """Give every pedestrian a path across the line from ``start`` to ``goal``.
+
+        Pedestrian i crosses the line at a random fraction of its length
+        (``CROSSING_FRACTION_RANGE``), walking within ``CROSSING_ANGLE_JITTER`` of
+        perpendicular to it from a random side, ``CROSSING_HALF_LENGTH_RANGE`` m either side
+        of the line (``CROSSING_MIN_HALF_LENGTH`` where that is too cluttered; then back:
+        the path is out-and-back, so it crosses again). Its start
+        point is timed so that it reaches the line when a rover driving straight at
+        ``CROSSING_ROVER_SPEED`` would. Paths keep clear of obstacles and start at least
+        ``MIN_START_DISTANCE`` from the rover; a pedestrian with no free crossing after
+        ``_CROSSING_TRIES`` candidates gets a normal path. Speeds and clothes are drawn as
+        in :meth:`reset`. Returns how many pedestrians cross.
+        """
+        sx, sy = start
+        gx, gy = goal
+        span = math.hypot(gx - sx, gy - sy)
+        line = math.atan2(gy - sy, gx - sx)
+        t = np.linspace(0.0, 1.0, _PATH_SAMPLES)
+        crossing = 0
+        for i in range(self.n):
+            speed = float(rng.uniform(*SPEED_RANGE))
+            lo, hi = CROSSING_HALF_LENGTH_RANGE
+            for attempt in range(_CROSSING_TRIES):
+                if attempt == _CROSSING_TRIES // 2:  # cluttered: settle for shorter walks
+                    lo, hi = CROSSING_MIN_HALF_LENGTH, CROSSING_HALF_LENGTH_RANGE[0]
+                frac = float(rng.uniform(*CROSSING_FRACTION_RANGE))
+                half = float(rng.uniform(lo, hi))
+                side = 1.0 if rng.random() < 0.5 else -1.0
+                walk = (
+                    line
+                    + side * 0.5 * math.pi
+                    + float(rng.uniform(-1.0, 1.0)) * (CROSSING_ANGLE_JITTER)
+                )
+                ux, uy = math.cos(walk), math.sin(walk)
+                cx, cy = sx + frac * span * math.cos(line), sy + frac * span * math.sin(line)
+                ax, ay = cx - half * ux, cy - half * uy
+                length = 2.0 * half
+                arrive = frac * span / CROSSING_ROVER_SPEED  # s until the rover gets there
+                phase = (half - speed * arrive) % (2.0 * length)
+                px, py, _, _ = _position(_Path(ax, ay, ux, uy, length, speed), phase)
+                if math.hypot(px - sx, py - sy) < MIN_START_DISTANCE:
+                    continue
+                xs, ys = ax + length * ux * t, ay + length * uy * t
+                if np.all(self._world.clearance_many(xs[None], ys[None]) > PATH_CLEARANCE):
+                    self._paths[i] = _Path(ax, ay, ux, uy, length, speed)
+                    self._walked[i] = phase
+                    crossing += 1
+                    break
+            else:
+                (ax, ay), (ux, uy), length, phase = self._sample_path(rng, start)
+                self._paths[i] = _Path(ax, ay, ux, uy, length, speed)
+                self._walked[i] = phase
+            self._recolour(i, rng)
+        self._write_poses()
+        return crossing
+
     def _recolour(self, i: int, rng: np.random.Generator) -> None:
         rgba = self._model.geom_rgba
         shirt = SHIRTS[rng.integers(len(SHIRTS))]
@@ -219,6 +397,15 @@ class Pedestrians:
             raise IndexError(f"pedestrian index {i} out of range: this world has {self.n}")
         self._paths[i] = _Path(float(x), float(y), math.cos(heading), math.sin(heading), 0.0, 0.0)
         self._walked[i] = 0.0
+        self._write_poses()
+
+    def walked_state(self) -> list[float]:
+        """Where every pedestrian is on its path (for :meth:`restore_walked`)."""
+        return list(self._walked)
+
+    def restore_walked(self, state: list[float]) -> None:
+        """Put every pedestrian back where :meth:`walked_state` found it."""
+        self._walked = list(state)
         self._write_poses()
 
     # --- motion --------------------------------------------------------------------------------
@@ -254,7 +441,12 @@ class Pedestrians:
         for i, path in enumerate(self._paths):
             walked = self._walked[i]
             x, y, ux, uy = _position(path, walked)
-            swing = LEG_SWING * math.sin(math.pi * walked / STEP_LENGTH) if path.length else 0.0
+            swing = (
+                LEG_SWING * math.sin(math.pi * walked / STEP_LENGTH + self._gait[i])
+                if path.length
+                else 0.0
+            )
+            hip = self._hip[i]
             positions[i, 0], positions[i, 1] = x, y
             yaw = math.atan2(uy, ux)
             headings[i] = yaw
@@ -266,7 +458,7 @@ class Pedestrians:
             for side, angle in ((HIP_HALF_WIDTH, swing), (-HIP_HALF_WIDTH, -swing)):
                 # hip = pos + R(yaw) (0, side, HIP_HEIGHT); leg quat = yaw * pitch(angle)
                 cp, sp = math.cos(0.5 * angle), math.sin(0.5 * angle)
-                pos_rows.append([x - sin_yaw * side, y + cos_yaw * side, z + HIP_HEIGHT])
+                pos_rows.append([x - sin_yaw * side, y + cos_yaw * side, z + hip])
                 quat_rows.append([cy * cp, -sy * sp, cy * sp, sy * cp])
         self._data.mocap_pos[self._order] = pos_rows
         self._data.mocap_quat[self._order] = quat_rows

@@ -46,6 +46,8 @@ class RewardConfig:
     """Fused envs: penalty per unit of pedestrian heatmap in the centre columns."""
     heatmap_center_columns: int = c.HEATMAP_CENTER_COLUMNS
     """Fused envs: how many centre columns of the heatmap count."""
+    pan_penalty: float = c.PAN_PENALTY
+    """Gaze envs: cost of one discrete camera pan move (subtracted from the reward)."""
     flip_threshold: float = c.FLIP_THRESHOLD
     """|roll| or |pitch| above this (rad) ends the episode with ``general_penalty``."""
     stuck_window: int = c.STUCK_WINDOW

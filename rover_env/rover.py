@@ -35,6 +35,10 @@ CAMERA_X = 0.20
 CAMERA_Z = 0.285  # above the axle: 0.35 m above flat ground
 CAMERA_FOVY = 90.0  # deg; square frames, so 90 deg horizontally too
 CAMERA_PITCH = 8.0  # deg down
+# The camera sits in its own body, the pan head, whose frame turns about the vertical
+# through the camera (gaze envs set it; the seed envs leave it straight ahead). A massless
+# welded frame: turning it moves only the camera and the head's visual, never the physics.
+CAMERA_HEAD_NAME = "camera_head"
 SPAWN_CLEARANCE = 0.4  # m from obstacle footprints (half-diagonal 0.31 m plus margin)
 # Height of the chassis origin above the ground when resting on flat ground.
 REST_HEIGHT = WHEEL_RADIUS
@@ -113,11 +117,14 @@ def rover_xml(x: float = 0.0, y: float = 0.0, z: float = REST_HEIGHT) -> tuple[s
         f'pos="0 0 {(LIDAR_Z + CHASSIS_Z + cz) / 2}" group="{vg}" contype="0" '
         f'conaffinity="0" mass="0" rgba="{_WHEEL_RGBA}"/>'
         f'<site name="{LIDAR_SITE}" pos="0 0 {LIDAR_Z}" size="0.01" group="{vg}"/>'
+        f'<body name="{CAMERA_HEAD_NAME}" pos="{CAMERA_X} 0 {CAMERA_Z}">'
+        # The head's housing sits behind the lens, outside the camera's own view.
+        f'<geom type="box" size="0.025 0.035 0.018" pos="-0.03 0 0" group="{vg}" '
+        f'contype="0" conaffinity="0" mass="0" rgba="{_ACCENT_RGBA}"/>'
         # MuJoCo cameras look along -z with +y up: xyaxes turns that to look along +x.
-        f'<camera name="{CAMERA_NAME}" pos="{CAMERA_X} 0 {CAMERA_Z}" fovy="{CAMERA_FOVY}" '
+        f'<camera name="{CAMERA_NAME}" pos="0 0 0" fovy="{CAMERA_FOVY}" '
         f'mode="fixed" xyaxes="0 -1 0 {math.sin(pitch):.6f} 0 {math.cos(pitch):.6f}"/>'
-        + "".join(wheels)
-        + "</body>"
+        "</body>" + "".join(wheels) + "</body>"
     )
     actuators = "".join(
         f'<velocity name="{name}" joint="{name}" kv="{WHEEL_KV}" ctrlrange="{-MAX_WHEEL_SPEED} '

@@ -10,13 +10,14 @@ from __future__ import annotations
 import logging
 import math
 import os
+from collections.abc import Callable
 from typing import NamedTuple
 
 import mujoco
 import numpy as np
 
 from rover_env import rover
-from rover_env.pedestrians import Pedestrians, pedestrians_xml
+from rover_env.pedestrians import Appearance, Pedestrians, pedestrians_xml
 from rover_env.worlds import WorldSpec, make_world
 from rover_env.worlds.spec import (
     CONAFFINITY_WORLD,
@@ -25,6 +26,7 @@ from rover_env.worlds.spec import (
     OBSTACLE_FRICTION,
     OBSTACLE_PRIORITY,
 )
+from shm_protocol import DEPTH_MAX_M
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +51,11 @@ _CHASE_DISTANCE = 3.6
 _CHASE_ELEVATION = -22.0
 _CHASE_LEAD = 1.0
 _GOAL_BODY = "goal_marker"
+# The chase view's gaze cone: where the forward camera looks, drawn on the ground.
+VIEW_CONE_LENGTH = 4.0  # m from the camera along each edge of the field of view
+_VIEW_CONE_WIDTH = 0.04  # m, radius of the drawn lines
+_VIEW_CONE_RGBA = np.array([1.0, 0.85, 0.1, 0.9], dtype=np.float32)
+_VIEW_CONE_LIFT = 0.05  # m above the ground below the rover
 _OBSTACLE, _PEDESTRIAN = 1, 2  # contact codes of geoms (0: ground or the rover itself)
 
 
@@ -65,6 +72,17 @@ class CameraFrame(NamedTuple):
     rgb: np.ndarray
     depth: np.ndarray | None
     pedestrian_mask: np.ndarray | None
+
+
+class Lighting(NamedTuple):
+    """The model's lights: per-light diffuse/ambient/specular ``(L, 3)`` and the headlight's
+    diffuse/ambient ``(3,)`` (RGB in [0, 1])."""
+
+    diffuse: np.ndarray
+    ambient: np.ndarray
+    specular: np.ndarray
+    head_diffuse: np.ndarray
+    head_ambient: np.ndarray
 
 
 class Contacts(NamedTuple):
@@ -201,7 +219,9 @@ class _GLRenderer:
         height: int,
         depth: bool = False,
         segmentation: bool = False,
+        decorate: Callable[[mujoco.MjvScene], None] | None = None,
     ) -> CameraFrame:
+        """Render ``camera``; ``decorate(scene)`` may add geoms after the scene is built."""
         model, scene, ctx = self._model, self._scene, self._ctx
         if width > model.vis.global_.offwidth or height > model.vis.global_.offheight:
             raise ValueError(
@@ -213,6 +233,8 @@ class _GLRenderer:
         rect = mujoco.MjrRect(0, 0, width, height)
         rgb_buf, depth_buf, seg_buf = self._bufs(width, height)
         mujoco.mjv_updateScene(model, data, option, None, camera, mujoco.mjtCatBit.mjCAT_ALL, scene)
+        if decorate is not None:
+            decorate(scene)
         mujoco.mjr_render(rect, scene, ctx)
         mujoco.mjr_readPixels(rgb_buf, depth_buf if depth else None, rect, ctx)
         rgb = rgb_buf[::-1].copy()
@@ -265,6 +287,9 @@ class RoverSim:
     :param physics_dt: physics time step (s); ``advance`` runs whole steps.
     :param seed_rng: generator for the initial state; the sim is reset from it (or from
         a fixed seed) at construction so it is usable before the first ``reset``.
+    :param pedestrian_appearance: ``"fixed"`` (default: the palette figures) or ``"random"``
+        (colours, height, girth and gait phase drawn per episode from the reset generator;
+        see :mod:`rover_env.pedestrians`).
     """
 
     def __init__(
@@ -273,6 +298,7 @@ class RoverSim:
         camera_size: tuple[int, int] = (96, 96),
         physics_dt: float = PHYSICS_DT,
         seed_rng: np.random.Generator | None = None,
+        pedestrian_appearance: str = "fixed",
     ) -> None:
         if not physics_dt > 0:
             raise ValueError(f"physics_dt must be > 0, got {physics_dt}")
@@ -300,10 +326,16 @@ class RoverSim:
         self._wheel_cmd = np.zeros(4)
         self._wheel_speeds = np.zeros(4)
         self._camera_id = mujoco.mj_name2id(m, obj.mjOBJ_CAMERA, rover.CAMERA_NAME)
+        self._head = mujoco.mj_name2id(m, obj.mjOBJ_BODY, rover.CAMERA_HEAD_NAME)
+        self._camera_pan = 0.0
+        height, width = self.camera_size
+        half_fovy = math.radians(rover.CAMERA_FOVY) / 2
+        self.camera_half_fov = math.atan(math.tan(half_fovy) * width / height)
+        """Half the forward camera's horizontal field of view (rad): 45 deg on square frames."""
         self._goal_mocap = m.body_mocapid[mujoco.mj_name2id(m, obj.mjOBJ_BODY, _GOAL_BODY)]
-        self.pedestrians = Pedestrians(m, d, self.world)
+        self.pedestrians = Pedestrians(m, d, self.world, appearance=pedestrian_appearance)
         # Geom classes for contacts: rover subtree, pedestrians, ground.
-        rover_bodies = {self._body} | {
+        rover_bodies = {self._body, self._head} | {
             mujoco.mj_name2id(m, obj.mjOBJ_BODY, n) for n in rover.WHEEL_NAMES
         }
         self._rover_geoms = np.isin(m.geom_bodyid, list(rover_bodies))
@@ -323,6 +355,13 @@ class RoverSim:
         self._chase.type = mujoco.mjtCamera.mjCAMERA_FREE
         self._chase.distance = _CHASE_DISTANCE
         self._chase.elevation = _CHASE_ELEVATION
+        self._lights0 = Lighting(
+            m.light_diffuse.copy(), m.light_ambient.copy(), m.light_specular.copy(),
+            m.vis.headlight.diffuse.copy(), m.vis.headlight.ambient.copy(),
+        )
+        self._scenery_group = np.zeros(6, np.uint8)
+        self._scenery_group[0] = 1  # geom group 0: ground, terrain, rocks, walls
+        self._ray_geom = np.zeros(1, np.int32)
         self.reset(seed_rng if seed_rng is not None else np.random.default_rng(0))
 
     # --- state ---------------------------------------------------------------------------------
@@ -405,6 +444,43 @@ class RoverSim:
                 pedestrian |= touched.pedestrian
         self._contacts = Contacts(obstacle, pedestrian)
 
+    def set_camera_pan(self, angle: float) -> None:
+        """Turn the camera head to ``angle`` rad about the vertical (0 straight ahead, positive
+        to the left, like yaw) and update the camera pose at once (for the next render).
+
+        The head is a massless frame welded to the chassis: its pose is a model parameter
+        (``body_quat``), so turning it changes what the camera sees and nothing else.
+        """
+        angle = float(angle)
+        if not math.isfinite(angle):
+            raise ValueError(f"camera pan must be a finite angle in rad, got {angle}")
+        self._camera_pan = angle
+        self.model.body_quat[self._head] = (math.cos(0.5 * angle), 0.0, 0.0, math.sin(0.5 * angle))
+        mujoco.mj_kinematics(self.model, self.data)
+        mujoco.mj_camlight(self.model, self.data)
+
+    @property
+    def camera_pan(self) -> float:
+        """The camera head's pan angle (rad, 0 straight ahead, positive left)."""
+        return self._camera_pan
+
+    @property
+    def camera_heading(self) -> float:
+        """Where the forward camera looks on the ground plane: world heading (rad)."""
+        look = self.data.cam_xmat[self._camera_id].reshape(3, 3)[:, 2]  # camera +z looks back
+        return math.atan2(-look[1], -look[0])
+
+    def pedestrians_in_view(self, max_range: float = DEPTH_MAX_M) -> np.ndarray:
+        """(P,) bool: pedestrians whose ground position lies inside the forward camera's
+        horizontal field of view and within ``max_range`` m of it (the depth channel's range
+        by default). A geometric test: a pedestrian behind a wall still counts."""
+        cam = self.data.cam_xpos[self._camera_id]
+        peds = self.pedestrians.positions
+        dx, dy = peds[:, 0] - cam[0], peds[:, 1] - cam[1]
+        bearing = np.arctan2(dy, dx) - self.camera_heading
+        bearing = (bearing + math.pi) % (2 * math.pi) - math.pi
+        return (np.abs(bearing) <= self.camera_half_fov) & (np.hypot(dx, dy) <= max_range)
+
     def set_goal_marker(self, x: float, y: float) -> None:
         """Move the goal marker (a green disc, drawn in the chase view only)."""
         self.data.mocap_pos[self._goal_mocap] = (x, y, self.world.ground_height(x, y))
@@ -455,6 +531,47 @@ class RoverSim:
         return lidar.scan().copy()
 
     @property
+    def camera_fov(self) -> float:
+        """Vertical field of view of the forward camera (rad); equal to the horizontal one
+        for square frames."""
+        return math.radians(float(self.model.cam_fovy[self._camera_id]))
+
+    @property
+    def lighting(self) -> Lighting:
+        """The lights as they are now (copies)."""
+        m = self.model
+        return Lighting(m.light_diffuse.copy(), m.light_ambient.copy(), m.light_specular.copy(),
+                        m.vis.headlight.diffuse.copy(), m.vis.headlight.ambient.copy())
+
+    @property
+    def default_lighting(self) -> Lighting:
+        """The lights as the world defines them (copies)."""
+        return Lighting(*(a.copy() for a in self._lights0))
+
+    def set_lighting(self, lighting: Lighting) -> None:
+        """Set every light (values clipped to [0, 1]); ``set_lighting(default_lighting)``
+        restores the world's."""
+        m = self.model
+        m.light_diffuse[:] = np.clip(lighting.diffuse, 0.0, 1.0)
+        m.light_ambient[:] = np.clip(lighting.ambient, 0.0, 1.0)
+        m.light_specular[:] = np.clip(lighting.specular, 0.0, 1.0)
+        m.vis.headlight.diffuse[:] = np.clip(lighting.head_diffuse, 0.0, 1.0)
+        m.vis.headlight.ambient[:] = np.clip(lighting.head_ambient, 0.0, 1.0)
+
+    def terrain_height(self, x: float, y: float) -> float:
+        """Height of the rendered scenery (ground, terrain, rocks, walls) at (x, y): a ray
+        cast down from 100 m; ``WorldSpec.ground_height`` where the ray hits nothing."""
+        dist = mujoco.mj_ray(self.model, self.data, np.array([x, y, 100.0]),
+                             np.array([0.0, 0.0, -1.0]), self._scenery_group, 1, -1,
+                             self._ray_geom)
+        return 100.0 - dist if dist >= 0 else self.world.ground_height(x, y)
+
+    @property
+    def pedestrian_appearance(self) -> list[Appearance]:
+        """This episode's look of every pedestrian (colours, height, girth, gait phase)."""
+        return list(self.pedestrians.appearance)
+
+    @property
     def pedestrian_positions(self) -> np.ndarray:
         """(P, 2) pedestrian ground positions (x, y) in metres (new array)."""
         return self.pedestrians.positions.copy()
@@ -501,8 +618,43 @@ class RoverSim:
             self.data, self._camera, r.camera_option, width, height, depth, segmentation
         )
 
-    def render_chase(self, width: int = 480, height: int = 360) -> np.ndarray:
-        """uint8 (height, width, 3) view from behind and above the rover (videos)."""
+    def future_pedestrian_mask(self, horizon: float = 1.5, step: float = 0.1) -> np.ndarray:
+        """bool (H, W): camera pixels a pedestrian covers at some moment in the next
+        ``horizon`` seconds, seen from the current camera pose.
+
+        The rover and camera are held still; only the pedestrians walk on along their own
+        paths (waiting for the rover as they would), and their segmentation masks at
+        ``0, step, 2 step, ..., horizon`` are OR-ed. The sim is left exactly as it was
+        (pedestrian poses restored, no physics step taken).
+        """
+        if not horizon >= 0 or not step > 0:
+            raise ValueError(f"horizon must be >= 0 and step > 0, got {horizon}, {step}")
+        m, d = self.model, self.data
+        q = self._qpos
+        rover_xy = (float(d.qpos[q]), float(d.qpos[q + 1]))
+        saved = self.pedestrians.walked_state()
+        union = self.render_camera(segmentation=True).pedestrian_mask
+        assert union is not None
+        try:
+            for _ in range(int(round(horizon / step))):
+                self.pedestrians.advance(step, rover_xy)
+                mujoco.mj_kinematics(m, d)
+                mask = self.render_camera(segmentation=True).pedestrian_mask
+                assert mask is not None
+                union |= mask
+        finally:
+            self.pedestrians.restore_walked(saved)
+            mujoco.mj_kinematics(m, d)
+        return union
+
+    def render_chase(
+        self, width: int = 480, height: int = 360, *, view_cone: bool = False
+    ) -> np.ndarray:
+        """uint8 (height, width, 3) view from behind and above the rover (videos).
+
+        :param view_cone: draw where the forward camera looks: its centre line and the two
+            edges of its horizontal field of view, ``VIEW_CONE_LENGTH`` m on the ground.
+        """
         cam = self._chase
         q = self._qpos
         yaw = self.yaw
@@ -512,7 +664,29 @@ class RoverSim:
         cam.lookat[2] += 0.4
         cam.azimuth = math.degrees(yaw)
         r = self._gl()
-        return r.render(self.data, cam, r.chase_option, width, height).rgb
+        decorate = self._draw_view_cone if view_cone else None
+        return r.render(self.data, cam, r.chase_option, width, height, decorate=decorate).rgb
+
+    def _draw_view_cone(self, scene: mujoco.MjvScene) -> None:
+        cam = self.data.cam_xpos[self._camera_id]
+        q = self._qpos
+        z = float(self.data.qpos[q + 2]) - rover.REST_HEIGHT + _VIEW_CONE_LIFT
+        start = np.array([cam[0], cam[1], z])
+        heading = self.camera_heading
+        half = self.camera_half_fov
+        for offset in (-half, 0.0, half):
+            if scene.ngeom >= scene.maxgeom:
+                log.debug("chase scene full: view cone not drawn completely")
+                return
+            a = heading + offset
+            end = start + VIEW_CONE_LENGTH * np.array([math.cos(a), math.sin(a), 0.0])
+            geom = scene.geoms[scene.ngeom]
+            mujoco.mjv_initGeom(
+                geom, mujoco.mjtGeom.mjGEOM_CAPSULE, np.zeros(3), np.zeros(3), np.zeros(9),
+                _VIEW_CONE_RGBA,
+            )  # fmt: skip
+            mujoco.mjv_connector(geom, mujoco.mjtGeom.mjGEOM_CAPSULE, _VIEW_CONE_WIDTH, start, end)
+            scene.ngeom += 1
 
     def close(self) -> None:
         """Free the renderer (the sim stays usable; a later render makes a new one)."""

@@ -18,8 +18,12 @@ ENV_IDS = {
     "lidar": "roverav/RoverEnv-v0",
     "fused": "roverav/RoverEnvFused-v0",
     "discrete": "roverav/RoverEnvFusedDiscrete-v0",
+    "fused-gaze": "roverav/RoverEnvFusedGaze-v0",
+    "fused-gaze-discrete": "roverav/RoverEnvFusedGazeDiscrete-v0",
 }
-FUSED_KINDS = ("fused", "discrete")
+FUSED_KINDS = ("fused", "discrete", "fused-gaze", "fused-gaze-discrete")
+DISCRETE_KINDS = ("discrete", "fused-gaze-discrete")  # Discrete action spaces
+PEDESTRIAN_MODES = ("walk", "crossing")  # rover_env.pedestrians.PEDESTRIAN_MODES
 
 
 def env_kwargs(
@@ -30,8 +34,9 @@ def env_kwargs(
     length: int | None = None,
     connect_timeout: float | None = None,
     render_mode: str | None = None,
+    pedestrian_mode: str | None = None,
 ) -> dict[str, Any]:
-    """Constructor keywords for env ``kind`` (``lidar``, ``fused`` or ``discrete``)."""
+    """Constructor keywords for env ``kind`` (a key of ``ENV_IDS``)."""
     if kind not in ENV_IDS:
         raise ValueError(f"unknown env kind {kind!r}; choose one of {sorted(ENV_IDS)}")
     kwargs: dict[str, Any] = {"world_n": world}
@@ -39,6 +44,8 @@ def env_kwargs(
         kwargs["length"] = length
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
+    if pedestrian_mode is not None:
+        kwargs["pedestrian_mode"] = pedestrian_mode
     if kind in FUSED_KINDS:
         kwargs["rl_obs_name"] = shm_name or default_name()
         kwargs["slot"] = slot

@@ -36,7 +36,7 @@ import numpy as np
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
 from rover_env.worlds import WORLD_CHOICES
 from rover_train.cli import LOG_LEVELS, default_log_level
-from rover_train.envs import ENV_IDS, make_env
+from rover_train.envs import ENV_IDS, PEDESTRIAN_MODES, make_env
 from shm_protocol.names import default_name, default_slots
 
 VIDEO_PANEL = 256  # pixels per side of each video panel
@@ -292,6 +292,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--env", choices=sorted(ENV_IDS), default="lidar")
     p.add_argument("--world", choices=WORLD_CHOICES, default=DEFAULT_WORLD)
+    p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default="walk",
+                   help="crossing: pedestrians cross the rover's path from the sides")
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--seed", type=int, default=1000,
                    help="episode i uses seed + i (reset, and the random policy's actions)")
@@ -329,6 +331,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for k in range(min(args.slots, args.episodes)):
                 envs.append(make_env(
                     args.env, world=args.world, slot=args.slot + k, shm_name=args.name,
+                    pedestrian_mode=args.pedestrian_mode,
                     render_mode="rgb_array" if args.video and k == 0 else None,
                 ))  # fmt: skip
         except ShmError as exc:

@@ -44,7 +44,7 @@ from rover_train.checkpoint import (
     restore_rng_states,
 )
 from rover_train.cli import LOG_LEVELS, build_parser, default_log_level, parse_into, plain
-from rover_train.envs import ENV_IDS, FUSED_KINDS, env_factory
+from rover_train.envs import DISCRETE_KINDS, ENV_IDS, FUSED_KINDS, PEDESTRIAN_MODES, env_factory
 from shm_protocol.names import default_name, default_slots
 
 log = logging.getLogger("rover_train")
@@ -58,9 +58,12 @@ class TrainArgs:
     """Arguments of one training run (the CLI is generated from these fields)."""
 
     env: str = field(default="lidar", metadata={"choices": tuple(ENV_IDS)})
-    """Which env: lidar (RoverEnv), fused (RoverEnvFused) or discrete (its Discrete(60) twin)."""
+    """Which env: lidar (RoverEnv), fused (RoverEnvFused), discrete (its Discrete(60) twin),
+    fused-gaze or fused-gaze-discrete (the same, also turning the camera)."""
     world: str = field(default=DEFAULT_WORLD, metadata={"choices": WORLD_CHOICES})
     """World: inspect, moon (island) or maze."""
+    pedestrian_mode: str = field(default="walk", metadata={"choices": PEDESTRIAN_MODES})
+    """walk, or crossing (pedestrians cross the rover's path from the sides)."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), sac (lidar, fused) or dqn (discrete)."""
     timesteps: int = 100_000
@@ -233,10 +236,16 @@ def resume_args(given: TrainArgs, argv: Sequence[str] | None) -> TrainArgs:
 
 def validate(args: TrainArgs) -> str | None:
     """A message naming what is wrong with ``args`` and how to fix it, or None."""
-    if args.algo == "dqn" and args.env != "discrete":
-        return "--algo dqn needs a discrete action space: use --env discrete (or --algo ppo/sac)"
-    if args.algo == "sac" and args.env == "discrete":
-        return "--algo sac needs continuous actions: use --env lidar|fused, or --algo ppo/dqn"
+    if args.algo == "dqn" and args.env not in DISCRETE_KINDS:
+        return (
+            "--algo dqn needs a discrete action space: use --env discrete|fused-gaze-discrete "
+            "(or --algo ppo/sac)"
+        )
+    if args.algo == "sac" and args.env in DISCRETE_KINDS:
+        return (
+            "--algo sac needs continuous actions: use --env lidar|fused|fused-gaze, "
+            "or --algo ppo/dqn"
+        )
     if args.slots < 1 or args.timesteps < 1:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
     return _validate_values(args) or _validate_device(args)
@@ -320,6 +329,7 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
             args.env,
             monitor_dir=str(monitor_dir),
             world=args.world,
+            pedestrian_mode=args.pedestrian_mode,
             slot=i,
             shm_name=args.name,
             length=args.length,

@@ -77,6 +77,10 @@ FLAG_SHUTTING_DOWN = 1 << 0
 FLAG_CHECKSUM = 1 << 1
 """Set when the writer stores ``crc32(payload, seq)`` at ``T_CHECKSUM`` (checksum mode,
 the ordering safeguard for weakly ordered CPUs; see docs/protocol.md)."""
+FLAG_EPISODE_START = 1 << 2
+"""Per frame: set by ``publish(..., episode_start=True)`` on the first camera frame of an
+episode, cleared by every other publish; written and read inside the seqlock bracket, so it
+belongs to exactly the frame it was published with (``Frame.episode_start``)."""
 
 U32_MAX = 0xFFFF_FFFF
 U64_MAX = 0xFFFF_FFFF_FFFF_FFFF
@@ -304,6 +308,7 @@ __all__ = [
     "DEPTH_MAX_M",
     "DTYPE_CODES",
     "FLAG_CHECKSUM",
+    "FLAG_EPISODE_START",
     "FLAG_SHUTTING_DOWN",
     "FUSED_DTYPE",
     "FUSED_SHAPE",

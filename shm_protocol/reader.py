@@ -32,6 +32,7 @@ from ._segment import Segment, open_waiting, pid_alive
 from .errors import FrameTimeoutError, LayoutError, ShmError, WriterGoneError
 from .layout import (
     FLAG_CHECKSUM,
+    FLAG_EPISODE_START,
     FLAG_SHUTTING_DOWN,
     PAYLOAD_OFFSET,
     U32_MAX,
@@ -64,12 +65,15 @@ class Frame(NamedTuple):
     :ivar seq: frame number in this segment (1, 2, ...); for a seed-style segment, the
         count of distinct frames this reader has seen.
     :ivar source_seq: frame number of the input it was computed from (0 if none/seed-style).
+    :ivar episode_start: the writer marked this frame as the first of an episode
+        (``FLAG_EPISODE_START``; always False for seed-style segments).
     """
 
     data: np.ndarray
     timestamp: float
     seq: int
     source_seq: int
+    episode_start: bool = False
 
 
 class FrameReader:
@@ -242,7 +246,7 @@ class FrameReader:
                 self._tears += 1
                 continue
             self._last_seq = s1
-            return Frame(dst, ts, s1 >> 1, src)
+            return Frame(dst, ts, s1 >> 1, src, bool(flags & FLAG_EPISODE_START))
         logger.debug("segment %s: %d torn copies in a row", self.name, MAX_TEAR_RETRIES)
         return None
 

@@ -30,6 +30,7 @@ from ._segment import Segment, open_waiting, pid_alive
 from .errors import LayoutError, NonFiniteError, SegmentBusyError, ShmError
 from .layout import (
     FLAG_CHECKSUM,
+    FLAG_EPISODE_START,
     FLAG_SHUTTING_DOWN,
     MAGIC,
     PAYLOAD_OFFSET,
@@ -291,7 +292,8 @@ class FrameWriter:
 
     # --- publishing --------------------------------------------------------------------
 
-    def publish(self, array: np.ndarray, source_seq: int = 0) -> int:
+    def publish(self, array: np.ndarray, source_seq: int = 0, *,
+                episode_start: bool = False) -> int:
         """Publish one frame; returns its frame number (1, 2, 3, ... per segment).
 
         :param array: exactly :attr:`shape` and :attr:`dtype` (any strides). Float frames
@@ -299,6 +301,9 @@ class FrameWriter:
             observation would poison training silently, so it fails loudly here instead.
         :param source_seq: the frame number of the input this frame was computed from (the
             camera frame's number for a fused frame); readers wait for it with ``wait_for``.
+        :param episode_start: mark this frame as the first of an episode (trailer flag
+            ``FLAG_EPISODE_START``, read back as ``Frame.episode_start``); every publish
+            without it clears the mark.
         :raises LayoutError: wrong shape or dtype (the message names expected and found).
         :raises NonFiniteError: NaN/inf values (the message says how many and where).
         """
@@ -319,6 +324,11 @@ class FrameWriter:
             raise ValueError(f"source_seq must be in 0..2**64-1, got {src}")
         seq = self._begin()
         np.copyto(self._payload, a)  # type: ignore[arg-type]
+        t = self._t
+        flags = t.flags
+        want = (flags | FLAG_EPISODE_START) if episode_start else (flags & ~FLAG_EPISODE_START)
+        if want != flags:
+            t.flags = want
         self._commit(seq, src)
         return (seq + 1) >> 1
 

@@ -31,14 +31,27 @@ def _passes(m: Metrics) -> dict[str, bool]:
             for k, f in FLOOR.items()}
 
 
+# 72 driving frames (one 24-frame episode per world) and 18 posed ones
+HELDOUT_CONFIG = ds.DatasetConfig(frames=90, seed=TEST_SEED, drive_fraction=0.8)
+
+
 @pytest.fixture(scope="module")
 def heldout() -> ds.Dataset:
-    return ds.render_dataset(ds.DatasetConfig(frames=45, seed=TEST_SEED))
+    return ds.render_dataset(HELDOUT_CONFIG)
 
 
 def test_dataset_covers_worlds_and_has_pedestrian_and_empty_frames(heldout: ds.Dataset) -> None:
     assert heldout.worlds == ds.WORLDS
     assert set(heldout.world.tolist()) == {0, 1, 2}
+    driving = heldout.kind == ds.KIND_DRIVING
+    assert driving.sum() == 72 and np.all(driving[:72])
+    # driving frames come in episodes, each from one world, steps increasing within it
+    assert set(heldout.world[driving].tolist()) == {0, 1, 2}
+    for e in set(heldout.episode[driving].tolist()):
+        rows = heldout.episode == e
+        assert len(set(heldout.world[rows].tolist())) == 1
+        assert np.all(np.diff(heldout.step[rows]) > 0)
+    assert np.all(heldout.episode[~driving] == -1)
     visible = heldout.mask.reshape(len(heldout), -1).sum(axis=1)
     assert (visible >= 30).sum() >= 10
     assert (visible == 0).sum() >= 5
@@ -48,16 +61,19 @@ def test_dataset_covers_worlds_and_has_pedestrian_and_empty_frames(heldout: ds.D
 
 
 def test_dataset_is_deterministic_and_round_trips(tmp_path, heldout: ds.Dataset) -> None:
-    again = ds.render_dataset(ds.DatasetConfig(frames=4, seed=TEST_SEED))
-    np.testing.assert_array_equal(again.rgb, heldout.rgb[:4])
-    np.testing.assert_array_equal(again.mask, heldout.mask[:4])
-    np.testing.assert_array_equal(again.depth, heldout.depth[:4])
-    other = ds.render_dataset(ds.DatasetConfig(frames=4, seed=TEST_SEED + 1))
-    assert not np.array_equal(other.rgb, again.rgb)
-    path = again.save(tmp_path / "d.npz")
+    again = ds.render_dataset(HELDOUT_CONFIG)
+    np.testing.assert_array_equal(again.rgb, heldout.rgb)
+    np.testing.assert_array_equal(again.mask, heldout.mask)
+    np.testing.assert_array_equal(again.depth, heldout.depth)
+    small = ds.DatasetConfig(frames=8, seed=TEST_SEED + 1, drive_fraction=0.5)
+    other = ds.render_dataset(small)
+    assert not np.array_equal(other.rgb, heldout.rgb[:8])
+    path = other.save(tmp_path / "d.npz")
     loaded = ds.Dataset.load(path)
-    np.testing.assert_array_equal(loaded.rgb, again.rgb)
-    np.testing.assert_allclose(loaded.depth, again.depth, rtol=1e-3)
+    np.testing.assert_array_equal(loaded.rgb, other.rgb)
+    np.testing.assert_array_equal(loaded.episode, other.episode)
+    np.testing.assert_array_equal(loaded.step, other.step)
+    np.testing.assert_allclose(loaded.depth, other.depth, rtol=1e-3)
 
 
 def test_dataset_cli_writes_a_compressed_npz(tmp_path, capsys) -> None:
@@ -91,4 +107,28 @@ def test_train_and_evaluate_clis_run_end_to_end(tmp_path, heldout: ds.Dataset, c
                           "--threads", "1"]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     figures = json.loads(last)
-    assert {"iou", "recall", "false_positive_rate", "abs_rel", "delta1"} <= figures.keys()
+    assert {"iou", "recall", "false_positive_rate", "abs_rel", "delta1", "abs_rel_near",
+            "per_world", "worst"} <= figures.keys()
+    assert set(figures["per_world"]) == set(ds.WORLDS)
+    for w in ds.WORLDS:
+        keys = figures["per_world"][w].keys()
+        assert {"iou", "recall", "abs_rel", "delta1", "abs_rel_near"} <= keys
+    # the worst world is no better than the whole set
+    assert figures["worst"]["iou"] <= figures["iou"] + 1e-9
+    assert figures["worst"]["abs_rel"] >= figures["abs_rel"] - 1e-9
+
+
+def test_evaluate_reports_near_pixels_apart() -> None:
+    from active_vision.evaluate import NEAR_DEPTH_M, _figures, frame_counts
+    from shm_protocol import depth_to_channel
+
+    gt = np.full((4, 4), 2.0, np.float32)
+    gt[0, :] = 0.2  # a wall at arm's length on one row
+    pred = gt.copy()
+    pred[0, :] = 0.8  # 4x too far there, exact elsewhere
+    c = frame_counts(np.zeros((4, 4), np.float32), depth_to_channel(pred), np.zeros((4, 4), bool),
+                     gt)
+    f = _figures(c)
+    assert NEAR_DEPTH_M == 0.3
+    assert f["abs_rel_near"] == pytest.approx(3.0, rel=1e-3)
+    assert f["abs_rel"] == pytest.approx(0.0, abs=1e-3)  # the 0.3-10 m pixels are exact

@@ -16,7 +16,7 @@ from shm_protocol import existing_segments
 ROOT = Path(__file__).resolve().parents[1]
 COMMANDS = {
     "av-daemon": ["-m", "active_vision"],
-    "rover-pair": [str(ROOT / "launch" / "run_pair.py")],
+    "rover-pair": ["-m", "launch.run_pair"],  # imports the package, as the console script does
     "rover-train": ["-m", "rover_train.train"],
     "rover-eval": ["-m", "rover_train.evaluate"],
 }

@@ -1,0 +1,336 @@
+"""Data, training and evaluation of the predictive heatmap (:mod:`active_vision.predict`).
+
+    python -m active_vision.predict_train [--episodes 150] [--epochs 6] [--threads 2]
+    python -m active_vision.predict_train --evaluate-only [--json]
+
+Data: driving episodes (:meth:`active_vision.driving.DriveRecorder.record_sequence`, the
+same drivers, lighting and random pedestrian appearance as the detection data) with every
+control step's camera frame (0.05 s apart, the env's cadence, so the window is what the
+daemon sees) and, every 3rd step from step 4 on, the future-occupancy mask (1.5 s, rover
+held still) and the current mask. Training episodes come from ``TRAIN_SEED``, held-out ones
+from ``HELDOUT_SEED`` (different paths, appearances and lighting). Files are cached in
+``--data-dir`` (``pred_<worlds>_s<seed>_e<episodes>_v<version>.npz``).
+
+The detection network (the shipped :class:`~active_vision.models.AVNet`, or ``--weights``)
+runs over every frame through :class:`~active_vision.perception.Perception`, exactly as in
+the daemon; each target's window is its last ``K`` fused frames within the episode, the
+oldest repeated at the start (:class:`~active_vision.history.SlotHistory`'s rule).
+
+Loss: binary cross-entropy plus a soft Dice term on the future mask. Augmentation: the
+whole window flipped left-right.
+
+Evaluation, per world and overall, IoU at 0.5 against the future mask (summed over all
+target pixels, like ``evaluate``'s IoU) of:
+
+- ``predict_iou``: the predictor;
+- ``detect_baseline_iou``: this frame's detection heatmap used as the prediction;
+- ``oracle_now_iou``: this frame's true pedestrian mask used as the prediction.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from active_vision.dataset import (
+    DEFAULT_DATA_DIR,
+    HELDOUT_SEED,
+    TRAIN_SEED,
+    WORLDS,
+    DatasetConfig,
+    FrameRenderer,
+)
+from active_vision.history import SlotHistory
+from active_vision.predict import (
+    DEFAULT_PREDICT_WEIGHTS,
+    HORIZON_S,
+    K,
+    PredictNet,
+    Predictor,
+    save_predictor,
+)
+from shm_protocol import CHANNEL_HEATMAP
+
+logger = logging.getLogger(__name__)
+
+PRED_DATA_VERSION = 1
+THRESHOLD = 0.5
+HELDOUT_EPISODES = 60
+"""Held-out episodes (20 per world, 24 targets each at most)."""
+
+
+@dataclass
+class SequenceData:
+    """Driving episodes for the predictor, flattened: ``rgb`` every step of every episode;
+    per target, its row in ``rgb`` (``target_row``), its episode's first row
+    (``episode_row``), its world, and its ``future`` and ``now`` masks."""
+
+    rgb: np.ndarray
+    target_row: np.ndarray
+    episode_row: np.ndarray
+    world: np.ndarray
+    future: np.ndarray
+    now: np.ndarray
+    worlds: tuple[str, ...]
+
+    def save(self, path: Path) -> Path:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp.npz")
+        np.savez_compressed(tmp, rgb=self.rgb, target_row=self.target_row,
+                            episode_row=self.episode_row, world=self.world.astype(np.int8),
+                            future=self.future, now=self.now, worlds=np.array(self.worlds))
+        tmp.replace(path)
+        return path
+
+    @classmethod
+    def load(cls, path: Path) -> SequenceData:
+        with np.load(path) as z:
+            return cls(z["rgb"], z["target_row"].astype(np.int64),
+                       z["episode_row"].astype(np.int64), z["world"].astype(np.int64),
+                       z["future"].astype(bool), z["now"].astype(bool),
+                       tuple(str(w) for w in z["worlds"]))
+
+
+def sequence_path(data_dir: Path, seed: int, episodes: int,
+                  worlds: Sequence[str] = WORLDS) -> Path:
+    return Path(data_dir) / (f"pred_{'-'.join(worlds)}_s{seed}_e{episodes}"
+                             f"_v{PRED_DATA_VERSION}.npz")
+
+
+def render_sequences(seed: int, episodes: int, worlds: Sequence[str] = WORLDS,
+                     size: int = 96) -> SequenceData:
+    """Record ``episodes`` episodes (episode e in world ``e % W``, generator
+    ``default_rng([seed, 2, e])``)."""
+    from active_vision.driving import DriveRecorder
+
+    cfg = DatasetConfig(size=size, worlds=tuple(worlds))
+    recorders: dict[str, DriveRecorder] = {}
+    rgb, trow, erow, world, future, now = [], [], [], [], [], []
+    rows = 0
+    t0 = time.perf_counter()
+    try:
+        for e in range(episodes):
+            w = e % len(worlds)
+            if worlds[w] not in recorders:
+                recorders[worlds[w]] = DriveRecorder(FrameRenderer(worlds[w], cfg))
+            seq = recorders[worlds[w]].record_sequence(np.random.default_rng([seed, 2, e]),
+                                                        HORIZON_S)
+            if not len(seq.targets):
+                continue
+            rgb.append(seq.rgb)
+            trow.append(rows + seq.targets)
+            erow.append(np.full(len(seq.targets), rows))
+            world.append(np.full(len(seq.targets), w))
+            future.append(seq.future)
+            now.append(seq.now)
+            rows += len(seq.rgb)
+            if (e + 1) % 10 == 0:
+                logger.info("sequences: %d/%d episodes (%.0f s)", e + 1, episodes,
+                            time.perf_counter() - t0)
+    finally:
+        for rec in recorders.values():
+            rec.r.close()
+    return SequenceData(np.concatenate(rgb), np.concatenate(trow), np.concatenate(erow),
+                        np.concatenate(world), np.concatenate(future), np.concatenate(now),
+                        tuple(worlds))
+
+
+def build_sequences(data_dir: Path, seed: int, episodes: int,
+                    worlds: Sequence[str] = WORLDS) -> SequenceData:
+    """Render (or reuse from ``data_dir``) a sequence file."""
+    path = sequence_path(data_dir, seed, episodes, worlds)
+    if path.is_file():
+        logger.info("reusing %s", path)
+        return SequenceData.load(path)
+    data = render_sequences(seed, episodes, worlds)
+    data.save(path)
+    logger.info("wrote %s (%d frames, %d targets)", path, len(data.rgb), len(data.target_row))
+    return data
+
+
+def windows(data: SequenceData, weights: Path | None = None, threads: int = 2) -> np.ndarray:
+    """``(T, K, S, S, 3)`` float16: each target's window of fused detection frames, made
+    with the detection network and :class:`SlotHistory` exactly as the daemon makes them."""
+    from active_vision.perception import Perception, PerceptionConfig
+
+    perception = Perception(PerceptionConfig(size=data.rgb.shape[1], threads=threads,
+                                             weights=weights, max_batch=64))
+    fused = np.empty(data.rgb.shape, np.float16)
+    for i in range(0, len(data.rgb), 64):
+        fused[i:i + 64] = perception(data.rgb[i:i + 64])
+    s = data.rgb.shape[1]
+    hist = SlotHistory(1, K, (s, s, 3))
+    out = np.empty((len(data.target_row), K, s, s, 3), np.float16)
+    for t, (row, first) in enumerate(zip(data.target_row, data.episode_row, strict=True)):
+        hist.clear(0)
+        for r in range(max(first, row - K + 1), row + 1):
+            hist.push(0, fused[r])
+        out[t] = hist.window(0)
+    return out
+
+
+@dataclass
+class PredictTrainConfig:
+    """Options of :func:`train_predictor` (CLI flags of the same names)."""
+
+    episodes: int = 150
+    epochs: int = 6
+    batch: int = 32
+    lr: float = 3e-3
+    threads: int = 2
+    seed: int = 0
+    data_dir: Path = DEFAULT_DATA_DIR
+    weights: Path | None = None
+    """Detection weights (default: the shipped AVNet)."""
+    out: Path = DEFAULT_PREDICT_WEIGHTS
+    max_minutes: float = 60.0
+    init: Path | None = None
+    """Start from these predictor weights (fine-tuning) instead of random ones."""
+
+
+def _loss(logit: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    bce = F.binary_cross_entropy_with_logits(logit, target)
+    p = torch.sigmoid(logit)
+    dice = 1.0 - (2.0 * (p * target).sum() + 1.0) / (p.sum() + target.sum() + 1.0)
+    return bce + 0.5 * dice
+
+
+def train_predictor(cfg: PredictTrainConfig) -> tuple[PredictNet, dict[str, float]]:
+    """Train a fresh :class:`PredictNet` on the training episodes."""
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    data = build_sequences(cfg.data_dir, TRAIN_SEED, cfg.episodes)
+    x = torch.from_numpy(windows(data, cfg.weights, cfg.threads))
+    y = torch.from_numpy(data.future).unsqueeze(1).float()
+    n = len(y)
+    model = PredictNet()
+    if cfg.init is not None:
+        from active_vision.predict import load_predictor
+
+        model.load_state_dict(load_predictor(cfg.init, fuse=False).state_dict())
+        logger.info("starting from %s", cfg.init)
+    model.train()
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
+    steps = math.ceil(n / cfg.batch)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=cfg.lr,
+                                                total_steps=cfg.epochs * steps, pct_start=0.15)
+    gen = torch.Generator().manual_seed(cfg.seed)
+    t0 = time.perf_counter()
+    epoch, loss_sum = 0, 0.0
+    for epoch in range(cfg.epochs):
+        order = torch.randperm(n, generator=gen)
+        loss_sum = 0.0
+        for b in range(steps):
+            idx = order[b * cfg.batch:(b + 1) * cfg.batch]
+            xb = PredictNet.inputs(x[idx].float())
+            yb = y[idx]
+            flip = (torch.rand(len(idx), generator=gen) < 0.5).view(-1, 1, 1, 1)
+            xb = torch.where(flip, xb.flip(-1), xb)
+            yb = torch.where(flip, yb.flip(-1), yb)
+            loss = _loss(model(xb), yb)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            loss_sum += float(loss.detach())
+        elapsed = time.perf_counter() - t0
+        logger.info("epoch %d/%d  loss %.4f  (%.0f s)", epoch + 1, cfg.epochs,
+                    loss_sum / steps, elapsed)
+        if elapsed > 60.0 * cfg.max_minutes and epoch + 1 < cfg.epochs:
+            logger.warning("stopping after %d epochs: over --max-minutes", epoch + 1)
+            break
+    model.eval()
+    return model, {"epochs": float(epoch + 1), "seconds": time.perf_counter() - t0,
+                   "targets": float(n), "loss": loss_sum / steps}
+
+
+def evaluate_predictor(predictor: Predictor, data: SequenceData, win: np.ndarray
+                       ) -> dict[str, object]:
+    """``predict_iou``, ``detect_baseline_iou``, ``oracle_now_iou`` overall and per world."""
+    counts = {w: np.zeros((3, 2), np.int64) for w in data.worlds}  # rows: pred, det, now
+    for i in range(0, len(win), 64):
+        prob = predictor(win[i:i + 64].astype(np.float32))
+        det = win[i:i + 64, -1, :, :, :, ][..., CHANNEL_HEATMAP].astype(np.float32)
+        for j in range(len(prob)):
+            t = i + j
+            fut = data.future[t]
+            c = counts[data.worlds[int(data.world[t])]]
+            for row, guess in enumerate((prob[j] >= THRESHOLD, det[j] >= THRESHOLD,
+                                         data.now[t])):
+                c[row, 0] += np.count_nonzero(guess & fut)
+                c[row, 1] += np.count_nonzero(guess | fut)
+
+    def figures(c: np.ndarray) -> dict[str, float]:
+        iou = [float(c[r, 0] / c[r, 1]) if c[r, 1] else float("nan") for r in range(3)]
+        return {"predict_iou": iou[0], "detect_baseline_iou": iou[1], "oracle_now_iou": iou[2]}
+
+    total = sum(counts.values())
+    out: dict[str, object] = dict(figures(total))  # type: ignore[arg-type]
+    out["per_world"] = {w: figures(c) for w, c in counts.items()}
+    out["targets"] = int(len(win))
+    return out
+
+
+def evaluate_heldout(predict_weights: Path | None = None, weights: Path | None = None,
+                     data_dir: Path = DEFAULT_DATA_DIR, episodes: int = HELDOUT_EPISODES,
+                     threads: int = 2) -> dict[str, object]:
+    """The three figures on the held-out driving episodes (rendered on first use)."""
+    data = build_sequences(data_dir, HELDOUT_SEED, episodes)
+    win = windows(data, weights, threads)
+    return evaluate_predictor(Predictor(weights=predict_weights), data, win)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    d = PredictTrainConfig()
+    p = argparse.ArgumentParser(prog="python -m active_vision.predict_train",
+                                description="Train/evaluate the predictive heatmap.")
+    p.add_argument("--episodes", type=int, default=d.episodes)
+    p.add_argument("--epochs", type=int, default=d.epochs)
+    p.add_argument("--batch", type=int, default=d.batch)
+    p.add_argument("--lr", type=float, default=d.lr)
+    p.add_argument("--threads", type=int, default=d.threads)
+    p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--max-minutes", type=float, default=d.max_minutes)
+    p.add_argument("--data-dir", type=Path, default=d.data_dir)
+    p.add_argument("--weights", type=Path, default=None, help="detection weights")
+    p.add_argument("--out", type=Path, default=d.out, help="predictor weights to write")
+    p.add_argument("--init", type=Path, default=None,
+                   help="fine-tune from these predictor weights instead of training afresh")
+    p.add_argument("--evaluate-only", action="store_true",
+                   help="evaluate --out on the held-out episodes, no training")
+    p.add_argument("--json", action="store_true", help="end with one JSON line")
+    p.add_argument("--log-level", default="INFO")
+    a = p.parse_args(argv)
+    logging.basicConfig(level=a.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
+    if not a.evaluate_only:
+        cfg = PredictTrainConfig(episodes=a.episodes, epochs=a.epochs, batch=a.batch, lr=a.lr,
+                                 threads=a.threads, seed=a.seed, data_dir=a.data_dir,
+                                 weights=a.weights, out=a.out, max_minutes=a.max_minutes,
+                                 init=a.init)
+        model, facts = train_predictor(cfg)
+        save_predictor(model, a.out, facts)
+        print(f"wrote {a.out} after {facts['epochs']:.0f} epochs in {facts['seconds']:.0f} s")
+    m = evaluate_heldout(a.out, a.weights, a.data_dir, threads=a.threads)
+    pw = m["per_world"]
+    assert isinstance(pw, dict)
+    print(f"{'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}")
+    for w, f in [("all", m), *pw.items()]:
+        print(f"{w:<8} {f['predict_iou']:8.4f} {f['detect_baseline_iou']:8.4f} "
+              f"{f['oracle_now_iou']:8.4f}")
+    if a.json:
+        print(json.dumps(m))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

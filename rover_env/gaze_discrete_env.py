@@ -1,0 +1,129 @@
+"""DiscreteRoverEnvFusedGaze: the original joint policy's Discrete(180) drive-and-look actions."""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+from gymnasium import spaces
+
+from rover_env import constants as c
+from rover_env.discrete_env import DIRECTION_ANGLES, N_DIRECTIONS, SPEED_LEVELS, action_index
+from rover_env.gaze_env import RoverEnvFusedGaze
+
+log = logging.getLogger(__name__)
+
+N_SPEEDS = len(SPEED_LEVELS)  # 5
+PAN_NONE, PAN_LEFT, PAN_RIGHT = 0, 1, 2
+N_PAN_MOVES = 3
+N_GAZE_ACTIONS = N_SPEEDS * N_DIRECTIONS * N_PAN_MOVES  # 180
+PAN_WINDOWS = tuple(math.radians(d) for d in c.PAN_WINDOWS_DEG)  # rad, index 0 = -60 deg
+CENTRE_WINDOW = PAN_WINDOWS.index(0.0)  # 2
+
+
+def decode_gaze_action(action: Any) -> tuple[int, int, int]:
+    """(speed_idx, direction_idx, pan_move) of a flat action in ``0..179``.
+
+    ``speed_idx = a // 36``, ``direction_idx = (a // 3) % 12``, ``pan_move = a % 3``; so
+    ``a // 3`` is the seed's Discrete(60) action and ``a % 3`` the pan move (0 none,
+    1 left, 2 right). Non-integers or indices outside ``0..179`` raise ``ValueError``.
+    """
+    index = action_index(action, N_GAZE_ACTIONS)
+    seed_action, pan_move = divmod(index, N_PAN_MOVES)
+    speed_idx, direction_idx = divmod(seed_action, N_DIRECTIONS)
+    return speed_idx, direction_idx, pan_move
+
+
+def encode_gaze_action(speed_idx: int, direction_idx: int, pan_move: int) -> int:
+    """The flat action of (speed_idx, direction_idx, pan_move): the inverse of decoding."""
+    if not (0 <= speed_idx < N_SPEEDS and 0 <= direction_idx < N_DIRECTIONS):
+        raise ValueError(
+            f"speed_idx must be in 0..{N_SPEEDS - 1} and direction_idx in "
+            f"0..{N_DIRECTIONS - 1}, got {speed_idx}, {direction_idx}"
+        )
+    if pan_move not in (PAN_NONE, PAN_LEFT, PAN_RIGHT):
+        raise ValueError(f"pan_move must be 0 (none), 1 (left) or 2 (right), got {pan_move}")
+    return (speed_idx * N_DIRECTIONS + direction_idx) * N_PAN_MOVES + pan_move
+
+
+class DiscreteRoverEnvFusedGaze(RoverEnvFusedGaze):
+    """The original joint gaze policy's action space: 5 speeds x 12 headings x 3 pan moves.
+
+    ## Action space
+
+    ``Discrete(180)``, decoded (:func:`decode_gaze_action`) as
+
+    ``speed_idx = a // 36``, ``direction_idx = (a // 3) % 12``, ``pan_move = a % 3``
+
+    so ``a // 3`` is exactly :class:`~rover_env.discrete_env.DiscreteRoverEnvFused`'s
+    Discrete(60) action (speed levels -0.2, 0.0, 0.3, 0.6, 1.0 m/s; absolute compass
+    heading ``-pi + k * pi / 6``) and ``a % 3`` the pan move:
+
+    | pan_move | 0 | 1 | 2 |
+    |---|---|---|---|
+    | meaning | none | left (+30 deg) | right (-30 deg) |
+
+    The camera looks through one of 5 windows, -60, -30, 0, +30 and +60 deg from the
+    heading (seed 001's ``pan_offsets``; positive = left). Every episode starts at 0 deg.
+    A move steps one window and clamps at the ends (left at +60 stays at +60). The head
+    turns to the window at ``pan_rate`` (180 deg/s: 30 deg takes 4 steps of 0.05 s) or
+    at once with ``pan_rate=None``. Example: 85 = speed 2 (0.3 m/s), direction 4
+    (-1.05 rad), pan left. Integer-like inputs are accepted; anything else or outside
+    ``0..179`` raises ``ValueError``.
+
+    ## Rewards
+
+    RoverEnvFused's, plus ``-RewardConfig.pan_penalty`` (0.02) for each step whose
+    action chose a pan move (1 or 2), also when clamped at an end window (``reward_pan``
+    in ``info``; not on the goal step, whose only term is the goal).
+
+    ## Info
+
+    As :class:`~rover_env.gaze_env.RoverEnvFusedGaze`, except that ``pan_moves``
+    counts the pan moves chosen (the charged ones), and ``pan_window`` gives the window
+    index (0 = -60 deg ... 4 = +60 deg).
+
+    Everything else (observation with ``gaze``, episode end, arguments) is
+    :class:`~rover_env.gaze_env.RoverEnvFusedGaze`'s.
+
+    ## Version history
+
+    - v0: first release.
+    """
+
+    _counts_turns = 0  # pan_moves counts chosen moves, in _decode_action
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.n_speeds = N_SPEEDS
+        self.n_directions = N_DIRECTIONS
+        self.speed_levels = SPEED_LEVELS
+        self.direction_angles = DIRECTION_ANGLES
+        self.pan_windows = PAN_WINDOWS
+        self.pan_window = CENTRE_WINDOW
+        self.action_space = spaces.Discrete(N_GAZE_ACTIONS)
+
+    def _decode_action(self, action: Any) -> tuple[float, float]:
+        speed_idx, direction_idx, pan_move = decode_gaze_action(action)
+        log.debug(
+            "action %r -> speed_idx %d, direction_idx %d, pan_move %d",
+            action, speed_idx, direction_idx, pan_move,
+        )  # fmt: skip
+        self._pan_cost_units = 0
+        if pan_move != PAN_NONE:
+            step = 1 if pan_move == PAN_LEFT else -1
+            self.pan_window = min(max(self.pan_window + step, 0), len(self.pan_windows) - 1)
+            self.pan_moves += 1
+            self._pan_cost_units = 1
+        self.pan_target = self.pan_windows[self.pan_window]
+        return float(self.speed_levels[speed_idx]), float(self.direction_angles[direction_idx])
+
+    def _on_reset(self) -> None:
+        super()._on_reset()
+        self.pan_window = CENTRE_WINDOW
+
+    def _info(self, reward: float, reason: str) -> dict[str, Any]:
+        info = super()._info(reward, reason)
+        info["pan_window"] = self.pan_window
+        return info
