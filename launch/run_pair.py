@@ -1,7 +1,7 @@
 """Supervise an Active Vision daemon and a trainer as one unit.
 
     python launch/run_pair.py [--name N] [--slots K] [--daemon-arg ARG ...]
-                              [--max-restarts R] -- TRAINER COMMAND ...
+                              [--max-restarts R] [--restart-window S] -- TRAINER COMMAND ...
 
 What it does, in order:
 
@@ -14,16 +14,25 @@ What it does, in order:
 3. Starts the trainer with ``ROVERAV_SHM_NAME`` and ``ROVERAV_SLOTS`` in its environment.
    Both processes' output is interleaved line by line with a ``[daemon]`` / ``[trainer]``
    prefix.
-4. While the trainer runs, a daemon that exits is restarted on the same name (it reuses
-   the segments, so the trainer's env goes on after its next ``reset()``), with backoff,
-   at most ``--max-restarts`` times. When restarts are exhausted the trainer is stopped
-   and the supervisor exits with status 70 and the reason.
-5. SIGINT and SIGTERM are forwarded, trainer first and then daemon, each with a grace
-   period before SIGKILL.
+4. While the trainer runs, a daemon that exits (or fails to get ready again) is restarted
+   on the same name (it reuses the segments, so the trainer's env goes on after its next
+   ``reset()``). The limit is a window, as systemd's start limits: at most
+   ``--max-restarts`` restarts (default 5) within any ``--restart-window`` seconds
+   (default 60). A daemon that crashes less often than that is restarted for as long as the
+   run lasts. Restart k of a window waits ``0.5 * 2 ** (k - 1)`` s (at most 8 s), so the
+   backoff resets once the daemon has been healthy for a whole window. A crash loop (one
+   crash more than the window allows) stops the trainer (SIGTERM: rover-train saves a
+   final checkpoint) and the supervisor exits with status 70, the crash count and the
+   daemon's log tail. ``--max-restarts 0`` never restarts; ``--restart-window inf`` makes
+   the limit a budget for the whole run.
+5. SIGINT and SIGTERM stop the trainer first (SIGTERM, then SIGKILL after
+   ``--trainer-grace`` seconds, default 60: time for rover-train to write its final
+   checkpoint while its env still has a daemon), then the daemon (``--grace``).
 
-Exit status: the trainer's (128 + n when it died of signal n); 69 when the daemon never
-became ready; 70 when daemon restarts were exhausted; 2 for bad usage. On every way out
-no segment of that name remains in ``/dev/shm``.
+Exit status: the trainer's (128 + n when it died of signal n; rover-train stopped by a
+signal saves and exits 130 for SIGINT, 143 for SIGTERM); 69 when the daemon never became
+ready; 70 when the daemon crash-looped; 2 for bad usage. On every way out no segment of that
+name remains in ``/dev/shm``.
 
 Children run in their own sessions (so a terminal's Ctrl-C reaches the supervisor, which
 stops them in order) and get SIGTERM from the kernel if the supervisor itself is killed
@@ -54,6 +63,11 @@ from active_vision.launcher import (  # noqa: E402  (standard library only: no t
     daemon_command,
     exit_status,
 )
+from launch.restart_policy import (  # noqa: E402
+    DEFAULT_MAX_RESTARTS,
+    DEFAULT_RESTART_WINDOW_S,
+    RestartPolicy,
+)
 from shm_protocol import (  # noqa: E402
     DEFAULT_NAME,
     SHM_DIR,
@@ -67,7 +81,8 @@ from shm_protocol.names import NAME_ENV_VAR, SLOTS_ENV_VAR  # noqa: E402
 
 EXIT_USAGE = 2
 EXIT_DAEMON_NOT_READY = 69  # EX_UNAVAILABLE
-EXIT_RESTARTS_EXHAUSTED = 70  # EX_SOFTWARE
+EXIT_RESTARTS_EXHAUSTED = 70  # EX_SOFTWARE: the daemon crash-looped
+DEFAULT_TRAINER_GRACE_S = 60.0
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 
 
@@ -83,14 +98,18 @@ class PairConfig:
     """Number of daemon slots (one per env of a vector env)."""
     daemon_args: list[str] = field(default_factory=list)
     """Extra arguments passed to the daemon."""
-    max_restarts: int = 3
-    """How many times a daemon that exits while the trainer runs is restarted."""
+    max_restarts: int = DEFAULT_MAX_RESTARTS
+    """Daemon restarts allowed within any ``restart_window`` seconds (more is a crash loop)."""
+    restart_window: float = DEFAULT_RESTART_WINDOW_S
+    """Length of the restart window in seconds (``inf``: the whole run)."""
     ready_timeout: float = 120.0
     """Seconds to wait for the daemon's ready line."""
     grace: float = 10.0
-    """Seconds a stopped process gets between SIGTERM and SIGKILL."""
+    """Seconds the daemon gets between SIGTERM and SIGKILL."""
+    trainer_grace: float = DEFAULT_TRAINER_GRACE_S
+    """Seconds the trainer gets between SIGTERM and SIGKILL (its final checkpoint)."""
     backoff: float = 0.5
-    """First restart delay in seconds; doubles on each restart, capped at 8 s."""
+    """First restart delay of a window in seconds; doubles on each restart, capped at 8 s."""
     log_level: str = "INFO"
     """Log level of the supervisor, passed on to the daemon (``--log-level``) and to the
     trainer (``ROVERAV_LOG_LEVEL``)."""
@@ -148,9 +167,11 @@ class Supervisor:
         try:
             return self._run()
         finally:
-            for child in (self.trainer, self.daemon):
-                if child is not None:
-                    child.stop(self.cfg.grace)
+            # the trainer first: its envs need the daemon while it saves its checkpoint
+            if self.trainer is not None:
+                self.trainer.stop(self.cfg.trainer_grace)
+            if self.daemon is not None:
+                self.daemon.stop(self.cfg.grace)
             left = remove_segments(existing_segments(self.cfg.name))
             if left:
                 self.say(f"removed leftover segments: {', '.join(left)}")
@@ -171,40 +192,59 @@ class Supervisor:
                     "ROVERAV_LOG_LEVEL": cfg.log_level})  # fmt: skip
         self.trainer = ChildProcess(cfg.trainer, env, on_line=self._relay("trainer"))
         self.say(f"trainer started (pid {self.trainer.proc.pid}): {' '.join(cfg.trainer)}")
-        restarts = 0
+        policy = RestartPolicy(cfg.max_restarts, cfg.restart_window, backoff=cfg.backoff)
         while True:
             code = self.trainer.poll()
             if code is not None:
-                self.trainer.stop(cfg.grace)  # reap its process group's stragglers
+                self.trainer.stop(cfg.trainer_grace)  # reap its process group's stragglers
                 self.say(f"trainer exited with status {_status(code)}")
                 return _status(code)
             if self._stop_signal is not None:
                 name = signal.Signals(self._stop_signal).name
                 self.say(f"{name} received: stopping trainer, then daemon")
-                code = self.trainer.stop(cfg.grace)
+                code = self.trainer.stop(cfg.trainer_grace)
                 return _status(code)
             assert self.daemon is not None
             dcode = self.daemon.poll()
-            if dcode is not None:
-                if restarts >= cfg.max_restarts:
-                    self.say(
-                        f"daemon exited with status {_status(dcode)} and {restarts} restart(s) "
-                        f"are used up (--max-restarts {cfg.max_restarts}); stopping the trainer."
-                        f"\n  daemon log tail:\n{self.daemon.tail_text()}"
-                    )
-                    self.trainer.stop(cfg.grace)
-                    return EXIT_RESTARTS_EXHAUSTED
-                restarts += 1
-                delay = min(cfg.backoff * 2 ** (restarts - 1), 8.0)
-                self.say(
-                    f"daemon exited with status {_status(dcode)}; restart {restarts}/"
-                    f"{cfg.max_restarts} in {delay:.1f} s (segments are reused)"
-                )
-                if self._sleep(delay) and not self._start_daemon():
-                    self.trainer.stop(cfg.grace)
-                    return EXIT_RESTARTS_EXHAUSTED
+            if dcode is None:
+                time.sleep(0.05)
                 continue
-            time.sleep(0.05)
+            if not self._restart_daemon(policy, f"exited with status {_status(dcode)}"):
+                if self._stop_signal is not None:
+                    continue  # the signal branch above stops the trainer and reports
+                code = self.trainer.stop(cfg.trainer_grace)
+                self.say(f"trainer stopped (status {_status(code)})")
+                return EXIT_RESTARTS_EXHAUSTED
+
+    def _restart_daemon(self, policy: RestartPolicy, how: str) -> bool:
+        """Restart the daemon under ``policy`` until it is ready; False on a crash loop."""
+        cfg = self.cfg
+        while True:
+            if self.trainer is not None and self.trainer.poll() is not None:
+                return True  # nothing to serve: the main loop reports the trainer's exit
+            decision = policy.on_crash(time.monotonic())
+            if not decision.restart:
+                assert self.daemon is not None
+                self.say(
+                    f"daemon {how}: crash loop, {decision.recent} crashes within "
+                    f"{cfg.restart_window:g} s ({decision.total} in this run; the limit is "
+                    f"{policy.describe()}: --max-restarts/--restart-window). Stopping the "
+                    f"trainer (it saves a checkpoint).\n  daemon log tail:\n"
+                    f"{self.daemon.tail_text()}"
+                )
+                return False
+            self.say(
+                f"daemon {how}; restart {decision.recent}/{cfg.max_restarts} of the "
+                f"{cfg.restart_window:g} s window ({decision.total} in this run) in "
+                f"{decision.delay:.1f} s (segments are reused)"
+            )
+            if not self._sleep(decision.delay):
+                return False
+            if self._start_daemon():
+                return True
+            if self._stop_signal is not None:
+                return False
+            how = "did not get ready again"
 
     def _sleep(self, seconds: float) -> bool:
         """Sleep unless a stop signal arrives; True when the sleep ran out normally."""
@@ -303,9 +343,24 @@ def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
         metavar="ARG",
         help="extra daemon argument (repeatable; use --daemon-arg=--depth for dashes)",
     )
-    parser.add_argument("--max-restarts", type=int, default=PairConfig.max_restarts)
+    parser.add_argument(
+        "--max-restarts", type=int, default=PairConfig.max_restarts, metavar="N",
+        help="daemon restarts allowed within any --restart-window seconds; one crash more "
+        "is a crash loop and stops the run with status 70 (0: never restart; default "
+        "%(default)s)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--restart-window", type=float, default=PairConfig.restart_window, metavar="S",
+        help="length of that window in seconds; crashes older than this are forgotten and "
+        "the restart backoff (0.5 s doubling to 8 s) starts over (inf: one budget for the "
+        "whole run; default %(default)s)",
+    )  # fmt: skip
     parser.add_argument("--ready-timeout", type=float, default=PairConfig.ready_timeout)
-    parser.add_argument("--grace", type=float, default=PairConfig.grace)
+    parser.add_argument("--grace", type=float, default=PairConfig.grace,
+                        help="seconds the daemon gets between SIGTERM and SIGKILL")
+    parser.add_argument("--trainer-grace", type=float, default=PairConfig.trainer_grace,
+                        help="seconds the trainer gets between SIGTERM and SIGKILL, to save "
+                        "its final checkpoint (default %(default)s)")
     parser.add_argument("--log-level", default=PairConfig.log_level, type=str.upper,
                         choices=LOG_LEVELS, help="supervisor, daemon and trainer log level")
     ns = parser.parse_args(own)
@@ -315,6 +370,9 @@ def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
         parser.error(f"--slots must be at least 1, got {ns.slots}")
     if ns.max_restarts < 0:
         parser.error(f"--max-restarts must be 0 or more, got {ns.max_restarts}")
+    if not ns.restart_window > 0:
+        parser.error(f"--restart-window must be a positive number of seconds (or inf), "
+                     f"got {ns.restart_window}")  # fmt: skip
     problem = check_usage(ns.name, trainer, ns.ready_timeout, ns.grace)
     if problem:
         parser.error(problem)
@@ -324,6 +382,8 @@ def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
         slots=ns.slots,
         daemon_args=ns.daemon_arg,
         max_restarts=ns.max_restarts,
+        restart_window=ns.restart_window,
+        trainer_grace=ns.trainer_grace,
         ready_timeout=ns.ready_timeout,
         grace=ns.grace,
         log_level=ns.log_level,

@@ -13,6 +13,12 @@ from typing import Any
 # OMP_WAIT_POLICY set by the user wins.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
+from rover_train.checkpoint import (  # noqa: E402
+    EpisodeRng,
+    ResumeError,
+    RunRecord,
+    latest_checkpoint,
+)
 from rover_train.daemon_keeper import DaemonKeeper  # noqa: E402
 from rover_train.envs import ENV_IDS, DaemonRecovery, env_factory, make_env  # noqa: E402
 from rover_train.ray_worker import EnvWorker, WorkerConfig  # noqa: E402
@@ -33,9 +39,13 @@ __all__ = [
     "DaemonKeeper",
     "DaemonRecovery",
     "EnvWorker",
+    "EpisodeRng",
     "RayVecEnv",
+    "ResumeError",
+    "RunRecord",
     "WorkerConfig",
     "WorkerLostError",
     "env_factory",
+    "latest_checkpoint",
     "make_env",
 ]

@@ -54,11 +54,15 @@ def env_kwargs(
     return kwargs
 
 
-def make_env(kind: str, **kwargs: Any) -> gym.Env:
-    """``gymnasium.make`` the env of ``kind`` with :func:`env_kwargs` keywords."""
+def make_env(kind: str, env_checker: bool = True, **kwargs: Any) -> gym.Env:
+    """``gymnasium.make`` the env of ``kind`` with :func:`env_kwargs` keywords.
+
+    ``env_checker=False`` leaves out Gymnasium's passive checker (see :func:`env_factory`).
+    """
     import rover_env  # noqa: F401  (registers the roverav/ ids)
 
-    return gym.make(ENV_IDS[kind], **env_kwargs(kind, **kwargs))
+    return gym.make(ENV_IDS[kind], disable_env_checker=not env_checker,
+                    **env_kwargs(kind, **kwargs))  # fmt: skip
 
 
 class DaemonRecovery(gym.Wrapper):
@@ -82,17 +86,24 @@ class DaemonRecovery(gym.Wrapper):
         from shm_protocol.errors import LayoutError, SegmentBusyError, ShmError
 
         deadline = time.monotonic() + self.recover_timeout
+        tries = 0
         while True:
             try:
                 obs, info = self.env.reset(**kwargs)
                 self._last_obs = obs
+                if tries:
+                    log.warning("reset: the daemon is back after %d retries", tries)
                 return obs, info
             except (LayoutError, SegmentBusyError):
                 raise
             except ShmError as exc:
                 if time.monotonic() > deadline:
                     raise
-                log.warning("reset: daemon not available (%s); retrying", exc)
+                # once per outage at WARNING; the retries every 0.5 s at DEBUG
+                (log.debug if tries else log.warning)(
+                    "reset: daemon not available (%s); retrying for up to %.0f s",
+                    exc, self.recover_timeout)  # fmt: skip
+                tries += 1
                 time.sleep(0.5)
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
@@ -107,18 +118,33 @@ class DaemonRecovery(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
-def env_factory(kind: str, monitor_dir: str | None = None, **kwargs: Any) -> Callable[[], gym.Env]:
-    """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker."""
+def env_factory(
+    kind: str, monitor_dir: str | None = None, append_monitor: bool = False, **kwargs: Any
+) -> Callable[[], gym.Env]:
+    """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker.
+
+    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``: ``EpisodeRng`` lets a
+    resumed run restart each episode in flight from its start. ``append_monitor`` appends
+    to the slot's ``monitor.csv`` (a resumed run) instead of starting it afresh.
+    """
 
     def _thunk() -> gym.Env:
         from stable_baselines3.common.monitor import Monitor
 
-        env = make_env(kind, **kwargs)
+        from rover_train.checkpoint import EpisodeRng
+
         if kind in FUSED_KINDS:
-            env = DaemonRecovery(env)
+            # Gymnasium 1.4's passive checker breaks when an env's first reset raises (the
+            # daemon is down at that moment, which DaemonRecovery retries): its first step
+            # then fails unpacking the reset data it never got. The envs' own tests run the
+            # full check_env.
+            env = DaemonRecovery(make_env(kind, env_checker=False, **kwargs))
+        else:
+            env = make_env(kind, **kwargs)
+        env = EpisodeRng(env)
         filename = None
         if monitor_dir is not None:
             filename = os.path.join(monitor_dir, f"slot{kwargs.get('slot', 0)}")
-        return Monitor(env, filename=filename)
+        return Monitor(env, filename=filename, override_existing=not append_monitor)
 
     return _thunk

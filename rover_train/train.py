@@ -3,14 +3,21 @@
     rover-train --env lidar --world maze --timesteps 200000
     rover-pair --slots 2 -- rover-train --env fused --n-envs 2 --timesteps 50000
 
+    rover-train --resume runs/train      # after Ctrl-C: the same run, to its requested steps
+
 Everything that runs is visible top to bottom: parse the arguments, build the vector env
 (env i on daemon slot i), build or resume the model with the ``RoverExtractor`` (a CNN for
 ``fused_image``, an MLP for the other keys), learn with checkpoints and TensorBoard scalars,
 then write ``model.zip``, ``metrics.json`` and ``learning_curve.png`` into ``--logdir``.
+
+SIGINT (Ctrl-C) or SIGTERM (rover-pair stopping it) writes a final checkpoint within
+seconds and exits with status 130 or 143; ``--resume RUN_DIR`` continues that run exactly
+(see :mod:`rover_train.checkpoint` for what is saved and what "exactly" means).
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import sys
@@ -24,6 +31,18 @@ import numpy as np
 
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
 from rover_env.worlds import WORLD_CHOICES
+from rover_train.checkpoint import (
+    Checkpointer,
+    GracefulStop,
+    ResumeError,
+    RunRecord,
+    TrainingInterrupted,
+    ignore_stop_signals,
+    is_off_policy,
+    latest_checkpoint,
+    make_checkpoint_callback,
+    restore_rng_states,
+)
 from rover_train.cli import LOG_LEVELS, build_parser, default_log_level, parse_into, plain
 from rover_train.envs import DISCRETE_KINDS, ENV_IDS, FUSED_KINDS, PEDESTRIAN_MODES, env_factory
 from shm_protocol.names import default_name, default_slots
@@ -59,9 +78,11 @@ class TrainArgs:
     logdir: Path = Path("runs/train")
     """Run directory: model, metrics, curve, checkpoints, TensorBoard events."""
     checkpoint_every: int = 25_000
-    """Save a checkpoint every this many environment steps (0: never)."""
+    """Save a checkpoint every this many environment steps (0: only at the end and on a
+    stop)."""
     resume: Path | None = None
-    """A model .zip, or a run directory whose newest checkpoint (or model.zip) is loaded."""
+    """A run directory (an earlier --logdir) to continue from its newest checkpoint, with its
+    own arguments, to its requested --timesteps (give --timesteps again to extend it)."""
     progress: bool = True
     """Show a progress bar."""
     name: str = field(default_factory=default_name, metadata={"aliases": ("--shm-name",)})
@@ -150,14 +171,76 @@ def hyperparameters(args: TrainArgs) -> dict[str, Any]:
     return hp
 
 
+_EPILOG = ("Under rover-pair, --name and --slots default to the supervisor's. SIGINT/SIGTERM "
+           "save a checkpoint and exit 130/143; --resume RUN_DIR continues the run.")
+RESUME_OPERATIONAL = ("name", "log_level", "progress", "device", "threads", "update_threads",
+                      "connect_timeout",
+                      "vec_env")  # fmt: skip
+"""Fields a resumed run takes from this invocation (flags, or rover-pair's environment)."""
+RESUME_EXTENDABLE = ("timesteps", "checkpoint_every", "slots")
+"""Fields a resumed run keeps from the run unless given again on the command line."""
+
+
+def _parser() -> Any:
+    return build_parser(TrainArgs, "rover-train", __doc__.split("\n")[0], epilog=_EPILOG)
+
+
 def parse_args(argv: Sequence[str] | None = None) -> TrainArgs:
-    p = build_parser(TrainArgs, "rover-train", __doc__.split("\n")[0],
-                     epilog="Under rover-pair, --name and --slots default to the supervisor's.")
+    p = _parser()
     args = parse_into(TrainArgs, p, argv)
+    if args.resume is not None:
+        try:
+            args = resume_args(args, argv)
+        except ResumeError as exc:
+            p.error(str(exc))
     problem = validate(args)
     if problem:
         p.error(problem)
     return args
+
+
+def explicit_fields(argv: Sequence[str] | None) -> dict[str, Any]:
+    """The fields given on the command line (not defaulted), parsed."""
+    import argparse
+
+    p = _parser()
+    for action in p._actions:  # default=SUPPRESS: only what argv gives lands in the namespace
+        action.default = argparse.SUPPRESS
+    return vars(p.parse_args(argv))
+
+
+def resume_args(given: TrainArgs, argv: Sequence[str] | None) -> TrainArgs:
+    """The arguments of the run in ``given.resume``, with this invocation's operational
+    fields and any of :data:`RESUME_EXTENDABLE` given again; :class:`ResumeError` when a flag
+    would change what the run is (its env, algorithm, seed, hyperparameters)."""
+    assert given.resume is not None
+    run_dir = given.resume
+    if not run_dir.is_dir():
+        raise ResumeError(f"--resume {run_dir}: expected a run directory (an earlier --logdir),"
+                          " found " + ("a file" if run_dir.exists() else "nothing"))  # fmt: skip
+    saved = RunRecord.load(run_dir).args
+    explicit = explicit_fields(argv)
+    fields: dict[str, Any] = {}
+    for name, f in TrainArgs.__dataclass_fields__.items():
+        if name in RESUME_OPERATIONAL:
+            fields[name] = getattr(given, name)
+        elif name in RESUME_EXTENDABLE and name in explicit:
+            fields[name] = explicit[name]
+        elif name in ("resume", "logdir"):
+            fields[name] = run_dir
+        else:
+            value = saved.get(name, f.default)
+            if isinstance(getattr(given, name), Path) and value is not None:
+                value = Path(value)
+            if name in explicit and explicit[name] != value:
+                flag = "--" + name.replace("_", "-")
+                raise ResumeError(
+                    f"--resume continues a run as it was started: {flag} was {value!r} in "
+                    f"{run_dir}, this command gives {explicit[name]!r}. Drop {flag}, or start a "
+                    "new run with another --logdir."
+                )
+            fields[name] = value
+    return TrainArgs(**fields)
 
 
 def validate(args: TrainArgs) -> str | None:
@@ -192,7 +275,8 @@ def _validate_ray(args: TrainArgs) -> str | None:
 
 
 def _validate_values(args: TrainArgs) -> str | None:
-    """Lengths, segment name and --resume: each message names the value and the fix."""
+    """Lengths, segment name and --resume (a complete checkpoint to continue from): each
+    message names the value and the fix."""
     from shm_protocol import InvalidNameError, camera_name, slot_name
 
     if args.length is not None and args.length < 1:
@@ -216,9 +300,9 @@ def _validate_values(args: TrainArgs) -> str | None:
             return f"--name: {exc}"
     if args.resume is not None:
         try:
-            resolve_checkpoint(args.resume)
-        except FileNotFoundError as exc:
-            return f"{exc}; give a model .zip or a run directory written by rover-train"
+            latest_checkpoint(args.resume)
+        except ResumeError as exc:
+            return str(exc)
     return None
 
 
@@ -253,7 +337,14 @@ def check_daemon(args: TrainArgs) -> str | None:
     return None
 
 
-def build_vec_env(args: TrainArgs, monitor_dir: Path) -> Any:
+def _in_worker(thunk: Any) -> Any:
+    """Build an env in a vector-env worker process that leaves SIGINT/SIGTERM to the trainer
+    (which saves, then closes its workers in order)."""
+    ignore_stop_signals()
+    return thunk()
+
+
+def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = False) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     if args.ray is not None:
@@ -271,6 +362,7 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path) -> Any:
             shm_name=args.name,
             length=args.length,
             connect_timeout=args.connect_timeout,
+            append_monitor=append_monitor,
         )
         for i in range(args.n_envs)
     ]
@@ -281,7 +373,8 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path) -> Any:
     )
     if not subproc:
         return DummyVecEnv(thunks)
-    return SubprocVecEnv(thunks, start_method="forkserver")
+    return SubprocVecEnv([functools.partial(_in_worker, t) for t in thunks],
+                         start_method="forkserver")  # fmt: skip
 
 
 def _algo_class(name: str) -> Any:
@@ -291,40 +384,42 @@ def _algo_class(name: str) -> Any:
 
 
 def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
+    """A new model for ``args`` (resumed runs are loaded by :func:`resume_model`)."""
     from rover_train.policies import RoverExtractor
 
     cls = _algo_class(args.algo)
-    policy_kwargs = {"features_extractor_class": RoverExtractor}
-    if args.resume is not None:
-        path = resolve_checkpoint(args.resume)
-        log.info("resuming from %s", path)
-        return cls.load(path, env=venv, device=args.device, tensorboard_log=str(tb_dir))
     common: dict[str, Any] = {
         "policy": "MultiInputPolicy",
         "env": venv,
         "seed": args.seed,
         "device": args.device,
         "tensorboard_log": str(tb_dir),
-        "policy_kwargs": policy_kwargs,
+        "policy_kwargs": {"features_extractor_class": RoverExtractor},
         "verbose": 0,
     }
     return cls(**hyperparameters(args), **common)
 
 
-def resolve_checkpoint(path: Path) -> Path:
-    """A .zip as given, or the newest checkpoint (else model.zip) in a run directory."""
-    if path.is_file():
-        return path
-    if path.is_dir():
-        ckpts = sorted((path / "checkpoints").glob("*.zip"), key=lambda p: p.stat().st_mtime)
-        if ckpts:
-            return ckpts[-1]
-        if (path / "model.zip").is_file():
-            return path / "model.zip"
-    raise FileNotFoundError(
-        f"--resume {path}: no model .zip there (looked for the file itself, "
-        f"{path}/checkpoints/*.zip and {path}/model.zip)"
-    )
+def resume_model(args: TrainArgs, venv: Any, tb_dir: Path) -> tuple[Any, dict[str, Any]]:
+    """The newest checkpoint of run ``args.logdir``, loaded onto ``venv`` with its RNGs, replay
+    buffer and env episode RNGs restored; returns the model and the checkpoint's state."""
+    path, state = latest_checkpoint(args.logdir)
+    log.info("resuming from %s (%d steps)", path, state["num_timesteps"])
+    cls = _algo_class(args.algo)
+    # seed=None: loading must not reseed the RNGs and envs; their saved states go back below
+    model = cls.load(path, env=venv, device=args.device, tensorboard_log=str(tb_dir), seed=None)
+    if is_off_policy(model) and state.get("replay_buffer"):
+        model.load_replay_buffer(path.parent / state["replay_buffer"])
+    restore_rng_states(model, state["rng"])
+    env_rng = state["env_rng"]
+    if len(env_rng) == venv.num_envs and all(r is not None for r in env_rng):
+        for i, rng in enumerate(env_rng):
+            venv.env_method("restore_episode_rng", rng, indices=[i])
+    else:  # another --slots, or no episode had begun: start the envs as a new run would
+        log.warning("resume: env episode RNGs not restorable (%d saved for %d envs); "
+                    "reseeding the envs with --seed", len(env_rng), venv.num_envs)  # fmt: skip
+        venv.seed(args.seed)
+    return model, state
 
 
 def make_metrics_callback() -> Any:
@@ -366,6 +461,7 @@ def make_metrics_callback() -> Any:
                     "collisions": acc["collisions"],
                     "intrusions": acc["intrusions"],
                     "termination": info.get("termination_reason") or "length",
+                    "truncated_by_fault": float("daemon_error" in info),
                 }
                 if acc["latency_n"]:
                     ep["frame_latency_ms"] = acc["latency_sum"] / acc["latency_n"]
@@ -414,64 +510,138 @@ def save_learning_curve(episodes: list[dict[str, Any]], path: Path, title: str) 
 
 
 def train(args: TrainArgs) -> dict[str, Any]:
-    """Run one training job; returns the metrics written to ``metrics.json``."""
+    """Run (or resume) one training job; returns the metrics written to ``metrics.json``.
+
+    ``metrics["status"]`` is ``complete``, or ``interrupted`` when SIGINT/SIGTERM stopped it
+    (a checkpoint is written either way; ``metrics["exit_status"]`` is 0, 130 or 143).
+    """
     import torch
-    from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
+    from stable_baselines3.common.callbacks import CallbackList
 
     from rover_train.threads import PhaseThreads
 
     torch.set_num_threads(max(args.threads, 1))
-    args.logdir.mkdir(parents=True, exist_ok=True)
-    monitor_dir = args.logdir / "monitor"
+    run_dir = args.logdir
+    run_dir.mkdir(parents=True, exist_ok=True)
+    monitor_dir = run_dir / "monitor"
     monitor_dir.mkdir(exist_ok=True)
-    venv = build_vec_env(args, monitor_dir)
-    try:
-        model = build_model(args, venv, args.logdir / "tb")
-        metrics_cb = make_metrics_callback()
-        callbacks = [metrics_cb]
-        if args.algo == "ppo" and args.update_threads != args.threads:
-            callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
-        if args.checkpoint_every > 0:
-            every = max(args.checkpoint_every // venv.num_envs, 1)
-            callbacks.append(
-                CheckpointCallback(every, str(args.logdir / "checkpoints"), name_prefix=args.algo)
-            )
-        start = time.perf_counter()
-        model.learn(
-            total_timesteps=args.timesteps,
-            callback=CallbackList(callbacks),
-            progress_bar=args.progress,
-            reset_num_timesteps=args.resume is None,
-            tb_log_name=f"{args.algo}_{args.env}",
-        )
-        wall = time.perf_counter() - start
-        model.save(args.logdir / "model.zip")
-    finally:
-        venv.close()
+    resuming = args.resume is not None
+    if resuming:
+        record = RunRecord.load(run_dir)
+        record.args, record.timesteps = plain(args), args.timesteps
+        record.resumes += 1
+    else:
+        record = RunRecord(args=plain(args), timesteps=args.timesteps,
+                           tb_log_name=f"{args.algo}_{args.env}")  # fmt: skip
+    stop = GracefulStop()
+    metrics_cb = make_metrics_callback()
+    checkpointer = Checkpointer(run_dir, args.algo, args.checkpoint_every, stop,
+                                metrics_cb.episodes, record)  # fmt: skip
+    wall = 0.0
+    with stop.installed():
+        venv = build_vec_env(args, monitor_dir, append_monitor=resuming)
+        broken = False
+        try:
+            if resuming:
+                model, state = resume_model(args, venv, run_dir / "tb")
+                metrics_cb.episodes.extend(state["episode_log"])
+                env_rng = state["env_rng"]
+            else:
+                model = build_model(args, venv, run_dir / "tb")
+                env_rng = [None] * venv.num_envs
+            checkpointer.attach(model, env_rng)
+            start_steps = int(model.num_timesteps)
+            record.history.append({"started_at": time.time(), "steps_at_start": start_steps})
+            record.status = "running"
+            record.save(run_dir)
+            remaining = args.timesteps - start_steps
+            callbacks = [metrics_cb, make_checkpoint_callback(checkpointer)]
+            if args.algo == "ppo" and args.update_threads != args.threads:
+                callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
+            start = time.perf_counter()
+            if remaining > 0 and not stop.requested:
+                try:
+                    with stop.learning_block():
+                        model.learn(
+                            total_timesteps=remaining,
+                            callback=CallbackList(callbacks),
+                            progress_bar=args.progress,
+                            reset_num_timesteps=not resuming,
+                            tb_log_name=record.tb_log_name,
+                        )
+                except TrainingInterrupted:
+                    broken = True  # a worker may still be answering the step we left
+            wall = time.perf_counter() - start
+            if stop.requested:
+                dropped = checkpointer.rewind_to_boundary()
+                checkpointer.save("stop", status="interrupted")
+                log.warning("stopped at %d of %d steps (%d collected steps not yet learned from "
+                            "will be collected again); resume with: rover-train --resume %s",
+                            model.num_timesteps, args.timesteps, dropped, run_dir)  # fmt: skip
+            else:
+                checkpointer.save("final", status="complete")
+                model.save(run_dir / "model.zip")
+        except BaseException:
+            record.status = "failed"
+            record.save(run_dir)
+            broken = True
+            if checkpointer.model is not None and stop.phase == "collect":
+                # failed while stepping envs (say, a daemon that never came back): the model
+                # is as it was at the rollout's start, so that boundary is worth keeping
+                try:
+                    checkpointer.rewind_to_boundary()
+                    checkpointer.save("failure", status="failed")
+                except Exception:  # the original error matters more than this save
+                    log.exception("could not write a checkpoint after the failure")
+            raise
+        finally:
+            if record.history:
+                record.history[-1].update(ended_at=time.time(), status=record.status,
+                                          steps_at_end=int(record.num_timesteps))  # fmt: skip
+            record.save(run_dir)
+            _close(venv, broken)
     episodes = metrics_cb.episodes
     recent = episodes[-20:]
+    trained = int(model.num_timesteps) - start_steps
     metrics: dict[str, Any] = {
         "env": args.env,
         "env_id": ENV_IDS[args.env],
         "world": args.world,
         "algo": args.algo,
+        "status": record.status,
+        "exit_status": stop.exit_status() if stop.requested else 0,
         "timesteps": int(model.num_timesteps),
+        "timesteps_requested": args.timesteps,
+        "resumes": record.resumes,
         "wall_time_s": round(wall, 2),
-        "steps_per_s": round(args.timesteps / wall, 1) if wall > 0 else None,
+        "steps_per_s": round(trained / wall, 1) if wall > 0 and trained > 0 else None,
         "episodes": len(episodes),
+        "episodes_truncated_by_faults": int(sum(e.get("truncated_by_fault", 0) for e in episodes)),
         "mean_return_last20": float(np.mean([e["return"] for e in recent])) if recent else None,
         "success_rate_last20": float(np.mean([e["success"] for e in recent])) if recent else None,
         "hyperparameters": hyperparameters(args),
         "args": plain(args),
         "episode_log": episodes,
     }
-    (args.logdir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
     save_learning_curve(
         episodes,
-        args.logdir / "learning_curve.png",
+        run_dir / "learning_curve.png",
         f"{args.algo.upper()} on {ENV_IDS[args.env]} ({args.world})",
     )
     return metrics
+
+
+def _close(venv: Any, broken: bool) -> None:
+    """Close the vector env; after an interrupted step, kill its workers instead of waiting
+    for an answer that may not come."""
+    if broken and hasattr(venv, "processes"):
+        for proc in venv.processes:
+            proc.kill()
+        for proc in venv.processes:
+            proc.join(5.0)
+        return
+    venv.close()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -483,6 +653,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(problem, file=sys.stderr)
         return EXIT_NO_DAEMON
     metrics = train(args)
+    if metrics["status"] == "interrupted":
+        print(
+            f"stopped {metrics['algo']} on {metrics['env_id']} at {metrics['timesteps']} of "
+            f"{metrics['timesteps_requested']} steps; checkpoint in {args.logdir}/checkpoints. "
+            f"Continue with: rover-train --resume {args.logdir}"
+        )
+        return int(metrics["exit_status"])
     print(
         f"trained {metrics['algo']} on {metrics['env_id']} ({metrics['world']}): "
         f"{metrics['timesteps']} steps in {metrics['wall_time_s']} s "

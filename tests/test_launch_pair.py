@@ -87,7 +87,7 @@ def test_killed_daemon_is_restarted_and_trainer_finishes() -> None:
     assert _segments(name) == []
 
 
-def test_exhausted_restarts_stop_the_trainer_with_a_reason() -> None:
+def test_no_restarts_allowed_stops_the_trainer_with_a_reason() -> None:
     name = _name()
     res = _run(
         _pair_argv(
@@ -95,8 +95,41 @@ def test_exhausted_restarts_stop_the_trainer_with_a_reason() -> None:
         )
     )
     assert res.returncode == 70, res.stdout + res.stderr
-    assert "restart(s) are used up" in res.stdout
+    assert "crash loop, 1 crashes within 60 s" in res.stdout
     assert "trainer finished" not in res.stdout
+    assert _segments(name) == []
+
+
+def test_crashes_spread_wider_than_the_window_are_restarted_indefinitely() -> None:
+    # one restart per 1.5 s window, three crashes at least 2 s apart: a fixed budget of one
+    # restart would stop the run at the second crash; the window lets all three through
+    name = _name()
+    res = _run(
+        _pair_argv(
+            name, "--max-restarts", "1", "--restart-window", "1.5", "--", *TRAINER,
+            "--frames", "4", "--kill-daemon-at", "2", "--kills", "3", "--kill-gap", "2",
+        )
+    )  # fmt: skip
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert res.stdout.count("restart 1/1 of the 1.5 s window") == 3
+    assert "(3 in this run)" in res.stdout and "crash loop" not in res.stdout
+    assert "[trainer] trainer finished" in res.stdout
+    assert _segments(name) == []
+
+
+def test_crash_loop_within_the_window_stops_the_run_with_the_count() -> None:
+    name = _name()
+    res = _run(
+        _pair_argv(
+            name, "--max-restarts", "2", "--restart-window", "600", "--", *TRAINER,
+            "--frames", "0", "--kill-daemon-at", "1", "--kills", "3",
+        )
+    )  # fmt: skip
+    assert res.returncode == 70, res.stdout + res.stderr
+    assert "restart 1/2" in res.stdout and "restart 2/2" in res.stdout
+    assert "crash loop, 3 crashes within 600 s (3 in this run" in res.stdout
+    # the trainer was stopped before the daemon's segments were removed, and nothing is left
+    assert "trainer stopped (status" in res.stdout
     assert _segments(name) == []
 
 

@@ -39,7 +39,8 @@ def test_lidar_train_then_eval(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stdout + res.stderr
     _check_outputs(tmp_path, "lidar")
     assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == [
-        "ppo_128_steps.zip", "ppo_256_steps.zip"
+        "ppo_128_steps.state.pkl", "ppo_128_steps.zip", "ppo_256_steps.state.pkl",
+        "ppo_256_steps.zip",
     ]  # fmt: skip
     res = _cli("rover_train.evaluate", str(tmp_path / "model.zip"), "--env", "lidar",
                "--episodes", "2", "--max-steps", "30", "--json")  # fmt: skip
@@ -59,14 +60,15 @@ def test_lidar_train_then_eval(tmp_path: Path) -> None:
     assert summary["episodes"] == 2 and summary["timeouts"] == 2
 
 
-def test_resume_continues_the_step_count(tmp_path: Path) -> None:
+def test_resume_with_more_timesteps_extends_the_run(tmp_path: Path) -> None:
     first = _cli("rover_train.train", "--env", "lidar", "--timesteps", "128", "--n-steps", "128",
                  "--logdir", str(tmp_path), "--no-progress", "--checkpoint-every", "0")  # fmt: skip
     assert first.returncode == 0, first.stderr
-    again = _cli("rover_train.train", "--env", "lidar", "--timesteps", "128", "--n-steps", "128",
-                 "--logdir", str(tmp_path), "--no-progress", "--resume", str(tmp_path))  # fmt: skip
+    again = _cli("rover_train.train", "--timesteps", "256", "--no-progress",
+                 "--resume", str(tmp_path))  # fmt: skip
     assert again.returncode == 0, again.stderr
-    assert json.loads((tmp_path / "metrics.json").read_text())["timesteps"] == 256
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["timesteps"] == 256 and metrics["args"]["n_steps"] == 128  # the run's own
 
 
 def test_fused_train_then_eval_with_video(tmp_path: Path) -> None:

@@ -298,7 +298,7 @@ def test_rover_pair_bad_input() -> None:
 @pytest.mark.parametrize(
     "args, words",
     [
-        (["--resume", "{tmp}"], ["--resume", "no model .zip", "checkpoints"]),
+        (["--resume", "{tmp}"], ["--resume", "no run.json", "checkpoints"]),
         (["--world", "mars"], ["--world", "mars", "maze"]),
         (["--length", "0"], ["--length", "at least 1"]),
         (["--n-steps", "1"], ["--n-steps", "at least 2"]),

@@ -7,6 +7,10 @@ frames and waits for the fused frame computed from each, like RoverEnvFused does
     --exit-code C       exit status after the last frame
     --kill-daemon-at K  SIGKILL the daemon (the fused segment's writer) after frame K, then
                         keep going: re-attach when the restarted daemon is back
+    --kills N           with --kill-daemon-at K: kill N times, after frames K, 2K, ...
+    --kill-gap S        ... and at least S seconds after the previous kill (the run goes on
+                        past --frames until every kill is done and 2 frames came after
+                        the last one, from the restarted daemon)
 """
 
 from __future__ import annotations
@@ -43,6 +47,8 @@ def main() -> int:
     p.add_argument("--frames", type=int, default=10)
     p.add_argument("--exit-code", type=int, default=0)
     p.add_argument("--kill-daemon-at", type=int, default=-1)
+    p.add_argument("--kills", type=int, default=1)
+    p.add_argument("--kill-gap", type=float, default=0.0)
     args = p.parse_args()
     name = slot_name(os.environ["ROVERAV_SHM_NAME"], 0)
     print(f"trainer started pid={os.getpid()} name={name}", flush=True)
@@ -50,7 +56,18 @@ def main() -> int:
     rng = np.random.default_rng(0)
     frame = rng.integers(0, 255, size=cam.shape, dtype=np.uint8)
     done = 0
-    while args.frames == 0 or done < args.frames:
+    kills = 0
+    last_kill = -float("inf")
+    since_kill = 0
+
+    def more_to_do() -> bool:
+        if args.frames == 0 or done < args.frames:
+            return True
+        if args.kill_daemon_at > 0:  # every kill done, and the restarted daemon served us
+            return kills < args.kills or since_kill < 2
+        return False
+
+    while more_to_do():
         try:
             seq = cam.publish(frame)
             out = fused.wait_for(source_seq=seq, timeout=5.0)
@@ -62,8 +79,13 @@ def main() -> int:
             continue
         assert out.data.shape == (cam.shape[0], cam.shape[1], 3)
         done += 1
+        since_kill += 1
         print(f"frame {done} source_seq={out.source_seq}", flush=True)
-        if done == args.kill_daemon_at:
+        due = args.kill_daemon_at > 0 and done >= args.kill_daemon_at * (kills + 1)
+        if due and kills < args.kills and time.monotonic() - last_kill >= args.kill_gap:
+            kills += 1
+            since_kill = 0
+            last_kill = time.monotonic()
             pid = fused.writer_pid
             print(f"killing daemon pid={pid}", flush=True)
             os.kill(pid, signal.SIGKILL)
