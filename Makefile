@@ -33,7 +33,7 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 # The main job: a supervised daemon + trainer pair fine-tunes the zoo's fused-maze navigator
 # (DAgger, daemon in the loop), then evaluates it against a seeded random policy; outputs
 # (student, curve, metrics, table, video) land in runs/demo/.
-DEMO_STEPS ?= 4000
+DEMO_STEPS ?= 24000
 demo: setup
 	$(PY) launch/run_pair.py --name roverav_demo --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --out runs/demo
 

@@ -2,7 +2,7 @@
 
 Run under the supervisor so the daemon is there (``make demo`` does this):
 
-    rover-pair -- python -m rover_train.demo --timesteps 4000
+    rover-pair -- python -m rover_train.demo --timesteps 24000
 
 It starts from the shipped zoo entry ``fused-<world>`` (a student distilled from the
 privileged planner expert, see ``rover_train.distill``), fine-tunes it for ``--timesteps``
@@ -98,9 +98,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="rover_train.demo", description=__doc__.split("\n")[0])
     p.add_argument("--world", choices=["inspect", "maze"], default="maze")
     p.add_argument(
-        "--timesteps", type=int, default=4000, help="fine-tuning env steps (0: evaluate only)"
+        "--timesteps", type=int, default=24000, help="fine-tuning env steps (0: evaluate only)"
     )
-    p.add_argument("--rounds", type=int, default=2, help="DAgger rounds the steps are split in")
+    p.add_argument("--rounds", type=int, default=6, help="DAgger rounds the steps are split in")
     p.add_argument("--episodes", type=int, default=20, help="evaluation episodes per policy")
     p.add_argument("--max-steps", type=int, default=zoo.EVAL_MAX_STEPS)
     p.add_argument("--seed", type=int, default=0, help="seeds fine-tuning and the random policy")
