@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -140,21 +141,25 @@ class DriveRecorder:
         speed = state[3] if driver == "approach" else 0.1 * math.cos(err)
         return speed, float(np.clip(_TURN_GAIN * err, -_MAX_TURN, _MAX_TURN))
 
-    def record_sequence(self, rng: np.random.Generator, horizon: float = 1.5,
-                        first_target: int = 4) -> DrivenSequence:
-        """One episode with every step's frame kept and future-occupancy ground truth on
-        every ``record_every``-th step from ``first_target`` on (see :class:`DrivenSequence`)."""
+    def _drive(self, rng: np.random.Generator) -> tuple[str, Iterator[int]]:
+        """Start an episode (reset, pick a driver and its target) and return the driver's
+        name with the episode's steps: an iterator that sets random lighting, then yields
+        ``k`` after step ``k``'s physics until the episode's ``steps`` or the rover tips
+        over or leaves the world, and restores the lighting when it ends."""
+        self.sim.reset(rng)
+        driver = DRIVERS[int(rng.choice(len(DRIVERS), p=DRIVER_WEIGHTS))]
+        target = self._start(rng, driver)
+        return driver, self._steps(rng, driver, target)
+
+    def _steps(self, rng: np.random.Generator, driver: str, target: int) -> Iterator[int]:
         from active_vision.dataset import random_lighting
 
         cfg, sim, r = self.config, self.sim, self.r
-        sim.reset(rng)
-        driver = DRIVERS[int(rng.choice(len(DRIVERS), p=DRIVER_WEIGHTS))]
-        target = self._start(rng, driver)
         sim.set_lighting(random_lighting(sim, rng))
+        # OU state (speed, turn), aim offset, cruise speed
         state = np.array([rng.uniform(0.0, 0.8), 0.0, rng.uniform(-0.35, 0.35),
                           rng.uniform(0.25, 0.9) if driver == "approach" else
                           rng.uniform(0.15, 0.45)])
-        rgb, targets, future, now = [], [], [], []
         try:
             for k in range(cfg.steps):
                 linear, angular = self._command(driver, target, state, rng)
@@ -163,16 +168,26 @@ class DriveRecorder:
                 pitch, roll, _ = sim.orientation
                 x, y, _ = sim.position
                 if max(abs(pitch), abs(roll)) > MAX_TILT_RAD or not r.world.in_bounds(x, y):
-                    break
-                f = sim.render_camera(segmentation=True)
-                rgb.append(f.rgb)
-                if k >= first_target and (k - first_target) % cfg.record_every == 0:
-                    targets.append(k)
-                    now.append(f.pedestrian_mask)
-                    future.append(sim.future_pedestrian_mask(horizon))
+                    return
+                yield k
         finally:
             sim.set_lighting(sim.default_lighting)
-        s = r.config.size
+
+    def record_sequence(self, rng: np.random.Generator, horizon: float = 1.5,
+                        first_target: int = 4) -> DrivenSequence:
+        """One episode with every step's frame kept and future-occupancy ground truth on
+        every ``record_every``-th step from ``first_target`` on (see :class:`DrivenSequence`)."""
+        cfg, sim = self.config, self.sim
+        rgb, targets, future, now = [], [], [], []
+        driver, steps_of_episode = self._drive(rng)
+        for k in steps_of_episode:
+            f = sim.render_camera(segmentation=True)
+            rgb.append(f.rgb)
+            if k >= first_target and (k - first_target) % cfg.record_every == 0:
+                targets.append(k)
+                now.append(f.pedestrian_mask)
+                future.append(sim.future_pedestrian_mask(horizon))
+        s = self.r.config.size
         empty = np.zeros((0, s, s), bool)
         return DrivenSequence(
             np.stack(rgb) if rgb else np.zeros((0, s, s, 3), np.uint8),
@@ -182,35 +197,16 @@ class DriveRecorder:
 
     def record(self, rng: np.random.Generator) -> DrivenFrames:
         """One episode; its frames (possibly fewer than steps/record_every if it ended)."""
-        from active_vision.dataset import random_lighting
-
-        cfg, sim, r = self.config, self.sim, self.r
-        sim.reset(rng)
-        driver = DRIVERS[int(rng.choice(len(DRIVERS), p=DRIVER_WEIGHTS))]
-        target = self._start(rng, driver)
-        sim.set_lighting(random_lighting(sim, rng))
-        # OU state (speed, turn), aim offset, cruise speed
-        state = np.array([rng.uniform(0.0, 0.8), 0.0, rng.uniform(-0.35, 0.35),
-                          rng.uniform(0.25, 0.9) if driver == "approach" else
-                          rng.uniform(0.15, 0.45)])
+        cfg, sim = self.config, self.sim
         rgb, depth, mask, steps = [], [], [], []
-        try:
-            for k in range(cfg.steps):
-                linear, angular = self._command(driver, target, state, rng)
-                sim.set_command(linear, angular)
-                sim.advance(CONTROL_DT)
-                pitch, roll, _ = sim.orientation
-                x, y, _ = sim.position
-                if max(abs(pitch), abs(roll)) > MAX_TILT_RAD or not r.world.in_bounds(x, y):
-                    break
-                if k % cfg.record_every == cfg.record_every - 1:
-                    f = sim.render_camera(depth=True, segmentation=True)
-                    rgb.append(f.rgb)
-                    depth.append(f.depth.copy())
-                    mask.append(f.pedestrian_mask)
-                    steps.append(k)
-        finally:
-            sim.set_lighting(sim.default_lighting)
+        driver, steps_of_episode = self._drive(rng)
+        for k in steps_of_episode:
+            if k % cfg.record_every == cfg.record_every - 1:
+                f = sim.render_camera(depth=True, segmentation=True)
+                rgb.append(f.rgb)
+                depth.append(f.depth.copy())
+                mask.append(f.pedestrian_mask)
+                steps.append(k)
         s = self.r.config.size
         if not rgb:
             return DrivenFrames(np.zeros((0, s, s, 3), np.uint8), np.zeros((0, s, s), np.float32),

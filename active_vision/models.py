@@ -157,19 +157,34 @@ class AVNet(nn.Module):
     @torch.no_grad()
     def fuse_for_inference(self) -> AVNet:
         """Fold every BatchNorm into its convolution (eval mode, in place); returns self."""
-        self.eval()
-        for module in self.modules():
-            if not isinstance(module, nn.Sequential):
-                continue
-            layers = list(module)
-            if (
-                len(layers) == 3
-                and isinstance(layers[0], nn.Conv2d)
-                and isinstance(layers[1], nn.BatchNorm2d)
-            ):
-                module[0] = torch.nn.utils.fusion.fuse_conv_bn_eval(layers[0], layers[1])
-                module[1] = nn.Identity()
+        fold_batch_norm(self)
         return self
+
+
+@torch.no_grad()
+def fold_batch_norm(model: nn.Module) -> nn.Module:
+    """Put ``model`` in eval mode and fold each (Conv2d, BatchNorm2d, act) ``Sequential``'s
+    batch norm into its convolution, in place (inference only)."""
+    model.eval()
+    for module in model.modules():
+        if not isinstance(module, nn.Sequential):
+            continue
+        layers = list(module)
+        if (
+            len(layers) == 3
+            and isinstance(layers[0], nn.Conv2d)
+            and isinstance(layers[1], nn.BatchNorm2d)
+        ):
+            module[0] = torch.nn.utils.fusion.fuse_conv_bn_eval(layers[0], layers[1])
+            module[1] = nn.Identity()
+    return model
+
+
+def half_state_dict(model: nn.Module) -> dict[str, torch.Tensor]:
+    """``model``'s state dict with floating tensors in fp16 (halves a weights file; loading
+    casts them back to float32)."""
+    return {k: v.detach().to(torch.float16 if v.is_floating_point() else v.dtype)
+            for k, v in model.state_dict().items()}
 
 
 def save_weights(model: AVNet, path: Path, meta: dict[str, Any] | None = None) -> Path:
@@ -181,9 +196,7 @@ def save_weights(model: AVNet, path: Path, meta: dict[str, Any] | None = None) -
         "version": WEIGHTS_VERSION,
         "config": {"widths": list(model.config.widths)},
         "meta": dict(meta or {}),
-        # fp16 halves the file; the values are cast back to float32 on load.
-        "state_dict": {k: v.detach().to(torch.float16 if v.is_floating_point() else v.dtype)
-                       for k, v in model.state_dict().items()},
+        "state_dict": half_state_dict(model),
     }
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(payload, tmp)

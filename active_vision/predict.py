@@ -27,7 +27,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from active_vision.models import WEIGHTS_DIR, WeightsError
+from active_vision.models import WEIGHTS_DIR, WeightsError, fold_batch_norm, half_state_dict
 from shm_protocol import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
 
 logger = logging.getLogger(__name__)
@@ -90,12 +90,7 @@ class PredictNet(nn.Module):
     @torch.no_grad()
     def fuse_for_inference(self) -> PredictNet:
         """Fold batch norm into the convolutions (eval mode, in place)."""
-        self.eval()
-        for module in self.modules():
-            if isinstance(module, nn.Sequential) and len(module) == 3 and isinstance(
-                    module[0], nn.Conv2d) and isinstance(module[1], nn.BatchNorm2d):
-                module[0] = torch.nn.utils.fusion.fuse_conv_bn_eval(module[0], module[1])
-                module[1] = nn.Identity()
+        fold_batch_norm(self)
         return self
 
 
@@ -106,8 +101,7 @@ def save_predictor(model: PredictNet, path: Path, meta: dict[str, Any] | None = 
     payload = {
         "format": PREDICT_FORMAT, "version": PREDICT_VERSION,
         "config": {"k": model.k, "widths": list(model.widths)}, "meta": dict(meta or {}),
-        "state_dict": {k: v.detach().to(torch.float16 if v.is_floating_point() else v.dtype)
-                       for k, v in model.state_dict().items()},
+        "state_dict": half_state_dict(model),
     }
     tmp = path.with_suffix(path.suffix + ".tmp")
     torch.save(payload, tmp)

@@ -70,12 +70,11 @@ from launch.restart_policy import (  # noqa: E402
 )
 from shm_protocol import (  # noqa: E402
     DEFAULT_NAME,
-    SHM_DIR,
-    FrameReader,
-    ShmError,
     camera_name,
     existing_segments,
+    remove_segments,
     slot_name,
+    writer_alive,
 )
 from shm_protocol.names import NAME_ENV_VAR, SLOTS_ENV_VAR  # noqa: E402
 
@@ -115,30 +114,6 @@ class PairConfig:
     trainer (``ROVERAV_LOG_LEVEL``)."""
     python: str = sys.executable
     """The interpreter that runs the daemon."""
-
-
-def _writer_alive(segment: str) -> bool:
-    """True when a live process writes ``segment`` (per its trailer's pid and heartbeat)."""
-    try:
-        reader = FrameReader(segment, attach_timeout=0.0)
-    except (ShmError, OSError, ValueError):
-        return False
-    try:
-        return bool(reader.is_writer_alive())
-    finally:
-        reader.close()
-
-
-def remove_segments(names: Sequence[str]) -> list[str]:
-    """Unlink the named segments that exist; returns those removed."""
-    removed = []
-    for seg in names:
-        try:
-            (Path(SHM_DIR) / seg).unlink()
-            removed.append(seg)
-        except FileNotFoundError:
-            pass
-    return removed
 
 
 _status = exit_status
@@ -257,7 +232,7 @@ class Supervisor:
 
     def _clear_stale(self) -> bool:
         segments = existing_segments(self.cfg.name)
-        live = [s for s in segments if not s.endswith("_camera") and _writer_alive(s)]
+        live = [s for s in segments if not s.endswith("_camera") and writer_alive(s)]
         if live:
             self.say(
                 f"a live daemon already serves '{self.cfg.name}' (segments: {', '.join(live)}). "

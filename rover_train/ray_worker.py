@@ -20,13 +20,12 @@ import os
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from rover_train.envs import FUSED_KINDS, env_factory
-from shm_protocol import SHM_DIR, FrameReader, ShmError, validate_name
+from shm_protocol import SHM_DIR, remove_segments, validate_name, writer_alive
 from shm_protocol.names import CAMERA_SUFFIX
 
 log = logging.getLogger(__name__)
@@ -74,29 +73,9 @@ def sweep_segments(prefix: str, only_dead: bool = False) -> list[str]:
         for n in ours:
             if n.startswith("."):  # a creation temporary: its daemon is starting right now
                 keep.add(n)
-            elif not n.endswith(CAMERA_SUFFIX) and _writer_alive(n):
+            elif not n.endswith(CAMERA_SUFFIX) and writer_alive(n):
                 keep |= {n, n + CAMERA_SUFFIX}
-    removed = []
-    for n in ours:
-        if n in keep:
-            continue
-        try:
-            (Path(SHM_DIR) / n).unlink()
-            removed.append(n)
-        except FileNotFoundError:
-            pass
-    return removed
-
-
-def _writer_alive(segment: str) -> bool:
-    try:
-        reader = FrameReader(segment, attach_timeout=0.0)
-    except (ShmError, OSError, ValueError):
-        return False
-    try:
-        return bool(reader.is_writer_alive())
-    finally:
-        reader.close()
+    return remove_segments([n for n in ours if n not in keep])
 
 
 def _stack(observations: Sequence[Any]) -> Any:

@@ -41,12 +41,13 @@ from .names import (
     default_name,
     default_slots,
     existing_segments,
+    remove_segments,
     segment_path,
     segments_of,
     slot_name,
     validate_name,
 )
-from .reader import Frame, FrameReader
+from .reader import Frame, FrameReader, writer_alive
 from .writer import FrameWriter
 
 __all__ = [
@@ -77,8 +78,10 @@ __all__ = [
     "default_slots",
     "depth_to_channel",
     "existing_segments",
+    "remove_segments",
     "segment_path",
     "segments_of",
     "slot_name",
     "validate_name",
+    "writer_alive",
 ]

@@ -113,6 +113,19 @@ def default_slots() -> int:
         return 1
 
 
+def remove_segments(names: list[str] | tuple[str, ...]) -> list[str]:
+    """Unlink the named segments that exist (no validation: temporaries' hidden names too);
+    returns those removed."""
+    removed = []
+    for name in names:
+        try:
+            os.unlink(os.path.join(SHM_DIR, name))
+            removed.append(name)
+        except FileNotFoundError:
+            pass
+    return removed
+
+
 def segment_path(name: str) -> str:
     """The file that holds segment ``name`` (validated)."""
     return os.path.join(SHM_DIR, validate_name(name))
@@ -129,6 +142,7 @@ __all__ = [
     "default_name",
     "default_slots",
     "existing_segments",
+    "remove_segments",
     "segment_path",
     "segments_of",
     "slot_name",

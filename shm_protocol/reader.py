@@ -496,4 +496,17 @@ class FrameReader:
         return f"FrameReader({self.name!r}, {self.layout.describe()}, {state})"
 
 
-__all__ = ["Frame", "FrameReader"]
+def writer_alive(name: str) -> bool:
+    """True when a live process writes segment ``name`` (its trailer's pid and heartbeat);
+    False when the segment is missing, unreadable, or its writer is gone."""
+    try:
+        reader = FrameReader(name, attach_timeout=0.0)
+    except (ShmError, OSError, ValueError):
+        return False
+    try:
+        return bool(reader.is_writer_alive())
+    finally:
+        reader.close()
+
+
+__all__ = ["Frame", "FrameReader", "writer_alive"]

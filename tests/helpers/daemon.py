@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import signal
 import subprocess
-from pathlib import Path
 
 from active_vision.launcher import ChildProcess, start_daemon
-from shm_protocol import SHM_DIR, existing_segments
+from shm_protocol import existing_segments, remove_segments
 
 
 class Daemon:
@@ -35,8 +34,7 @@ class Daemon:
 
     def remove_leftovers(self) -> None:
         """Unlink any segment of this daemon's name (after a SIGKILL test)."""
-        for seg in existing_segments(self.name):
-            (Path(SHM_DIR) / seg).unlink(missing_ok=True)
+        remove_segments(existing_segments(self.name))
 
     def stop(self, sig: int = signal.SIGTERM) -> None:
         if self.child is not None:
