@@ -36,9 +36,11 @@ from torch import nn
 from rover_train.expert import PlannerExpert
 from rover_train.progress import StatusLine
 from rover_train.zoo.agent import (
+    HEADS,
     FeatureSpec,
     StudentAgent,
     StudentNet,
+    action_classes,
     encode_action,
     image_features,
     state_features,
@@ -105,8 +107,9 @@ class Dataset:
         return s, i, t
 
 
-def feature_spec(kind: str, world: str, env: Any) -> FeatureSpec:
-    """The feature spec of a student for ``kind`` (lidar, fused, or state) in ``env``'s world."""
+def feature_spec(kind: str, world: str, env: Any, head: str = "bins") -> FeatureSpec:
+    """The feature spec of a student for ``kind`` (lidar, fused, or state) in ``env``'s world,
+    with output ``head`` (``bins`` or ``regress``: see :mod:`rover_train.zoo.agent`)."""
     base = env.unwrapped
     rect = base.world.goal
     centre = ((rect.x[0] + rect.x[1]) / 2, (rect.y[0] + rect.y[1]) / 2)
@@ -119,6 +122,7 @@ def feature_spec(kind: str, world: str, env: Any) -> FeatureSpec:
         image=kind == "fused",
         max_speed=float(high[0]),
         min_speed=float(low[0]),
+        head=head,
     )
 
 
@@ -227,15 +231,20 @@ def synthetic_samples(
 
 
 def fit(net: StudentNet, data: Dataset, cfg: DAggerConfig, gen: torch.Generator) -> float:
-    """Refit ``net`` on ``data`` (MSE on speed, cos and sin of the heading). Returns the
-    last epoch's mean loss."""
+    """Refit ``net`` on ``data`` (``bins`` head: cross-entropy on the expert action's class;
+    ``regress``: MSE on speed, cos and sin of the heading). Returns the last epoch's mean
+    loss."""
     states, images, targets = data.tensors()
+    if net.spec.head == "bins":
+        targets = action_classes(targets)
+        loss_fn: nn.Module = nn.CrossEntropyLoss()
+    else:
+        loss_fn = nn.MSELoss()
     if cfg.image_only and net.spec.image:
         params = list(net.cnn.parameters()) + list(net.img_proj.parameters())
     else:
         params = list(net.parameters())
     opt = torch.optim.Adam(params, lr=cfg.lr)
-    loss_fn = nn.MSELoss()
     net.train()
     n = len(targets)
     mean = 0.0
@@ -344,8 +353,10 @@ def distill_entry(
     init: Path | None = None,
     shm_name: str | None = None,
     slot: int = 0,
+    head: str = "bins",
 ) -> StudentAgent:
-    """Make zoo entry ``name`` (see the module docstring) and save it to ``out``."""
+    """Make zoo entry ``name`` (see the module docstring) and save it to ``out``; a new
+    student gets output ``head``."""
     entry = ENTRIES[name]
     torch.manual_seed(cfg.seed)
     if entry.kind == "lidar":
@@ -354,7 +365,7 @@ def distill_entry(
             if init is not None:
                 agent = StudentAgent.load(init)
             else:
-                agent = StudentAgent(StudentNet(feature_spec("lidar", entry.world, env)))
+                agent = StudentAgent(StudentNet(feature_spec("lidar", entry.world, env, head)))
             run_dagger(env, entry.world, agent, cfg, label=f"distill {name}")
         finally:
             env.close()
@@ -366,7 +377,7 @@ def distill_entry(
             env = make_training_env("lidar", entry.world)
             try:
                 fused_spec = replace(
-                    feature_spec("lidar", entry.world, env),
+                    feature_spec("lidar", entry.world, env, head),
                     lidar_points=0,
                     image=True,
                     min_speed=-0.6,
@@ -408,6 +419,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="goals of expert-labelled states drawn without driving (0: none)")
     p.add_argument("--synthetic-per-goal", type=int, default=200)
     p.add_argument("--seed", type=int, default=d.seed)
+    p.add_argument("--head", choices=HEADS, default="bins",
+                   help="a new student's output head (see rover_train.zoo.agent)")
     p.add_argument("--threads", type=int, default=1, help="torch threads")
     p.add_argument(
         "--name", dest="shm_name", default=None,
@@ -442,6 +455,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             init=args.init,
             shm_name=args.shm_name,
             slot=args.slot,
+            head=args.head,
         )
     except ShmError as exc:
         print(f"{exc}\n\n{args.entry} needs the daemon: {entry.command}", file=sys.stderr)

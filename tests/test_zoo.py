@@ -14,6 +14,7 @@ from rover_train import zoo
 from rover_train.distill import DAggerConfig, feature_spec, make_training_env, run_dagger
 from rover_train.expert import PlannerExpert
 from rover_train.progress import StatusLine
+from rover_train.zoo.agent import HEADING_BINS, action_classes, decode_action, encode_action
 from rover_train.zoo_eval import RandomAgent, evaluate_agent
 
 REQUIRED = ("fused-inspect", "fused-maze", "lidar-inspect", "lidar-maze")
@@ -123,18 +124,44 @@ def test_expert_goes_around_the_maze_wall() -> None:
         env.close()
 
 
-def test_dagger_fits_a_student_that_imitates_the_expert(tmp_path) -> None:
+@pytest.mark.parametrize("head", ["bins", "regress"])
+def test_dagger_fits_a_student_that_imitates_the_expert(head: str) -> None:
     env = make_training_env("lidar", "inspect")
     try:
-        agent = zoo.StudentAgent(zoo.StudentNet(feature_spec("lidar", "inspect", env)))
+        spec = feature_spec("lidar", "inspect", env, head)
+        agent = zoo.StudentAgent(zoo.StudentNet(spec))
         history: list[dict[str, float]] = []
-        cfg = DAggerConfig(iterations=2, steps=300, epochs=3, status_every=1e9)
+        cfg = DAggerConfig(iterations=2, steps=300, epochs=15, status_every=1e9)
         run_dagger(env, "inspect", agent, cfg, label="test", history=history)
         assert [h["round"] for h in history] == [1, 2]
         assert history[0]["beta"] == 1.0 and history[1]["beta"] < 1.0
-        assert history[-1]["loss"] < 0.5  # untrained, the MSE on (speed, cos, sin) is ~1
+        # untrained: the MSE on (speed, cos, sin) is ~1, the cross-entropy ln(classes)
+        untrained = 1.0 if head == "regress" else math.log(spec.n_outputs)
+        assert history[-1]["loss"] < 0.5 * untrained
     finally:
         env.close()
+
+
+@pytest.mark.parametrize("speed,heading", [(1.0, 0.0), (0.35, 2.0), (0.0, -3.1), (-0.36, 0.0),
+                                           (0.7, math.pi - 0.01)])
+def test_binned_head_decodes_its_class_back_to_the_action(speed: float, heading: float) -> None:
+    """An action's class, decoded from a one-hot output, is the action to within half a bin
+    (the head's resolution), including headings either side of +-pi."""
+    import torch
+
+    spec = zoo.FeatureSpec(centre=(0.0, 0.0), scale=5.0, head="bins")
+    target = encode_action(np.array([speed, heading]), spec)
+    cls = int(action_classes(torch.from_numpy(target)[None])[0])
+    logits = np.full(spec.n_outputs, -20.0)
+    logits[cls] = 20.0
+    got_speed, got_heading = decode_action(logits, spec)
+    assert abs(got_speed - speed) <= 0.09
+    assert abs(math.remainder(got_heading - heading, 2 * math.pi)) <= math.pi / HEADING_BINS + 1e-6
+
+
+def test_a_student_with_an_unknown_head_is_refused() -> None:
+    with pytest.raises(ValueError, match="bins"):
+        zoo.StudentNet(zoo.FeatureSpec(centre=(0.0, 0.0), scale=5.0, head="softmax"))
 
 
 def test_random_agent_is_reproducible_from_its_seed() -> None:

@@ -14,8 +14,18 @@ and its weights. Its features:
   small CNN whose features are added into the MLP's first hidden layer through a
   projection that starts at zero, so a fused student can start as a state-only one.
 
-The network predicts ``(speed / max speed, cos heading, sin heading)``; the heading is
-decoded with ``atan2`` so "turn around" has no discontinuity at +-pi.
+Two output heads (``FeatureSpec.head``):
+
+- ``bins`` (the current entries): a softmax over joint (speed level, heading bin) classes,
+  ``SPEED_LEVELS`` x ``HEADING_BINS``, trained with cross-entropy on the expert's action's
+  nearest class. The expert's labels are multimodal (turn left or right round a panel, wait
+  or back off for a pedestrian); a regression averages the modes into an action that does
+  neither, which left the regression students stuck against obstacles in most of their
+  failed episodes. Decoding takes the most likely class and refines it with the
+  probabilities of its neighbours (a circular mean over the adjacent heading bins, a mean
+  over the adjacent speed levels).
+- ``regress`` (the first entries): ``(speed / max speed, cos heading, sin heading)`` by
+  mean squared error; the heading is decoded with ``atan2``.
 """
 
 from __future__ import annotations
@@ -32,6 +42,11 @@ LIDAR_CLIP = 4.0  # m
 FREQUENCIES = (0.5, 1.0, 2.0)  # cycles per world half-size, for position features
 POOL = 2  # fused image average-pool factor (96 -> 48)
 IMAGE_FEATURES = 32
+HEADING_BINS = 32  # heading classes of the ``bins`` head (11.25 degrees each)
+SPEED_LEVELS = (-0.6, -0.36, 0.0, 0.175, 0.35, 0.525, 0.7, 0.85, 1.0)
+"""Speeds of the ``bins`` head's classes as fractions of ``max_speed`` (the expert's local
+planner uses 0, 0.35, 0.7, 1 and reverses at -0.36; its pursuit speed is continuous)."""
+HEADS = ("bins", "regress")
 
 
 @dataclass(frozen=True)
@@ -48,6 +63,13 @@ class FeatureSpec:
     """Whether the fused image goes through the CNN."""
     max_speed: float = 1.0
     min_speed: float = -0.6
+    head: str = "regress"
+    """Output head: ``bins`` (classes of speed and heading) or ``regress`` (see the module
+    docstring); files written before heads existed are ``regress``."""
+
+    @property
+    def n_outputs(self) -> int:
+        return len(SPEED_LEVELS) * HEADING_BINS if self.head == "bins" else 3
 
     @property
     def state_dim(self) -> int:
@@ -98,7 +120,34 @@ def encode_action(action: np.ndarray, spec: FeatureSpec) -> np.ndarray:
     return np.array([speed / spec.max_speed, math.cos(heading), math.sin(heading)], np.float32)
 
 
+_LEVELS = np.asarray(SPEED_LEVELS)
+_BIN_ANGLES = -math.pi + (np.arange(HEADING_BINS) + 0.5) * (2 * math.pi / HEADING_BINS)
+
+
+def action_classes(targets: torch.Tensor) -> torch.Tensor:
+    """The ``bins`` head's class (speed level * HEADING_BINS + heading bin) of encoded
+    targets ``(N, 3)`` = (speed / max, cos, sin)."""
+    levels = torch.as_tensor(_LEVELS, dtype=targets.dtype)
+    level = (targets[:, :1] - levels[None]).abs().argmin(dim=1)
+    heading = torch.atan2(targets[:, 2], targets[:, 1])
+    hbin = torch.floor((heading + math.pi) / (2 * math.pi) * HEADING_BINS).long()
+    return level * HEADING_BINS + hbin.clamp(0, HEADING_BINS - 1)
+
+
 def decode_action(out: np.ndarray, spec: FeatureSpec) -> np.ndarray:
+    """The network's output (one row) -> ``[speed, relative heading]``."""
+    if spec.head == "bins":
+        logits = np.asarray(out, dtype=np.float64).reshape(len(SPEED_LEVELS), HEADING_BINS)
+        p = np.exp(logits - logits.max())
+        s, h = np.unravel_index(int(np.argmax(p)), p.shape)
+        hs = [(h + k) % HEADING_BINS for k in (-1, 0, 1)]
+        w = p[s, hs]
+        heading = math.atan2(float(w @ np.sin(_BIN_ANGLES[hs])),
+                             float(w @ np.cos(_BIN_ANGLES[hs])))
+        ss = [k for k in (s - 1, s, s + 1) if 0 <= k < len(SPEED_LEVELS)]
+        frac = float(p[ss, h] @ _LEVELS[ss] / p[ss, h].sum())
+        speed = float(np.clip(frac * spec.max_speed, spec.min_speed, spec.max_speed))
+        return np.array([speed, heading], dtype=np.float32)
     speed = float(np.clip(out[0] * spec.max_speed, spec.min_speed, spec.max_speed))
     return np.array([speed, math.atan2(float(out[2]), float(out[1]))], dtype=np.float32)
 
@@ -113,7 +162,9 @@ class StudentNet(nn.Module):
         self.body = nn.Sequential(
             nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
         )
-        self.out = nn.Linear(hidden, 3)
+        if spec.head not in HEADS:
+            raise ValueError(f"unknown student head {spec.head!r}: use one of {HEADS}")
+        self.out = nn.Linear(hidden, spec.n_outputs)
         if spec.image:
             self.cnn = nn.Sequential(
                 nn.Conv2d(3, 16, 5, stride=2, padding=2),
