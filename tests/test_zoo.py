@@ -11,10 +11,26 @@ import pytest
 from helpers.daemon import Daemon
 
 from rover_train import zoo
-from rover_train.distill import DAggerConfig, feature_spec, make_training_env, run_dagger
+from rover_train.distill import (
+    DAggerConfig,
+    Dataset,
+    feature_spec,
+    fit,
+    make_training_env,
+    run_dagger,
+    sample_weight,
+)
 from rover_train.expert import PlannerExpert
 from rover_train.progress import StatusLine
-from rover_train.zoo.agent import HEADING_BINS, action_classes, decode_action, encode_action
+from rover_train.zoo.agent import (
+    HEADING_BINS,
+    HISTORY_STEPS,
+    ObsHistory,
+    action_classes,
+    decode_action,
+    encode_action,
+    state_features,
+)
 from rover_train.zoo_eval import RandomAgent, evaluate_agent
 
 REQUIRED = ("fused-inspect", "fused-maze", "lidar-inspect", "lidar-maze")
@@ -185,3 +201,68 @@ def test_status_line_reports_steps_rate_eta_and_success() -> None:
     line = out.getvalue().strip().splitlines()[-1]
     assert line.startswith("job: 10/100 steps")
     assert "steps/s" in line and "ETA" in line and "50% of the last 2" in line
+
+
+def test_history_features_show_progress_and_restart_with_each_goal_and_episode() -> None:
+    """The history a student sees: nothing for the first 2 s, then how much nearer the
+    goal is and how far the rover moved; a new goal or ``reset()`` starts it afresh."""
+    spec = zoo.FeatureSpec(centre=(0.0, 0.0), scale=5.0, lidar_points=4, history=True)
+    hist = ObsHistory(spec)
+
+    def obs(x: float, goal_x: float, lidar: float = 2.0) -> dict[str, np.ndarray]:
+        return {"pose": np.array([x, 0.0, 0.0], np.float32),
+                "imu": np.zeros(3, np.float32),
+                "target": np.array([abs(goal_x - x), 0.0 if goal_x > x else math.pi], np.float32),
+                "velocities": np.zeros(2, np.float32),
+                "lidar": np.full(4, lidar, np.float32)}
+
+    feats = [hist.features(obs(0.025 * t, 5.0, 2.0 - 0.01 * t)) for t in range(HISTORY_STEPS + 1)]
+    assert not feats[HISTORY_STEPS - 1][:3].any()  # not yet 2 s of past
+    seen, progress, moved = feats[-1][:3]
+    assert seen == 1.0 and progress == pytest.approx(0.5, abs=1e-3)  # 1 m nearer, / 2 m
+    assert moved == pytest.approx(0.5, abs=1e-3)
+    assert (feats[-1][3:] < 0).all()  # the ranges are shrinking
+    assert len(state_features(obs(1.0, 5.0), spec, feats[-1])) == spec.state_dim
+    # a new goal: no past again
+    assert not hist.features(obs(1.0, -5.0)).any()
+    agent = zoo.StudentAgent(zoo.StudentNet(spec))
+    for t in range(HISTORY_STEPS + 1):
+        agent.act(obs(0.025 * t, 5.0))
+    assert agent.history.features(obs(1.05, 5.0))[0] == 1.0
+    agent.reset()
+    assert not agent.history.features(obs(1.05, 5.0)).any()
+
+
+def test_sample_weight_counts_pedestrians_within_two_metres_only() -> None:
+    here = np.array([1.0, 1.0])
+    assert sample_weight(here, np.array([[2.5, 1.0, 0.0]]), 3.0) == 3.0  # 1.5 m
+    assert sample_weight(here, np.array([[4.0, 1.0, 0.0], [1.0, 5.0, 0.0]]), 3.0) == 1.0
+    assert sample_weight(here, np.zeros((0, 3)), 3.0) == 1.0
+    assert sample_weight(here, None, 3.0) == 1.0
+
+
+def test_fit_follows_the_heavier_of_two_conflicting_labels() -> None:
+    """Two labels for one state: the weighted fit picks the one with the larger total weight,
+    which is the one with fewer samples here (what near_weight does for the rare states)."""
+    import torch
+
+    spec = zoo.FeatureSpec(centre=(0.0, 0.0), scale=5.0, head="bins")
+    net = zoo.StudentNet(spec, hidden=32)
+    data = Dataset.empty(spec)
+    state = np.zeros(spec.state_dim, np.float32)
+    back, ahead = np.array([-0.36, 0.0]), np.array([1.0, 0.0])
+    for _ in range(30):
+        data.add(state, encode_action(ahead, spec), 1.0)
+    for _ in range(15):
+        data.add(state, encode_action(back, spec), 3.0)
+    fit(net, data, DAggerConfig(epochs=60, batch=16), torch.Generator().manual_seed(0))
+    speed, _ = decode_action(net(torch.from_numpy(state)[None])[0].detach().numpy(), spec)
+    assert speed < 0.0
+
+
+def test_stage1_only_is_refused_for_a_lidar_entry(capsys) -> None:
+    from rover_train.distill import main
+
+    with pytest.raises(SystemExit):
+        main(["lidar-inspect", "--stage1-only"])
+    assert "fused entries" in capsys.readouterr().err

@@ -10,6 +10,13 @@ and its weights. Its features:
   routing);
 - yaw (cos, sin), pitch, roll, the target's distance and bearing (cos, sin), odometry;
 - ``lidar`` (LIDAR students): ranges clipped to ``LIDAR_CLIP`` m, scaled to [0, 1];
+- with ``FeatureSpec.history`` (the current entries), what one observation cannot show,
+  kept by the agent between steps (:class:`ObsHistory`, cleared by ``reset()``): whether
+  ``HISTORY_STEPS`` (2 s) of the episode have been seen, how much nearer the goal is than
+  then and how far the rover moved since (the expert plans a detour when it has made no
+  progress for 2 s beside a pedestrian; a memoryless student stood in such deadlocks), and
+  for LIDAR students the change of every range over the last ``LIDAR_LAG`` steps (how the
+  pedestrians move);
 - ``fused_image`` (fused students): the three channels average-pooled to 48x48 through a
   small CNN whose features are added into the MLP's first hidden layer through a
   projection that starts at zero, so a fused student can start as a state-only one.
@@ -31,6 +38,7 @@ Two output heads (``FeatureSpec.head``):
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -47,6 +55,8 @@ SPEED_LEVELS = (-0.6, -0.36, 0.0, 0.175, 0.35, 0.525, 0.7, 0.85, 1.0)
 """Speeds of the ``bins`` head's classes as fractions of ``max_speed`` (the expert's local
 planner uses 0, 0.35, 0.7, 1 and reverses at -0.36; its pursuit speed is continuous)."""
 HEADS = ("bins", "regress")
+HISTORY_STEPS = 40  # 2 s at the 0.05 s control period
+LIDAR_LAG = 5  # 0.25 s
 
 
 @dataclass(frozen=True)
@@ -66,6 +76,8 @@ class FeatureSpec:
     head: str = "regress"
     """Output head: ``bins`` (classes of speed and heading) or ``regress`` (see the module
     docstring); files written before heads existed are ``regress``."""
+    history: bool = False
+    """Add the :class:`ObsHistory` features (files written before it existed: off)."""
 
     @property
     def n_outputs(self) -> int:
@@ -73,11 +85,68 @@ class FeatureSpec:
 
     @property
     def state_dim(self) -> int:
-        return 4 + 4 * 2 * len(FREQUENCIES) + 2 + 2 + 3 + 2 + self.lidar_points
+        base = 4 + 4 * 2 * len(FREQUENCIES) + 2 + 2 + 3 + 2 + self.lidar_points
+        return base + (3 + self.lidar_points if self.history else 0)
 
 
-def state_features(obs: dict[str, np.ndarray], spec: FeatureSpec) -> np.ndarray:
-    """The state feature vector of one observation (float32, ``spec.state_dim``)."""
+def goal_position(obs: dict[str, np.ndarray]) -> tuple[float, float]:
+    """The goal's world position, recovered from ``pose``, ``imu`` yaw and ``target``."""
+    x, y, yaw = float(obs["pose"][0]), float(obs["pose"][1]), float(obs["imu"][2])
+    dist, bearing = float(obs["target"][0]), float(obs["target"][1])
+    return x + dist * math.cos(yaw + bearing), y + dist * math.sin(yaw + bearing)
+
+
+class ObsHistory:
+    """The few facts about the recent past a student sees (see the module docstring).
+
+    Call :meth:`reset` at each episode start and :meth:`features` once per step, in order.
+    A new goal (the env draws one after each success) restarts the record. Until
+    ``HISTORY_STEPS`` steps are recorded the features are zeros with the "seen" flag off,
+    which is also what states drawn without driving get (:meth:`absent`).
+    """
+
+    def __init__(self, spec: FeatureSpec) -> None:
+        self.spec = spec
+        self.reset()
+
+    def reset(self) -> None:
+        self._goal: tuple[float, float] | None = None
+        self._track: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_STEPS + 1)
+        self._lidar: deque[np.ndarray] = deque(maxlen=LIDAR_LAG + 1)
+
+    def absent(self) -> np.ndarray:
+        """The features of a state without a past."""
+        return np.zeros(3 + self.spec.lidar_points, np.float32)
+
+    def features(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        goal = goal_position(obs)
+        if self._goal is None or math.hypot(goal[0] - self._goal[0],
+                                            goal[1] - self._goal[1]) > 0.25:
+            self.reset()
+            self._goal = goal
+        x, y = float(obs["pose"][0]), float(obs["pose"][1])
+        self._track.append((x, y, float(obs["target"][0])))
+        out = self.absent()
+        if len(self._track) > HISTORY_STEPS:
+            x0, y0, d0 = self._track[0]
+            out[0] = 1.0
+            out[1] = np.clip((d0 - self._track[-1][2]) / 2.0, -1.0, 1.0)
+            out[2] = min(math.hypot(x - x0, y - y0) / 2.0, 1.0)
+        if self.spec.lidar_points:
+            lidar = np.clip(np.asarray(obs["lidar"], np.float32), 0.0, LIDAR_CLIP) / LIDAR_CLIP
+            self._lidar.append(lidar)
+            if len(self._lidar) > LIDAR_LAG:
+                out[3:] = (lidar - self._lidar[0]) * 4.0
+        return out
+
+
+def state_features(obs: dict[str, np.ndarray], spec: FeatureSpec,
+                   history: ObsHistory | np.ndarray | None = None) -> np.ndarray:
+    """The state feature vector of one observation (float32, ``spec.state_dim``).
+
+    :param history: for a spec with ``history``: the episode's :class:`ObsHistory` (updated
+        with ``obs``), or its features already computed.
+    """
     pose, imu, target, vel = obs["pose"], obs["imu"], obs["target"], obs["velocities"]
     x, y = float(pose[0]), float(pose[1])
     pitch, roll, yaw = float(imu[0]), float(imu[1]), float(imu[2])
@@ -101,6 +170,10 @@ def state_features(obs: dict[str, np.ndarray], spec: FeatureSpec) -> np.ndarray:
     if spec.lidar_points:
         lidar = np.asarray(obs["lidar"], dtype=np.float64)
         parts.append(np.clip(lidar, 0.0, LIDAR_CLIP) / LIDAR_CLIP)
+    if spec.history:
+        if history is None:
+            raise ValueError("this student sees its recent past: pass history=")
+        parts.append(history.features(obs) if isinstance(history, ObsHistory) else history)
     return np.concatenate([np.asarray(p, dtype=np.float64).ravel() for p in parts]).astype(
         np.float32
     )
@@ -193,21 +266,22 @@ class StudentNet(nn.Module):
 class StudentAgent:
     """A zoo agent: ``reset()`` at each episode start, ``act(obs)`` -> action (deterministic).
 
-    It holds everything it needs (feature spec, network); it keeps no state between
-    steps, so ``reset()`` only exists for callers that treat every agent alike.
+    It holds everything it needs (feature spec, network, and with ``spec.history`` the
+    episode's :class:`ObsHistory`, which ``reset()`` clears).
     """
 
     def __init__(self, net: StudentNet, meta: dict[str, Any] | None = None) -> None:
         self.net = net.eval()
         self.spec = net.spec
         self.meta = dict(meta or {})
+        self.history = ObsHistory(self.spec)
 
     def reset(self) -> None:
-        return None
+        self.history.reset()
 
     @torch.no_grad()
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        state = torch.from_numpy(state_features(obs, self.spec))[None]
+        state = torch.from_numpy(state_features(obs, self.spec, self.history))[None]
         image = torch.from_numpy(image_features(obs))[None] if self.spec.image else None
         out = self.net(state, image)[0].numpy()
         return decode_action(out, self.spec)
