@@ -53,17 +53,19 @@ log = logging.getLogger("rover_train.distill")
 TRAIN_LENGTH = 600
 NEAR_PEDESTRIAN = 2.0  # m (see sample_weight)
 EXIT_NO_DAEMON = 1
+FUSED_ITERATIONS = 6
+FUSED_STEPS = 8_000
 
 
 @dataclass
 class DAggerConfig:
     """One DAgger run."""
 
-    iterations: int = 3
+    iterations: int = 8
     """Collection rounds (the first one drives with the expert)."""
-    steps: int = 6_000
+    steps: int = 20_000
     """Env steps per round."""
-    epochs: int = 8
+    epochs: int = 10
     """Passes over the aggregate data set after each round."""
     batch: int = 256
     lr: float = 1e-3
@@ -473,8 +475,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--iterations", type=int, default=d.iterations)
     p.add_argument("--steps", type=int, default=d.steps, help="env steps per DAgger round")
     p.add_argument("--epochs", type=int, default=d.epochs)
-    p.add_argument("--fused-iterations", type=int, default=3)
-    p.add_argument("--fused-steps", type=int, default=3_000)
+    p.add_argument("--fused-iterations", type=int, default=FUSED_ITERATIONS,
+                   help="stage-2 rounds of a fused entry (daemon in the loop)")
+    p.add_argument("--fused-steps", type=int, default=FUSED_STEPS,
+                   help="env steps per stage-2 round")
     p.add_argument("--synthetic-goals", type=int, default=150,
                    help="goals of expert-labelled states drawn without driving (0: none)")
     p.add_argument("--synthetic-per-goal", type=int, default=200)
