@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from rover_train import zoo
-from rover_train.distill import DAggerConfig, make_training_env, run_dagger
+from rover_train.distill import DAggerConfig, make_training_env, run_dagger, stage2_config
 from rover_train.evaluate import format_table, summarise, write_video
 from rover_train.progress import StatusLine
 from rover_train.zoo_eval import RandomAgent, evaluate_agent
@@ -123,14 +123,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         env = make_training_env("fused", args.world, shm_name=shm)
         try:
             rounds = max(1, args.rounds)
-            cfg = DAggerConfig(
+            cfg = stage2_config(
+                DAggerConfig(epochs=4, seed=args.seed + 1),
                 iterations=rounds,
                 steps=max(1, args.timesteps // rounds),
-                epochs=4,
-                beta0=0.3,
-                first_round_expert=False,
-                image_only=True,
-                seed=args.seed + 1,
             )
             run_dagger(env, args.world, agent, cfg, label="demo fine-tune", history=history)
         finally:

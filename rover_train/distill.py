@@ -393,6 +393,24 @@ def run_dagger(
     return agent
 
 
+def stage2_config(
+    cfg: DAggerConfig, iterations: int = FUSED_ITERATIONS, steps: int = FUSED_STEPS
+) -> DAggerConfig:
+    """The DAgger rounds that train a fused student's image branch with the daemon in the
+    loop (stage 2, and the demo's fine-tune): ``cfg`` with ``iterations`` rounds of ``steps``,
+    the student driving from the first round (beta 0.3), no synthetic states, and only the
+    image branch refit (see ``DAggerConfig.image_only``)."""
+    return replace(
+        cfg,
+        iterations=iterations,
+        steps=steps,
+        synthetic_goals=0,
+        image_only=True,
+        first_round_expert=False,
+        beta0=0.3,
+    )
+
+
 def make_training_env(kind: str, world: str, **kwargs: Any) -> Any:
     from rover_train.envs import make_env
 
@@ -412,7 +430,8 @@ def distill_entry(
 ) -> StudentAgent:
     """Make zoo entry ``name`` (see the module docstring) and save it to ``out``; a new
     student gets output ``head``. ``stage1_only`` (fused entries) saves the student after
-    stage 1, without the daemon; ``init=`` that file later runs stage 2 alone."""
+    stage 1, without the daemon; ``init=`` that file later runs stage 2 alone. Stage 2 runs
+    ``fused_cfg``, by default :func:`stage2_config` of ``cfg``."""
     entry = ENTRIES[name]
     torch.manual_seed(cfg.seed)
     if entry.kind == "lidar":
@@ -450,7 +469,7 @@ def distill_entry(
         # stage 2: everything, with the daemon's fused images
         env = make_training_env("fused", entry.world, shm_name=shm_name, slot=slot)
         try:
-            stage2 = fused_cfg if fused_cfg is not None else cfg
+            stage2 = fused_cfg if fused_cfg is not None else stage2_config(cfg)
             run_dagger(env, entry.world, agent, stage2, label=f"distill {name} stage 2")
         finally:
             env.close()
@@ -511,15 +530,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         synthetic_goals=args.synthetic_goals, synthetic_per_goal=args.synthetic_per_goal,
         near_weight=args.near_weight,
     )  # fmt: skip
-    fused_cfg = replace(
-        cfg,
-        synthetic_goals=0,
-        image_only=True,
-        iterations=args.fused_iterations,
-        steps=args.fused_steps,
-        first_round_expert=False,
-        beta0=0.3,
-    )
+    fused_cfg = stage2_config(cfg, args.fused_iterations, args.fused_steps)
     from shm_protocol.errors import ShmError
 
     try:

@@ -19,6 +19,7 @@ from rover_train.distill import (
     make_training_env,
     run_dagger,
     sample_weight,
+    stage2_config,
 )
 from rover_train.expert import PlannerExpert
 from rover_train.progress import StatusLine
@@ -266,3 +267,15 @@ def test_stage1_only_is_refused_for_a_lidar_entry(capsys) -> None:
     with pytest.raises(SystemExit):
         main(["lidar-inspect", "--stage1-only"])
     assert "fused entries" in capsys.readouterr().err
+
+
+def test_stage2_rounds_refit_only_the_image_branch_with_the_student_driving() -> None:
+    """A fused student's daemon rounds (distill's stage 2 and the demo's fine-tune) keep the
+    caller's fit settings but never refit the state network, draw no synthetic states and
+    let the student drive from the first round."""
+    base = DAggerConfig(epochs=4, seed=7, near_weight=2.0, synthetic_goals=150)
+    cfg = stage2_config(base, iterations=2, steps=500)
+    assert (cfg.iterations, cfg.steps) == (2, 500)
+    assert (cfg.epochs, cfg.seed, cfg.near_weight) == (4, 7, 2.0)
+    assert cfg.image_only and not cfg.first_round_expert and cfg.synthetic_goals == 0
+    assert 0 < cfg.beta0 < 1
