@@ -105,6 +105,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--max-steps", type=int, default=zoo.EVAL_MAX_STEPS)
     p.add_argument("--seed", type=int, default=0, help="seeds fine-tuning and the random policy")
     p.add_argument("--video-episodes", type=int, default=2)
+    p.add_argument(
+        "--fit-threads", type=int, default=DAggerConfig.fit_threads,
+        help="torch threads for the fine-tune's fits (0: all cores; collection uses 1)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
     args = p.parse_args(argv)
     import torch
@@ -124,7 +128,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             rounds = max(1, args.rounds)
             cfg = stage2_config(
-                DAggerConfig(epochs=4, seed=args.seed + 1),
+                DAggerConfig(epochs=4, seed=args.seed + 1, fit_threads=args.fit_threads),
                 iterations=rounds,
                 steps=max(1, args.timesteps // rounds),
             )

@@ -35,6 +35,7 @@ from torch import nn
 
 from rover_train.expert import PlannerExpert
 from rover_train.progress import StatusLine
+from rover_train.threads import available_cores
 from rover_train.zoo.agent import (
     HEADS,
     FeatureSpec,
@@ -87,6 +88,11 @@ class DAggerConfig:
     """Fit only the image branch (CNN and its projection), keeping the state network: for
     a fused student whose routing was learnt in stage 1 from far more data than a fused
     round gives (refitting everything on the fused rounds alone made it forget)."""
+    fit_threads: int = 2
+    """Torch threads for the fits, at most the cores this process may use (0: all of them).
+    Collection keeps the caller's count: there the env, the expert and the av-daemon share
+    the cores; during a fit they are idle. A fixed count (not "all cores") keeps a run's
+    result the same on machines with more cores."""
 
 
 @dataclass
@@ -319,6 +325,14 @@ def fit(net: StudentNet, data: Dataset, cfg: DAggerConfig, gen: torch.Generator)
     return mean
 
 
+def fit_threads(requested: int) -> int:
+    """``requested`` torch threads for a fit, capped at the available cores (0: all)."""
+    if requested < 0:
+        raise ValueError(f"fit_threads must be >= 0 (0: all cores), got {requested}")
+    cores = available_cores()
+    return min(requested, cores) if requested else cores
+
+
 def run_dagger(
     env: Any,
     world: str,
@@ -366,7 +380,12 @@ def run_dagger(
             env, expert, driver, beta, cfg.steps, data, seed_base, rng, status, cfg.near_weight
         )
         t1 = time.monotonic()
-        loss = fit(agent.net, data, cfg, gen)
+        collect_threads = torch.get_num_threads()
+        torch.set_num_threads(fit_threads(cfg.fit_threads))
+        try:
+            loss = fit(agent.net, data, cfg, gen)
+        finally:
+            torch.set_num_threads(collect_threads)
         print(
             f"{label}: round {it + 1}/{cfg.iterations}: drove {stats['episodes']} episodes "
             f"(beta {beta:.2f}, first-goal success {stats['success']:.0%}) in "
@@ -508,7 +527,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--head", choices=HEADS, default="bins",
                    help="a new student's output head (see rover_train.zoo.agent)")
-    p.add_argument("--threads", type=int, default=1, help="torch threads")
+    p.add_argument("--threads", type=int, default=1, help="torch threads while driving")
+    p.add_argument(
+        "--fit-threads", type=int, default=d.fit_threads,
+        help="torch threads for the fits (0: all cores; the env and the daemon are idle then)",
+    )  # fmt: skip
     p.add_argument(
         "--name", dest="shm_name", default=None,
         help="daemon name for fused entries (default: $ROVERAV_SHM_NAME, set by rover-pair)",
@@ -528,7 +551,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = DAggerConfig(
         iterations=args.iterations, steps=args.steps, epochs=args.epochs, seed=args.seed,
         synthetic_goals=args.synthetic_goals, synthetic_per_goal=args.synthetic_per_goal,
-        near_weight=args.near_weight,
+        near_weight=args.near_weight, fit_threads=args.fit_threads,
     )  # fmt: skip
     fused_cfg = stage2_config(cfg, args.fused_iterations, args.fused_steps)
     from shm_protocol.errors import ShmError

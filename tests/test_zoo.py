@@ -279,3 +279,37 @@ def test_stage2_rounds_refit_only_the_image_branch_with_the_student_driving() ->
     assert (cfg.epochs, cfg.seed, cfg.near_weight) == (4, 7, 2.0)
     assert cfg.image_only and not cfg.first_round_expert and cfg.synthetic_goals == 0
     assert 0 < cfg.beta0 < 1
+
+
+def test_dagger_fits_on_fit_threads_and_collects_on_the_callers_threads(monkeypatch) -> None:
+    """The fits run on ``fit_threads`` torch threads (the env and the daemon are idle then);
+    collection, and the caller after the run, keep the caller's count."""
+    import torch
+
+    from rover_train import distill
+    from rover_train.threads import available_cores
+
+    seen: list[int] = []
+    real_fit = distill.fit
+
+    def counting_fit(*args, **kwargs):  # type: ignore[no-untyped-def]
+        seen.append(torch.get_num_threads())
+        return real_fit(*args, **kwargs)
+
+    monkeypatch.setattr(distill, "fit", counting_fit)
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    env = make_training_env("lidar", "inspect")
+    try:
+        agent = zoo.StudentAgent(zoo.StudentNet(feature_spec("lidar", "inspect", env)))
+        cfg = DAggerConfig(iterations=2, steps=50, epochs=1, status_every=1e9, fit_threads=2)
+        run_dagger(env, "inspect", agent, cfg, label="test")
+        assert seen == [min(2, available_cores())] * 2
+        assert torch.get_num_threads() == 1
+    finally:
+        env.close()
+        torch.set_num_threads(before)
+    assert distill.fit_threads(0) == available_cores()
+    assert distill.fit_threads(64) == available_cores()
+    with pytest.raises(ValueError, match="fit_threads"):
+        distill.fit_threads(-1)
