@@ -280,7 +280,8 @@ class PlannerExpert:
         speed = cfg.max_speed * max(0.0, math.cos(heading)) ** 3
         # slower where the corridor is tight
         clear = float(self.grid.clearance_at(x, y))
-        speed *= float(np.clip((clear - 0.2) / 0.5, 0.35, 1.0))
+        clear_factor = float(np.clip((clear - 0.2) / 0.5, 0.35, 1.0))
+        speed *= clear_factor
         if cfg.pedestrian_aware and pedestrians is not None and len(pedestrians):
             peds = np.asarray(pedestrians, dtype=np.float64)[:, :2]
             vel = np.zeros_like(peds)
@@ -299,6 +300,8 @@ class PlannerExpert:
                 speed, heading = self._local_plan(
                     x, y, yaw, goal, peds[near], vel[near], heading, speed
                 )
+                if speed > 0:  # the pursuit's caps: slow while turning and where it is tight
+                    speed *= max(0.0, math.cos(heading)) ** 3 * clear_factor
         speed = float(np.clip(speed, cfg.min_speed, cfg.max_speed))
         return np.array([speed, heading], dtype=np.float32)
 
