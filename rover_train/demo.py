@@ -111,6 +111,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     )  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
     args = p.parse_args(argv)
+    if args.episodes < 1:
+        p.error(f"--episodes must be at least 1 (got {args.episodes}): the tables need episodes")
     import torch
 
     torch.set_num_threads(1)
@@ -128,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             rounds = max(1, args.rounds)
             cfg = stage2_config(
-                DAggerConfig(epochs=4, seed=args.seed + 1, fit_threads=args.fit_threads),
+                DAggerConfig(epochs=4, lr=3e-4, seed=args.seed + 1, fit_threads=args.fit_threads),
                 iterations=rounds,
                 steps=max(1, args.timesteps // rounds),
             )
