@@ -28,7 +28,13 @@ from pathlib import Path
 from typing import Any
 
 from rover_train import zoo
-from rover_train.distill import DAggerConfig, make_training_env, run_dagger, stage2_config
+from rover_train.distill import (
+    DAggerConfig,
+    make_training_env,
+    run_dagger,
+    stage2_config,
+    teacher_sees_for,
+)
 from rover_train.evaluate import format_table, summarise, write_video
 from rover_train.progress import StatusLine
 from rover_train.zoo_eval import RandomAgent, evaluate_agent
@@ -130,7 +136,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             rounds = max(1, args.rounds)
             cfg = stage2_config(
-                DAggerConfig(epochs=4, lr=3e-4, seed=args.seed + 1, fit_threads=args.fit_threads),
+                DAggerConfig(
+                    epochs=4,
+                    lr=3e-4,
+                    seed=args.seed + 1,
+                    fit_threads=args.fit_threads,
+                    teacher_sees=teacher_sees_for("fused"),
+                ),
                 iterations=rounds,
                 steps=max(1, args.timesteps // rounds),
             )

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from rover_env.controller import wrap_angle
+from rover_env.rover import CAMERA_FOVY
 from rover_env.worlds import WorldSpec, make_world
 
 GRID_RES = 0.1  # m per grid cell
@@ -48,6 +49,10 @@ STALL_PROGRESS = 0.3  # m of planned path that counts as progress
 DETOUR_TIME = 4.0  # s a detour plan is followed
 DETOUR_COST = 40.0  # extra cost per cell inside a blocking pedestrian's personal space
 _SQRT2 = math.sqrt(2.0)
+CAMERA_HALF_FOV = math.radians(CAMERA_FOVY) / 2  # rad; square frames: horizontal = vertical
+PEDESTRIAN_RADIUS = 0.25  # m: a pedestrian this far off the view's edge still shows in it
+SEES = ("all", "camera")
+
 _SIGHT_SAMPLES = 14  # points checked along a line of sight (every <= 0.1 m at LOOKAHEAD)
 _CANDIDATE_HEADINGS = np.linspace(-math.pi, math.pi, 16, endpoint=False)
 _CANDIDATE_SPEEDS = (0.0, 0.35, 0.7, 1.0)
@@ -70,6 +75,28 @@ class ExpertConfig:
     """Local planner: the radius (m) kept from predicted pedestrian positions."""
     trigger: float = PED_RANGE
     """The local planner takes over when a pedestrian is closer than this (m)."""
+    sees: str = "all"
+    """Which pedestrians it reacts to: ``all`` (their true positions all round), or
+    ``camera``, only those inside the forward camera's horizontal field of view
+    (:func:`in_camera_view`): what a fused student can see. A teacher that yields to a
+    pedestrian behind the rover gives its image student labels it cannot explain; the
+    student learns to back off at places and moments instead, where nothing is there."""
+
+    def __post_init__(self) -> None:
+        if self.sees not in SEES:
+            raise ValueError(f"ExpertConfig.sees must be one of {SEES}, got {self.sees!r}")
+
+
+def in_camera_view(
+    x: float, y: float, yaw: float, pedestrians: np.ndarray, half_fov: float = CAMERA_HALF_FOV
+) -> np.ndarray:
+    """(P,) bool: pedestrians any part of which (a disc of ``PEDESTRIAN_RADIUS``) lies inside
+    the horizontal field of view of a forward camera at (x, y) looking along ``yaw``."""
+    dx, dy = pedestrians[:, 0] - x, pedestrians[:, 1] - y
+    dist = np.hypot(dx, dy)
+    off = np.abs((np.arctan2(dy, dx) - yaw + math.pi) % (2 * math.pi) - math.pi)
+    margin = np.arcsin(np.clip(PEDESTRIAN_RADIUS / np.maximum(dist, 1e-6), 0.0, 1.0))
+    return off <= half_fov + margin
 
 
 class CostToGo:
@@ -295,6 +322,8 @@ class PlannerExpert:
                 vel = (peds - self._last_peds) / (time - self._last_time)
             self._last_peds, self._last_time = peds.copy(), time
             near = np.hypot(peds[:, 0] - x, peds[:, 1] - y) < cfg.trigger
+            if cfg.sees == "camera":
+                near &= in_camera_view(x, y, yaw, peds)
             self._watch_stall(x, y, goal, peds, near, time)
             if near.any():
                 speed, heading = self._local_plan(

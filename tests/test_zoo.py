@@ -21,7 +21,7 @@ from rover_train.distill import (
     sample_weight,
     stage2_config,
 )
-from rover_train.expert import PlannerExpert
+from rover_train.expert import ExpertConfig, PlannerExpert, in_camera_view
 from rover_train.progress import StatusLine
 from rover_train.zoo.agent import (
     HEADING_BINS,
@@ -160,6 +160,38 @@ def test_expert_yielding_to_pedestrians_slows_down_for_turns_as_its_pursuit_does
             assert speed <= expert.config.max_speed * max(0.0, math.cos(heading)) ** 3 + 1e-6
             checked += 1
     assert checked > 50
+
+
+def test_camera_expert_reacts_only_to_the_pedestrians_a_fused_student_can_see() -> None:
+    """``sees="camera"``: a pedestrian inside the forward camera's 90-degree view (or with
+    part of its body in it) changes the action as before; one beside or behind the rover
+    does not: the action is the one with no pedestrian at all."""
+    view = in_camera_view(0.0, 0.0, 0.0, np.array([[1.0, 0.0], [1.0, 1.1], [0.2, 1.0],
+                                                   [-1.0, 0.0], [1.0, -1.6]]))
+    assert view.tolist() == [True, True, False, False, False]
+    # the same looking the other way: bearings are relative to the yaw
+    assert in_camera_view(0.0, 0.0, math.pi, np.array([[-1.0, 0.0]])).tolist() == [True]
+    all_round = PlannerExpert("maze")
+    camera = PlannerExpert("maze", ExpertConfig(sees="camera"))
+    x, y, yaw, goal = -3.0, -4.0, 0.0, (3.0, -4.0)  # the open south corridor, facing the goal
+    assert all_round.grid.clearance_at(x, y) > 0.7
+    clear = camera.act((x, y), yaw, goal, None, time=0.0)
+    changed = 0
+    for side in ([x + 0.9, y], [x - 0.2, y + 0.9], [x - 0.9, y], [x + 0.2, y - 0.9]):
+        peds = np.array([side])
+        seen = bool(in_camera_view(x, y, yaw, peds)[0])
+        for expert in (all_round, camera):
+            expert.reset()
+        act_camera = camera.act((x, y), yaw, goal, peds, time=0.0)
+        act_all = all_round.act((x, y), yaw, goal, peds, time=0.0)
+        if seen:
+            np.testing.assert_allclose(act_camera, act_all)
+        else:
+            np.testing.assert_allclose(act_camera, clear)
+            changed += not np.allclose(act_all, clear)
+    assert changed >= 1  # the all-round expert did react to one the camera cannot see
+    with pytest.raises(ValueError, match="sees"):
+        ExpertConfig(sees="lidar")
 
 
 @pytest.mark.parametrize("head", ["bins", "regress"])
