@@ -25,7 +25,7 @@ import numpy as np
 
 from rover_train import zoo
 from rover_train.expert import PlannerExpert
-from rover_train.zoo_eval import ExpertAgent
+from rover_train.zoo_eval import ExpertAgent, entry_env
 
 DIAGNOSTIC_SEED_BASE = 50_000
 STUCK_WINDOW = 200  # steps (10 s)
@@ -112,12 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     spec = zoo.ENTRIES[args.entry]
-    overrides = {}
-    if spec.kind == "fused":
-        from shm_protocol import default_name
-
-        overrides["rl_obs_name"] = args.daemon_name or default_name()
-    env = zoo.make_env(args.entry, **overrides)
+    env = entry_env(args.entry, args.daemon_name)
     expert = PlannerExpert(spec.world)
     if args.expert:
         agent = ExpertAgent(env, spec.world)

@@ -91,7 +91,10 @@ def in_camera_view(
     x: float, y: float, yaw: float, pedestrians: np.ndarray, half_fov: float = CAMERA_HALF_FOV
 ) -> np.ndarray:
     """(P,) bool: pedestrians any part of which (a disc of ``PEDESTRIAN_RADIUS``) lies inside
-    the horizontal field of view of a forward camera at (x, y) looking along ``yaw``."""
+    the horizontal field of view of a forward camera at (x, y) looking along ``yaw``. The
+    sim's ``pedestrians_in_view`` tests the camera's actual pose instead; this one needs only
+    the rover's pose, so it also serves states drawn without driving (the sim's camera is not
+    updated there)."""
     dx, dy = pedestrians[:, 0] - x, pedestrians[:, 1] - y
     dist = np.hypot(dx, dy)
     off = np.abs((np.arctan2(dy, dx) - yaw + math.pi) % (2 * math.pi) - math.pi)

@@ -59,6 +59,16 @@ def evaluate_agent(
     return results
 
 
+def entry_env(name: str, daemon_name: str | None = None) -> Any:
+    """Zoo entry ``name``'s env; a fused one attaches to daemon ``daemon_name`` (default:
+    ``$ROVERAV_SHM_NAME``, which rover-pair sets)."""
+    if zoo.ENTRIES[name].kind != "fused":
+        return zoo.make_env(name)
+    from shm_protocol import default_name
+
+    return zoo.make_env(name, rl_obs_name=daemon_name or default_name())
+
+
 class ExpertAgent:
     """The planner expert behind the agent interface (it reads the env's privileged state)."""
 
@@ -113,12 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     spec = zoo.ENTRIES[args.entry]
-    overrides = {}
-    if spec.kind == "fused":
-        from shm_protocol import default_name
-
-        overrides["rl_obs_name"] = args.daemon_name or default_name()
-    env = zoo.make_env(args.entry, **overrides)
+    env = entry_env(args.entry, args.daemon_name)
     try:
         if args.expert:
             agent: Any = ExpertAgent(env, spec.world)
