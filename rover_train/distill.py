@@ -9,10 +9,13 @@ iteration), and the expert labels every state the student visits. The student is
 everything collected so far after each iteration.
 
 A fused entry is made in two stages. Stage 1 fits the student's state network (pose, IMU,
-target, odometry: the same keys in RoverEnv and RoverEnvFused, with the same dynamics) by
-DAgger in RoverEnv, which needs no daemon and runs ~20x faster. Stage 2 turns on the image
-branch (its projection starts at zero, so the student starts as the stage-1 policy) and
-continues DAgger in RoverEnvFused with the daemon in the loop, fitting everything.
+target, odometry: the same keys in RoverEnv and RoverEnvFused, with the same dynamics, and
+the forward range scans read off the fused image, :func:`rover_train.zoo.agent.depth_scan`)
+by DAgger in RoverEnv, which needs no daemon and runs several times faster; the fused image
+the scans come from is the daemon's own perception run in this process on the same rendered
+frame (:class:`FusedView`). Stage 2 turns on the image branch (its projection starts at
+zero, so the student starts as the stage-1 policy) and continues DAgger in RoverEnvFused
+with the daemon in the loop, fitting the image branch.
 
 Training episodes use reset seeds below ``EVAL_SEED_BASE`` (evaluation starts there) and
 run ``TRAIN_LENGTH`` steps, carrying on past goals (the env draws a new one).
@@ -29,10 +32,12 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 from torch import nn
 
+from rover_env.constants import FUSED_SIZE
 from rover_train.expert import SEES, ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
 from rover_train.threads import available_cores
@@ -56,6 +61,12 @@ NEAR_PEDESTRIAN = 2.0  # m (see sample_weight)
 EXIT_NO_DAEMON = 1
 FUSED_ITERATIONS = 6
 FUSED_STEPS = 8_000
+SCAN_BANDS = 16
+"""Bands of a fused student's depth scan (``FeatureSpec.depth_scan``; 5.6 degrees each)."""
+PEDESTRIAN_SCAN = False
+"""Whether a fused student gets the pedestrian scan too (``FeatureSpec.pedestrian_scan``):
+off, it did not help (73 and 74 goals on 100 diagnostic episodes of fused-inspect and
+fused-maze against 78 and 78 without it; benchmarks/RESULTS.md)."""
 
 
 @dataclass
@@ -137,6 +148,47 @@ class Dataset:
         return s, i, t, w
 
 
+class FusedView:
+    """The fused image the av-daemon computes from the sim's forward camera frame, computed
+    in this process: the same network (the shipped AVNet, the daemon's default backend) on
+    the same rendered frame, so the same image. Stage 1 of a fused entry drives RoverEnv
+    with no daemon; with this its student's depth scan (``FeatureSpec.depth_scan``) is the
+    one it will read in stage 2, errors of the network's depth included. The perception is
+    made on first use (a renderer-side object, like the sim's GL context)."""
+
+    def __init__(self) -> None:
+        self._perception: Any = None
+
+    def __call__(self, sim: Any) -> np.ndarray:
+        if self._perception is None:
+            from active_vision.perception import Perception, PerceptionConfig
+
+            h, w = sim.camera_size
+            if h != w:
+                raise ValueError(f"the fused image is square; this sim renders {h}x{w}")
+            self._perception = Perception(PerceptionConfig(size=h, threads=None, max_batch=1))
+        rgb = sim.render_camera().rgb
+        return self._perception(rgb[None])[0].copy()
+
+
+class WithFusedView(gym.ObservationWrapper):
+    """Adds ``fused_image`` (:class:`FusedView`) to RoverEnv observations: stage 1 of a fused
+    entry, whose student reads its depth scan off it. The env must render frames of the
+    fused env's size (``size=FUSED_SIZE``)."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        h, w = env.unwrapped.sim.camera_size
+        self.observation_space = gym.spaces.Dict(
+            {**env.observation_space.spaces,
+             "fused_image": gym.spaces.Box(0.0, 1.0, (h, w, 3), np.float32)}
+        )  # fmt: skip
+        self.view = FusedView()
+
+    def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
+        return {**observation, "fused_image": self.view(self.env.unwrapped.sim)}
+
+
 def sample_weight(position: Any, pedestrians: Any, near_weight: float) -> float:
     """Loss weight of a sample: ``near_weight`` with a pedestrian within
     ``NEAR_PEDESTRIAN`` m of ``position``, else 1. Those are the states where the expert's
@@ -150,9 +202,11 @@ def sample_weight(position: Any, pedestrians: Any, near_weight: float) -> float:
 
 
 def feature_spec(kind: str, world: str, env: Any, head: str = "bins",
-                 history: bool = True) -> FeatureSpec:
+                 history: bool = True, depth_scan: int = 0,
+                 pedestrian_scan: bool = False) -> FeatureSpec:
     """The feature spec of a student for ``kind`` (lidar, fused, or state) in ``env``'s world,
-    with output ``head`` (``bins`` or ``regress``: see :mod:`rover_train.zoo.agent`)."""
+    with output ``head`` (``bins`` or ``regress``: see :mod:`rover_train.zoo.agent`) and
+    ``depth_scan`` bands of scan, and ``pedestrian_scan`` (fused students)."""
     base = env.unwrapped
     rect = base.world.goal
     centre = ((rect.x[0] + rect.x[1]) / 2, (rect.y[0] + rect.y[1]) / 2)
@@ -167,6 +221,8 @@ def feature_spec(kind: str, world: str, env: Any, head: str = "bins",
         min_speed=float(low[0]),
         head=head,
         history=history,
+        depth_scan=depth_scan,
+        pedestrian_scan=pedestrian_scan and depth_scan > 0,
     )
 
 
@@ -248,6 +304,7 @@ def synthetic_samples(
     area = world.goal.expanded(1.0)
     env.reset(seed=int(rng.integers(EVAL_SEED_BASE)))
     n_peds = len(sim.pedestrian_positions)
+    view = env.view if isinstance(env, WithFusedView) else FusedView()
     for _ in range(n_goals):
         goal = world.sample_free(rng, world.goal, 0.3)
         for _ in range(per_goal):
@@ -278,6 +335,8 @@ def synthetic_samples(
             }
             if spec.lidar_points:
                 obs["lidar"] = sim.lidar(base.lidar_points, base.max_lidar_range)
+            if spec.depth_scan:
+                obs["fused_image"] = view(sim)
             past = ObsHistory(spec).absent() if spec.history else None
             data.add(
                 state_features(obs, spec, past),
@@ -458,11 +517,15 @@ def distill_entry(
     slot: int = 0,
     head: str = "bins",
     stage1_only: bool = False,
+    depth_scan: int = SCAN_BANDS,
+    pedestrian_scan: bool = PEDESTRIAN_SCAN,
 ) -> StudentAgent:
     """Make zoo entry ``name`` (see the module docstring) and save it to ``out``; a new
-    student gets output ``head``. ``stage1_only`` (fused entries) saves the student after
-    stage 1, without the daemon; ``init=`` that file later runs stage 2 alone. Stage 2 runs
-    ``fused_cfg``, by default :func:`stage2_config` of ``cfg``."""
+    student gets output ``head`` (and, fused, ``depth_scan`` bands of depth scan, and a
+    pedestrian scan with ``pedestrian_scan``).
+    ``stage1_only`` (fused entries) saves the student after stage 1, without the daemon;
+    ``init=`` that file later runs stage 2 alone. Stage 2 runs ``fused_cfg``, by default
+    :func:`stage2_config` of ``cfg``."""
     entry = ENTRIES[name]
     torch.manual_seed(cfg.seed)
     if entry.kind == "lidar":
@@ -479,11 +542,15 @@ def distill_entry(
         if init is not None:
             agent = StudentAgent.load(init)
         else:
-            # stage 1: the state network in RoverEnv (fast, no daemon)
-            env = make_training_env("lidar", entry.world)
+            # stage 1: the state network in RoverEnv (fast, no daemon), the depth scan
+            # read off the fused image computed in this process
+            env = make_training_env("lidar", entry.world, size=FUSED_SIZE)
+            if depth_scan:
+                env = WithFusedView(env)
             try:
                 fused_spec = replace(
-                    feature_spec("lidar", entry.world, env, head),
+                    feature_spec("lidar", entry.world, env, head, depth_scan=depth_scan,
+                                 pedestrian_scan=pedestrian_scan),
                     lidar_points=0,
                     image=True,
                     min_speed=-0.6,
@@ -556,6 +623,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         "later with --init FILE",
     )  # fmt: skip
     p.add_argument(
+        "--depth-scan", type=int, default=SCAN_BANDS,
+        help="a new fused student's bands of forward range scan read off the depth channel "
+        "(0: none, the image branch alone sees what is ahead)",
+    )  # fmt: skip
+    p.add_argument(
+        "--pedestrian-scan", action=argparse.BooleanOptionalAction, default=PEDESTRIAN_SCAN,
+        help="with --depth-scan: a second scan of the pixels the heatmap marks as a pedestrian",
+    )  # fmt: skip
+    p.add_argument(
         "--teacher-sees", choices=SEES, default=None,
         help="pedestrians the labelling expert reacts to: all, or only those in the forward "
         "camera's view (what a fused student can see); default: camera for fused entries, "
@@ -586,6 +662,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             slot=args.slot,
             head=args.head,
             stage1_only=args.stage1_only,
+            depth_scan=args.depth_scan,
+            pedestrian_scan=args.pedestrian_scan,
         )
     except ShmError as exc:
         print(f"{exc}\n\n{args.entry} needs the daemon: {entry.command}", file=sys.stderr)

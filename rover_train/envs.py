@@ -35,8 +35,10 @@ def env_kwargs(
     connect_timeout: float | None = None,
     render_mode: str | None = None,
     pedestrian_mode: str | None = None,
+    size: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
-    """Constructor keywords for env ``kind`` (a key of ``ENV_IDS``)."""
+    """Constructor keywords for env ``kind`` (a key of ``ENV_IDS``); ``size`` is the forward
+    camera's (height, width)."""
     if kind not in ENV_IDS:
         raise ValueError(f"unknown env kind {kind!r}; choose one of {sorted(ENV_IDS)}")
     kwargs: dict[str, Any] = {"world_n": world}
@@ -46,6 +48,8 @@ def env_kwargs(
         kwargs["render_mode"] = render_mode
     if pedestrian_mode is not None:
         kwargs["pedestrian_mode"] = pedestrian_mode
+    if size is not None:
+        kwargs["size"] = tuple(size)
     if kind in FUSED_KINDS:
         kwargs["rl_obs_name"] = shm_name or default_name()
         kwargs["slot"] = slot

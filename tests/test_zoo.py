@@ -10,10 +10,13 @@ import numpy as np
 import pytest
 from helpers.daemon import Daemon
 
+from rover_env.constants import FUSED_SIZE
 from rover_train import zoo
 from rover_train.distill import (
     DAggerConfig,
     Dataset,
+    FusedView,
+    WithFusedView,
     feature_spec,
     fit,
     make_training_env,
@@ -24,11 +27,15 @@ from rover_train.distill import (
 from rover_train.expert import ExpertConfig, PlannerExpert, in_camera_view
 from rover_train.progress import StatusLine
 from rover_train.zoo.agent import (
+    CAMERA_HEIGHT,
     HEADING_BINS,
     HISTORY_STEPS,
+    LIDAR_CLIP,
     ObsHistory,
+    _scan_geometry,
     action_classes,
     decode_action,
+    depth_scan,
     encode_action,
     state_features,
 )
@@ -97,6 +104,10 @@ def test_fused_entry_env_has_the_seed_spaces_and_the_agent_acts_on_daemon_frames
             # the image branch is live: a blank image changes the action
             blank = dict(obs, fused_image=np.zeros_like(obs["fused_image"]))
             assert not np.allclose(agent.act(blank), agent.act(obs))
+            # stage 1's in-process fused image is the daemon's, for the same frame
+            np.testing.assert_allclose(
+                FusedView()(env.unwrapped.sim), obs["fused_image"], atol=1e-4
+            )
         finally:
             env.close()
     finally:
@@ -285,6 +296,65 @@ def test_history_features_show_progress_and_restart_with_each_goal_and_episode()
     assert agent.history.features(obs(1.05, 5.0))[0] == 1.0
     agent.reset()
     assert not agent.history.features(obs(1.05, 5.0)).any()
+
+
+def test_depth_scan_sees_a_wall_ahead_and_drops_the_ground_and_the_sky() -> None:
+    """The scan a fused student reads off the depth channel: the ground and the sky are
+    "nothing within reach" (1.0); a wall 2 m ahead reads 2 m in the middle band and farther
+    towards the edges of the view (the horizontal range grows off-axis)."""
+    size = 96
+    horizontal, up = _scan_geometry(size, size)
+    sky = np.zeros((size, size), np.float32)  # 0: far
+    np.testing.assert_array_equal(depth_scan(sky, 16), np.ones(16))
+    # the flat ground: each pixel below the horizon at the depth where its ray meets it
+    with np.errstate(divide="ignore"):
+        z_ground = np.where(up < 0, CAMERA_HEIGHT / -up, np.inf)
+    for error in (1.0, 0.9, 1.1):  # exact, and 10 % near or far (the daemon's network)
+        ground = np.clip(1.0 - error * z_ground / 10.0, 0.0, 1.0).astype(np.float32)
+        np.testing.assert_array_equal(depth_scan(ground, 16), np.ones(16))
+    # a wall across the view 2 m ahead of the camera (z-depth of a fronto-parallel plane)
+    wall = np.full((size, size), 1.0 - 2.0 / 10.0, np.float32)
+    scan = depth_scan(wall, 16) * LIDAR_CLIP
+    assert scan[7] == pytest.approx(2.0, abs=0.05) and scan[8] == pytest.approx(2.0, abs=0.05)
+    assert scan[0] > scan[4] > scan[7] and scan[15] > scan[11] > scan[8]
+    with pytest.raises(ValueError, match="bands"):
+        depth_scan(wall, 10)
+
+
+def test_stage1_scan_shows_a_pedestrian_stood_ahead_in_the_middle_bands() -> None:
+    """Stage 1's scan (RoverEnv with the fused image computed in-process): a pedestrian stood
+    1.6 m ahead of the rover appears in the middle bands at about that range less the
+    camera's offset and the pedestrian's half width, and in the pedestrian scan."""
+    env = WithFusedView(make_training_env("lidar", "inspect", size=FUSED_SIZE))
+    try:
+        obs, _ = env.reset(seed=7)
+        sim = env.unwrapped.sim
+        x, y = float(obs["pose"][0]), float(obs["pose"][1])
+        for i in range(len(sim.pedestrian_positions)):
+            sim.place_pedestrian(i, x + 40.0, y + 40.0 + i, 0.0)
+        # a heading with nothing within 3 m ahead
+        for yaw in np.linspace(-math.pi, math.pi, 16, endpoint=False):
+            sim.set_rover_pose(x, y, float(yaw))
+            before = depth_scan(env.observation(obs)["fused_image"][:, :, 2], 16) * LIDAR_CLIP
+            if before[6:10].min() > 3.0:
+                break
+        else:
+            pytest.fail("no open heading at the spawn point")
+        sim.place_pedestrian(0, x + 1.6 * math.cos(yaw), y + 1.6 * math.sin(yaw), 0.0)
+        seen = env.observation(obs)
+        after = depth_scan(seen["fused_image"][:, :, 2], 16) * LIDAR_CLIP
+        assert 0.7 < after[7:9].min() < 1.7
+        assert (before[7:9] - after[7:9]).min() > 1.0
+        # the pedestrian scan: only the pixels the heatmap marks (not the scenery at the edge)
+        image = seen["fused_image"]
+        people = depth_scan(image[:, :, 2], 16, image[:, :, 1] > 0.5) * LIDAR_CLIP
+        assert 0.7 < people[7:9].min() < 1.7
+        assert people[0] == people[15] == LIDAR_CLIP
+        spec = feature_spec("fused", "inspect", env, depth_scan=16, pedestrian_scan=True)
+        assert spec.scan_points == 32
+        assert spec.state_dim == len(state_features(seen, spec, ObsHistory(spec)))
+    finally:
+        env.close()
 
 
 def test_sample_weight_counts_pedestrians_within_two_metres_only() -> None:

@@ -17,6 +17,16 @@ and its weights. Its features:
   progress for 2 s beside a pedestrian; a memoryless student stood in such deadlocks), and
   for LIDAR students the change of every range over the last ``LIDAR_LAG`` steps (how the
   pedestrians move);
+- ``depth_scan`` (fused students since 2026-11-25): a forward range scan read off the fused
+  image's depth channel, the LIDAR the fused env does not have: each pixel is lifted to 3D
+  with the camera's pose on the rover, the ground and anything above ``SCAN_TOP`` dropped,
+  and the nearest horizontal range kept per column band (:func:`depth_scan`); with history,
+  its change over ``LIDAR_LAG`` steps too; with ``pedestrian_scan``, a second scan of the
+  pixels the heatmap marks as a pedestrian. Stage 1 of a fused entry (RoverEnv, no daemon)
+  reads the same scan off the same fused image computed in-process
+  (:class:`rover_train.distill.FusedView`), so the state network learns walls and
+  pedestrians ahead from its 190,000 samples instead of the image branch learning them
+  from 48,000;
 - ``fused_image`` (fused students): the three channels average-pooled to 48x48 through a
   small CNN whose features are added into the MLP's first hidden layer through a
   projection that starts at zero, so a fused student can start as a state-only one.
@@ -46,6 +56,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from rover_env.rover import CAMERA_FOVY, CAMERA_PITCH, CAMERA_Z, WHEEL_RADIUS
+from shm_protocol import CHANNEL_DEPTH, CHANNEL_HEATMAP, DEPTH_MAX_M
+
 LIDAR_CLIP = 4.0  # m
 FREQUENCIES = (0.5, 1.0, 2.0)  # cycles per world half-size, for position features
 POOL = 2  # fused image average-pool factor (96 -> 48)
@@ -57,6 +70,10 @@ planner uses 0, 0.35, 0.7, 1 and reverses at -0.36; its pursuit speed is continu
 HEADS = ("bins", "regress")
 HISTORY_STEPS = 40  # 2 s at the 0.05 s control period
 LIDAR_LAG = 5  # 0.25 s
+SCAN_BOTTOM = 0.12  # m above the ground: lower points are ground (or depth error on it)
+SCAN_TOP = 1.2  # m above the ground: higher points cannot touch the rover
+CAMERA_HEIGHT = WHEEL_RADIUS + CAMERA_Z  # m above flat ground
+PEDESTRIAN_LEVEL = 0.5  # heatmap value above which a pixel is a pedestrian's
 
 
 @dataclass(frozen=True)
@@ -78,6 +95,17 @@ class FeatureSpec:
     docstring); files written before heads existed are ``regress``."""
     history: bool = False
     """Add the :class:`ObsHistory` features (files written before it existed: off)."""
+    depth_scan: int = 0
+    """Bands of the forward range scan read off the depth channel (0: none; see
+    :func:`depth_scan`)."""
+    pedestrian_scan: bool = False
+    """With ``depth_scan``: a second scan of the same bands, of the pixels the heatmap marks
+    as a pedestrian only (see :func:`depth_scan`)."""
+
+    @property
+    def scan_points(self) -> int:
+        """Range features read off the fused image."""
+        return self.depth_scan * (2 if self.pedestrian_scan else 1)
 
     @property
     def n_outputs(self) -> int:
@@ -85,8 +113,75 @@ class FeatureSpec:
 
     @property
     def state_dim(self) -> int:
-        base = 4 + 4 * 2 * len(FREQUENCIES) + 2 + 2 + 3 + 2 + self.lidar_points
-        return base + (3 + self.lidar_points if self.history else 0)
+        ranges = self.lidar_points + self.scan_points
+        base = 4 + 4 * 2 * len(FREQUENCIES) + 2 + 2 + 3 + 2 + ranges
+        return base + (3 + ranges if self.history else 0)
+
+
+_SCAN_GEOMETRY: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _scan_geometry(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel of a (height, width) frame of the forward camera: the horizontal range and
+    the height above the camera of a point at unit z-depth (MuJoCo's depth is along the
+    optical axis), with the camera pitched ``CAMERA_PITCH`` down on a level rover."""
+    key = (height, width)
+    if key not in _SCAN_GEOMETRY:
+        f = (height / 2) / math.tan(math.radians(CAMERA_FOVY) / 2)
+        xn = (np.arange(width) + 0.5 - width / 2) / f  # right
+        yn = (np.arange(height) + 0.5 - height / 2) / f  # down
+        p = math.radians(CAMERA_PITCH)
+        forward = math.cos(p) - yn * math.sin(p)
+        horizontal = np.sqrt(forward[:, None] ** 2 + xn[None, :] ** 2)
+        up = -(yn * math.cos(p) + math.sin(p))
+        _SCAN_GEOMETRY[key] = (
+            horizontal.astype(np.float32),
+            np.broadcast_to(up[:, None], (height, width)).astype(np.float32),
+        )
+    return _SCAN_GEOMETRY[key]
+
+
+def depth_scan(depth_channel: np.ndarray, bands: int,
+               only: np.ndarray | None = None) -> np.ndarray:
+    """A forward range scan from the fused image's depth channel: ``(bands,)`` in [0, 1].
+
+    Each pixel's depth (``(1 - v) * DEPTH_MAX_M``; 0 is "far") is lifted to a point in the
+    rover's frame; points lower than ``SCAN_BOTTOM`` (the ground) or higher than
+    ``SCAN_TOP`` above flat ground, and far ones, are dropped; each of ``bands`` equal
+    column bands (left to right across the 90-degree view) keeps its nearest horizontal
+    range, clipped to ``LIDAR_CLIP`` and scaled to [0, 1] (1: nothing within reach), like
+    the LIDAR students' ranges. Assumes level ground (the zoo's worlds). ``only`` (bool, the
+    frame's shape) keeps only those pixels (the pedestrian scan: heatmap above
+    ``PEDESTRIAN_LEVEL``).
+    """
+    v = np.asarray(depth_channel, dtype=np.float32)
+    height, width = v.shape
+    if width % bands:
+        raise ValueError(f"{bands} scan bands do not divide a {width}-pixel-wide frame")
+    horizontal, up = _scan_geometry(height, width)
+    z = (1.0 - v) * DEPTH_MAX_M
+    elevation = CAMERA_HEIGHT + z * up
+    keep = (v > 0.0) & (elevation > SCAN_BOTTOM) & (elevation < SCAN_TOP)
+    if only is not None:
+        keep &= only
+    ranges = np.where(keep, z * horizontal, LIDAR_CLIP)
+    nearest = ranges.reshape(height, bands, width // bands).min(axis=(0, 2))
+    return np.clip(nearest, 0.0, LIDAR_CLIP) / LIDAR_CLIP
+
+
+def _ranges(obs: dict[str, np.ndarray], spec: FeatureSpec) -> np.ndarray:
+    """The range features of ``obs``: scaled LIDAR ranges, then the depth scan."""
+    parts = []
+    if spec.lidar_points:
+        lidar = np.asarray(obs["lidar"], dtype=np.float32)
+        parts.append(np.clip(lidar, 0.0, LIDAR_CLIP) / LIDAR_CLIP)
+    if spec.depth_scan:
+        image = obs["fused_image"]
+        parts.append(depth_scan(image[:, :, CHANNEL_DEPTH], spec.depth_scan))
+        if spec.pedestrian_scan:
+            seen = image[:, :, CHANNEL_HEATMAP] > PEDESTRIAN_LEVEL
+            parts.append(depth_scan(image[:, :, CHANNEL_DEPTH], spec.depth_scan, seen))
+    return np.concatenate(parts) if parts else np.zeros(0, np.float32)
 
 
 def goal_position(obs: dict[str, np.ndarray]) -> tuple[float, float]:
@@ -112,11 +207,11 @@ class ObsHistory:
     def reset(self) -> None:
         self._goal: tuple[float, float] | None = None
         self._track: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_STEPS + 1)
-        self._lidar: deque[np.ndarray] = deque(maxlen=LIDAR_LAG + 1)
+        self._past_ranges: deque[np.ndarray] = deque(maxlen=LIDAR_LAG + 1)
 
     def absent(self) -> np.ndarray:
         """The features of a state without a past."""
-        return np.zeros(3 + self.spec.lidar_points, np.float32)
+        return np.zeros(3 + self.spec.lidar_points + self.spec.scan_points, np.float32)
 
     def features(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         goal = goal_position(obs)
@@ -132,11 +227,11 @@ class ObsHistory:
             out[0] = 1.0
             out[1] = np.clip((d0 - self._track[-1][2]) / 2.0, -1.0, 1.0)
             out[2] = min(math.hypot(x - x0, y - y0) / 2.0, 1.0)
-        if self.spec.lidar_points:
-            lidar = np.clip(np.asarray(obs["lidar"], np.float32), 0.0, LIDAR_CLIP) / LIDAR_CLIP
-            self._lidar.append(lidar)
-            if len(self._lidar) > LIDAR_LAG:
-                out[3:] = (lidar - self._lidar[0]) * 4.0
+        if self.spec.lidar_points or self.spec.depth_scan:
+            ranges = _ranges(obs, self.spec)
+            self._past_ranges.append(ranges)
+            if len(self._past_ranges) > LIDAR_LAG:
+                out[3:] = (ranges - self._past_ranges[0]) * 4.0
         return out
 
 
@@ -167,9 +262,8 @@ def state_features(obs: dict[str, np.ndarray], spec: FeatureSpec,
         [min(dist, 2 * s) / s, math.cos(bearing), math.sin(bearing)],
         [float(vel[0]), float(vel[1]) / 2.0],
     ]
-    if spec.lidar_points:
-        lidar = np.asarray(obs["lidar"], dtype=np.float64)
-        parts.append(np.clip(lidar, 0.0, LIDAR_CLIP) / LIDAR_CLIP)
+    if spec.lidar_points or spec.depth_scan:
+        parts.append(_ranges(obs, spec))
     if spec.history:
         if history is None:
             raise ValueError("this student sees its recent past: pass history=")
