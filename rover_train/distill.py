@@ -252,10 +252,9 @@ def collect(
         first_goal = False
         for _ in range(TRAIN_LENGTH):
             label = expert.act_env(env)
-            past = history.features(obs) if spec.history else None
             base = env.unwrapped
             data.add(
-                state_features(obs, spec, past),
+                state_features(obs, spec, history if spec.history else None),
                 encode_action(label, spec),
                 sample_weight(base.position, base.sim.pedestrian_positions, near_weight),
                 image_features(obs) if spec.image else None,

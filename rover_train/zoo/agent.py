@@ -47,6 +47,7 @@ Two output heads (``FeatureSpec.head``):
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from dataclasses import asdict, dataclass
@@ -108,37 +109,36 @@ class FeatureSpec:
         return self.depth_scan * (2 if self.pedestrian_scan else 1)
 
     @property
+    def range_points(self) -> int:
+        """Range features in all: the LIDAR's, then the scans'."""
+        return self.lidar_points + self.scan_points
+
+    @property
     def n_outputs(self) -> int:
         return len(SPEED_LEVELS) * HEADING_BINS if self.head == "bins" else 3
 
     @property
     def state_dim(self) -> int:
-        ranges = self.lidar_points + self.scan_points
-        base = 4 + 4 * 2 * len(FREQUENCIES) + 2 + 2 + 3 + 2 + ranges
-        return base + (3 + ranges if self.history else 0)
+        base = 4 + 4 * 2 * len(FREQUENCIES) + 2 + 2 + 3 + 2 + self.range_points
+        return base + (3 + self.range_points if self.history else 0)
 
 
-_SCAN_GEOMETRY: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-
-
+@functools.cache
 def _scan_geometry(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Per pixel of a (height, width) frame of the forward camera: the horizontal range and
     the height above the camera of a point at unit z-depth (MuJoCo's depth is along the
     optical axis), with the camera pitched ``CAMERA_PITCH`` down on a level rover."""
-    key = (height, width)
-    if key not in _SCAN_GEOMETRY:
-        f = (height / 2) / math.tan(math.radians(CAMERA_FOVY) / 2)
-        xn = (np.arange(width) + 0.5 - width / 2) / f  # right
-        yn = (np.arange(height) + 0.5 - height / 2) / f  # down
-        p = math.radians(CAMERA_PITCH)
-        forward = math.cos(p) - yn * math.sin(p)
-        horizontal = np.sqrt(forward[:, None] ** 2 + xn[None, :] ** 2)
-        up = -(yn * math.cos(p) + math.sin(p))
-        _SCAN_GEOMETRY[key] = (
-            horizontal.astype(np.float32),
-            np.broadcast_to(up[:, None], (height, width)).astype(np.float32),
-        )
-    return _SCAN_GEOMETRY[key]
+    f = (height / 2) / math.tan(math.radians(CAMERA_FOVY) / 2)
+    xn = (np.arange(width) + 0.5 - width / 2) / f  # right
+    yn = (np.arange(height) + 0.5 - height / 2) / f  # down
+    p = math.radians(CAMERA_PITCH)
+    forward = math.cos(p) - yn * math.sin(p)
+    horizontal = np.sqrt(forward[:, None] ** 2 + xn[None, :] ** 2)
+    up = -(yn * math.cos(p) + math.sin(p))
+    return (
+        horizontal.astype(np.float32),
+        np.broadcast_to(up[:, None], (height, width)).astype(np.float32),
+    )
 
 
 def depth_scan(depth_channel: np.ndarray, bands: int,
@@ -169,7 +169,7 @@ def depth_scan(depth_channel: np.ndarray, bands: int,
     return np.clip(nearest, 0.0, LIDAR_CLIP) / LIDAR_CLIP
 
 
-def _ranges(obs: dict[str, np.ndarray], spec: FeatureSpec) -> np.ndarray:
+def range_features(obs: dict[str, np.ndarray], spec: FeatureSpec) -> np.ndarray:
     """The range features of ``obs``: scaled LIDAR ranges, then the depth scan."""
     parts = []
     if spec.lidar_points:
@@ -211,9 +211,12 @@ class ObsHistory:
 
     def absent(self) -> np.ndarray:
         """The features of a state without a past."""
-        return np.zeros(3 + self.spec.lidar_points + self.spec.scan_points, np.float32)
+        return np.zeros(3 + self.spec.range_points, np.float32)
 
-    def features(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+    def features(self, obs: dict[str, np.ndarray],
+                 ranges: np.ndarray | None = None) -> np.ndarray:
+        """This step's features; ``ranges`` is ``range_features(obs, spec)`` if the caller
+        has it already (it is computed otherwise)."""
         goal = goal_position(obs)
         if self._goal is None or math.hypot(goal[0] - self._goal[0],
                                             goal[1] - self._goal[1]) > 0.25:
@@ -227,8 +230,9 @@ class ObsHistory:
             out[0] = 1.0
             out[1] = np.clip((d0 - self._track[-1][2]) / 2.0, -1.0, 1.0)
             out[2] = min(math.hypot(x - x0, y - y0) / 2.0, 1.0)
-        if self.spec.lidar_points or self.spec.depth_scan:
-            ranges = _ranges(obs, self.spec)
+        if self.spec.range_points:
+            if ranges is None:
+                ranges = range_features(obs, self.spec)
             self._past_ranges.append(ranges)
             if len(self._past_ranges) > LIDAR_LAG:
                 out[3:] = (ranges - self._past_ranges[0]) * 4.0
@@ -262,12 +266,14 @@ def state_features(obs: dict[str, np.ndarray], spec: FeatureSpec,
         [min(dist, 2 * s) / s, math.cos(bearing), math.sin(bearing)],
         [float(vel[0]), float(vel[1]) / 2.0],
     ]
-    if spec.lidar_points or spec.depth_scan:
-        parts.append(_ranges(obs, spec))
+    ranges = range_features(obs, spec)
+    parts.append(ranges)
     if spec.history:
         if history is None:
             raise ValueError("this student sees its recent past: pass history=")
-        parts.append(history.features(obs) if isinstance(history, ObsHistory) else history)
+        if isinstance(history, ObsHistory):
+            history = history.features(obs, ranges)
+        parts.append(history)
     return np.concatenate([np.asarray(p, dtype=np.float64).ravel() for p in parts]).astype(
         np.float32
     )
