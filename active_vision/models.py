@@ -6,7 +6,8 @@ size, the pedestrian heatmap (sigmoid, 1 = pedestrian) and the depth channel in 
 ``shm_protocol`` depth convention (``1 - d / DEPTH_MAX_M`` clipped to [0, 1]: near is bright,
 0 at or beyond the far limit).
 
-Layout (widths ``w1, w2, w3, w4``, default 12/24/48/64)::
+Layout (widths ``w1, w2, w3, w4``, default 16/32/64/96; optional full-resolution stage
+``f``, default none)::
 
     RGB + row coordinate (4 ch, 96²)
     stem   3×3 s2 -> w1 (48²)  ───────────────────────────────────────┐ skip
@@ -16,7 +17,14 @@ Layout (widths ``w1, w2, w3, w4``, default 12/24/48/64)::
     up     1×1 -> w3, ×2 nearest, + skip, 3×3 (12²)           │         │
     up     1×1 -> w2, ×2 nearest, + skip, 3×3 (24²)  ─────────┘         │
     up     1×1 -> w1, ×2 nearest, + skip, 3×3 (48²)  ───────────────────┘
-    heads  1×1 -> 2 maps (heatmap logit, log depth), ×2 bilinear (96²)
+    full   1×1 -> f, ×2 bilinear, + 3×3 of the input (96²), 3×3 (96²)
+    heads  1×1 -> 2 maps (heatmap logit, log depth) (96²)
+
+With ``full_res=0`` (the version-2 layout) there is no full-resolution stage and the heads
+run at 48² and are upsampled ×2 bilinear. The full-resolution stage exists for edges that a
+48² output blurs: the moon's skyline, where the true depth falls from 2 m to 10 m within a
+few rows and a blurred head reads the far terrain as near, and the legs and outline of a
+figure 4-5 m away (40-60 pixels).
 
 The 1/16 level and the global context give the depth head a view of the whole frame (the
 horizon, a figure's full height), which a pedestrian's distance and a tilted rover's ground
@@ -53,7 +61,8 @@ WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "avnet.pt"
 REGENERATE_COMMAND = "python -m active_vision.train"
 WEIGHTS_FORMAT = "roverav.avnet"
-WEIGHTS_VERSION = 2  # 2: four encoder levels + global context, log-depth head
+WEIGHTS_VERSION = 3  # 3: optional full-resolution stage (config "full_res")
+READABLE_VERSIONS = (2, 3)  # 2: four encoder levels + global context, log-depth head
 
 #: Index of each head in the output of :meth:`AVNet.forward` / :meth:`AVNet.predict`.
 HEAD_HEATMAP = 0
@@ -80,8 +89,10 @@ class WeightsError(RuntimeError):
 class AVNetConfig:
     """Shape of the network (stored inside the weights file)."""
 
-    widths: tuple[int, int, int, int] = (12, 24, 48, 64)
+    widths: tuple[int, int, int, int] = (16, 32, 64, 96)
     """Channels at 1/2, 1/4, 1/8 and 1/16 of the input resolution."""
+    full_res: int = 0
+    """Channels of the full-resolution stage (0: none, the heads run at 1/2 resolution)."""
 
 
 def _conv_bn(c_in: int, c_out: int, stride: int = 1, dilation: int = 1) -> nn.Sequential:
@@ -112,7 +123,12 @@ class AVNet(nn.Module):
         self.dec2 = _conv_bn(w2, w2)
         self.lat2 = nn.Conv2d(w2, w1, 1)
         self.dec1 = _conv_bn(w1, w1)
-        self.head = nn.Conv2d(w1, 2, 1)
+        f = self.config.full_res
+        if f:
+            self.full_in = _conv_bn(4, f)
+            self.lat1 = nn.Conv2d(w1, f, 1)
+            self.dec0 = _conv_bn(f, f)
+        self.head = nn.Conv2d(f or w1, 2, 1)
         with torch.no_grad():
             self.head.bias[HEAD_DEPTH] = math.log(2.0)  # start near a typical depth
         self._coord_cache: dict[tuple[int, int, torch.device], torch.Tensor] = {}
@@ -135,7 +151,8 @@ class AVNet(nn.Module):
         """
         if x.shape[-1] % 16 or x.shape[-2] % 16:
             raise ValueError(f"AVNet needs H and W divisible by 16, got {tuple(x.shape[-2:])}")
-        x1 = self.stem(torch.cat((x, self._coords(x)), dim=1))
+        x0 = torch.cat((x, self._coords(x)), dim=1)
+        x1 = self.stem(x0)
         x2 = self.enc2(x1)
         x3 = self.enc3(x2)
         x4 = self.enc4(x3)
@@ -143,6 +160,10 @@ class AVNet(nn.Module):
         y = self.dec3(F.interpolate(self.lat4(x4), scale_factor=2.0, mode="nearest") + x3)
         y = self.dec2(F.interpolate(self.lat3(y), scale_factor=2.0, mode="nearest") + x2)
         y = self.dec1(F.interpolate(self.lat2(y), scale_factor=2.0, mode="nearest") + x1)
+        if self.config.full_res:
+            y = F.interpolate(self.lat1(y), scale_factor=2.0, mode="bilinear",
+                              align_corners=False)
+            return self.head(self.dec0(y + self.full_in(x0)))
         # two channels: bilinear is 3x faster on a contiguous (NCHW) tensor than channels_last
         head = self.head(y).contiguous()
         return F.interpolate(head, scale_factor=2.0, mode="bilinear", align_corners=False)
@@ -194,7 +215,7 @@ def save_weights(model: AVNet, path: Path, meta: dict[str, Any] | None = None) -
     payload = {
         "format": WEIGHTS_FORMAT,
         "version": WEIGHTS_VERSION,
-        "config": {"widths": list(model.config.widths)},
+        "config": {"widths": list(model.config.widths), "full_res": model.config.full_res},
         "meta": dict(meta or {}),
         "state_dict": half_state_dict(model),
     }
@@ -227,12 +248,14 @@ def load_model(path: Path | str | None = None, *, fuse: bool = True) -> AVNet:
         raise _fail(path, f"cannot be read ({type(exc).__name__}: {exc})") from exc
     if not isinstance(payload, dict) or payload.get("format") != WEIGHTS_FORMAT:
         raise _fail(path, f"is not a {WEIGHTS_FORMAT} weights file")
-    if payload.get("version") != WEIGHTS_VERSION:
+    if payload.get("version") not in READABLE_VERSIONS:
         raise _fail(
-            path, f"has version {payload.get('version')!r}, this code reads {WEIGHTS_VERSION}"
+            path, f"has version {payload.get('version')!r}, this code reads "
+            f"{', '.join(map(str, READABLE_VERSIONS))}"
         )
     try:
-        config = AVNetConfig(widths=tuple(int(w) for w in payload["config"]["widths"]))
+        config = AVNetConfig(widths=tuple(int(w) for w in payload["config"]["widths"]),
+                             full_res=int(payload["config"].get("full_res", 0)))
         model = AVNet(config)
         state = {k: v.float() if v.is_floating_point() else v
                  for k, v in payload["state_dict"].items()}
@@ -242,7 +265,7 @@ def load_model(path: Path | str | None = None, *, fuse: bool = True) -> AVNet:
     model.eval()
     if fuse:
         model.fuse_for_inference()
-    logger.debug("loaded %s (widths %s)", path, config.widths)
+    logger.debug("loaded %s (widths %s, full_res %d)", path, config.widths, config.full_res)
     return model
 
 

@@ -6,21 +6,24 @@ One network (:class:`~active_vision.models.AVNet`) serves both fused channels, s
 trains it on the sum of the two losses. ``heatmap`` and ``depth`` are accepted too and train
 the same joint model (the daemon needs both heads from one file); they say so in a log line.
 
-Without ``--data`` the training split (``dataset.TRAIN_SEED``, 8,000 frames, 70 % recorded
+Without ``--data`` the training split (``dataset.TRAIN_SEED``, 16,000 frames, 70 % recorded
 while driving, random pedestrian appearance) is rendered into ``--data-dir`` on first use
 (about a minute) and reused afterwards. CPU only, ``--threads`` torch threads (default 2):
-20 epochs take 15-40 min on the shared 2-core machine. The training state is written after
-every epoch (``--checkpoint``, default ``OUT.ckpt``); ``--resume`` continues an interrupted
-run. Writes ``active_vision/weights/avnet.pt`` (or ``--out``) with the held-out figures
-(driving split) of the result stored in its ``meta``.
+the default 25 epochs take about 30 min on a quiet 2-core machine (70 s an epoch). The
+training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
+``--resume`` continues an interrupted run. Writes ``active_vision/weights/avnet.pt`` (or
+``--out``) with the held-out figures (driving split) of the result stored in its ``meta``.
 
 Losses:
 
 - heatmap: binary cross-entropy on the logits (pedestrian pixels weighted
-  ``POSITIVE_WEIGHT``), plus a soft Dice term over the batch (keeps
-  small pedestrians from drowning in background pixels), plus a hard-negative term: the
-  ``HARD_NEGATIVES`` highest background logits of each frame pushed towards 0 (false
-  detections are a few confident pixels that the mean cross-entropy barely sees);
+  ``POSITIVE_WEIGHT``, and a small figure's pixels up to ``SMALL_FIGURE_MAX_BOOST`` times
+  more: ``sqrt(SMALL_FIGURE_PX / its pixels)``, so that a figure 4-5 m away, which recall
+  counts as one pedestrian like a near one, is not worth a tenth of it), plus a soft Dice
+  term over the batch (keeps small pedestrians from drowning in background pixels), plus a
+  hard-negative term: the ``HARD_NEGATIVES`` highest background logits of each frame pushed
+  towards 0 (false detections are a few confident pixels that the mean cross-entropy
+  barely sees);
 - depth: the head predicts log metric depth; L1 on ``log d`` for pixels nearer than the far
   limit (for small errors that is AbsRel, and it is symmetric in the depth ratio that
   delta1 tests), and a hinge ``max(0, log DEPTH_MAX_M - log_d)`` for far/sky pixels, which
@@ -42,6 +45,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -74,6 +78,10 @@ POSITIVE_WEIGHT = 3.0
 among 9,216 background pixels otherwise costs too little to miss (recall on driving frames
 was 0.59 in inspect without it)."""
 PEDESTRIAN_DEPTH_WEIGHT = 4.0
+SMALL_FIGURE_PX = 200
+"""A pedestrian (8-connected mask component) smaller than this gets its pixels' heatmap weight
+raised by ``sqrt(SMALL_FIGURE_PX / pixels)``, at most ``SMALL_FIGURE_MAX_BOOST`` times."""
+SMALL_FIGURE_MAX_BOOST = 3.0
 
 
 @dataclass
@@ -84,12 +92,12 @@ class TrainConfig:
     """Training ``.npz``; None renders/reuses the training split in ``data_dir``."""
     data_dir: Path = DEFAULT_DATA_DIR
     """Where rendered datasets are cached."""
-    frames: int = 8000
+    frames: int = 16000
     """Training frames to render when ``data`` is None (70 % driving, 30 % posed)."""
     worlds: tuple[str, ...] = WORLDS
     """Worlds to render the training split from, cycled frame by frame (a name twice gets
     twice the frames)."""
-    epochs: int = 20
+    epochs: int = 25
     """Passes over the training data."""
     batch: int = 32
     """Frames per optimiser step."""
@@ -105,6 +113,10 @@ class TrainConfig:
     """Weights file to write."""
     widths: tuple[int, int, int, int] = AVNetConfig.widths
     """Network widths."""
+    full_res: int = AVNetConfig.full_res
+    """Channels of the network's full-resolution stage (0: none)."""
+    small_figure_boost: bool = True
+    """Weight small figures' pixels up (``SMALL_FIGURE_PX``) in the heatmap loss."""
     evaluate: bool = True
     """Evaluate on the held-out split after training and store the figures in the file."""
     checkpoint: Path | None = None
@@ -132,12 +144,39 @@ def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
     return x, mask, depth
 
 
-def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor
-           ) -> tuple[torch.Tensor, torch.Tensor]:
-    """(heatmap loss, depth loss) for logits ``(N, 2, H, W)``, mask and metres ``(N,1,H,W)``."""
+def figure_weights(mask: torch.Tensor) -> torch.Tensor:
+    """Per-pixel heatmap weights ``(N, 1, H, W)`` for a float mask ``(N, 1, H, W)``: 1 on the
+    background, ``POSITIVE_WEIGHT`` on pedestrian pixels, times
+    ``min(SMALL_FIGURE_MAX_BOOST, sqrt(SMALL_FIGURE_PX / area))`` on a figure (8-connected
+    component) of fewer than ``SMALL_FIGURE_PX`` pixels."""
+    m = mask[:, 0].numpy() > 0.5
+    w = np.ones(m.shape, np.float32)
+    for i in range(m.shape[0]):
+        if not m[i].any():
+            continue
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(m[i].astype(np.uint8),
+                                                               connectivity=8)
+        area = stats[:, cv2.CC_STAT_AREA].astype(np.float32)
+        boost = np.clip(np.sqrt(SMALL_FIGURE_PX / np.maximum(area, 1.0)), 1.0,
+                        SMALL_FIGURE_MAX_BOOST)
+        boost[0] = 1.0 / POSITIVE_WEIGHT  # label 0: the background
+        w[i] = POSITIVE_WEIGHT * boost[labels]
+    return torch.from_numpy(w).unsqueeze(1)
+
+
+def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
+           heat_weight: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(heatmap loss, depth loss) for logits ``(N, 2, H, W)``, mask and metres ``(N,1,H,W)``.
+
+    :param heat_weight: per-pixel cross-entropy weights (:func:`figure_weights`); None weighs
+        pedestrian pixels ``POSITIVE_WEIGHT`` and the background 1.
+    """
     heat_logit = logits[:, HEAD_HEATMAP:HEAD_HEATMAP + 1]
-    bce = F.binary_cross_entropy_with_logits(
-        heat_logit, mask, pos_weight=heat_logit.new_tensor(POSITIVE_WEIGHT))
+    if heat_weight is None:
+        bce = F.binary_cross_entropy_with_logits(
+            heat_logit, mask, pos_weight=heat_logit.new_tensor(POSITIVE_WEIGHT))
+    else:
+        bce = F.binary_cross_entropy_with_logits(heat_logit, mask, weight=heat_weight)
     prob = torch.sigmoid(heat_logit)
     dice = 1.0 - (2.0 * (prob * mask).sum() + 1.0) / (prob.sum() + mask.sum() + 1.0)
     # hard negatives: the HARD_NEGATIVES highest background logits of each frame (pixels
@@ -170,7 +209,7 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
     depth_m = torch.from_numpy(np.nan_to_num(data.depth, nan=1e3, posinf=1e3)).unsqueeze(1)
     depth_m = depth_m.clamp(min=1e-3)
     n = rgb.shape[0]
-    model = AVNet(AVNetConfig(widths=tuple(cfg.widths)))
+    model = AVNet(AVNetConfig(widths=tuple(cfg.widths), full_res=cfg.full_res))
     model.train()
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
     steps_per_epoch = math.ceil(n / cfg.batch)
@@ -203,7 +242,8 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
             idx = order[b * cfg.batch:(b + 1) * cfg.batch]
             x = rgb[idx].float() / 255.0
             x, m, d = _augment(x, mask[idx], depth_m[idx], gen)
-            heat, dep = losses(model(x), m, d)
+            weight = figure_weights(m) if cfg.small_figure_boost else None
+            heat, dep = losses(model(x), m, d, weight)
             loss = heat + dep
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -259,6 +299,10 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     p.add_argument("--out", type=Path, default=d.out)
     p.add_argument("--widths", default=",".join(map(str, d.widths)),
                    help="the network's four widths, comma-separated")
+    p.add_argument("--full-res", type=int, default=d.full_res,
+                   help="channels of the full-resolution stage (0: none, the v2 layout)")
+    p.add_argument("--no-small-figure-boost", action="store_true",
+                   help="weigh every pedestrian pixel alike in the heatmap loss")
     p.add_argument("--no-evaluate", action="store_true", help="skip the held-out evaluation")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="training state file, written every epoch (default: OUT.ckpt)")
@@ -266,12 +310,16 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                    help="continue from --checkpoint after an interruption")
     p.add_argument("--log-level", default="INFO")
     a = p.parse_args(argv)
+    if a.full_res < 0:
+        p.error(f"--full-res {a.full_res}: give 0 (no full-resolution stage) or a channel count")
     logging.basicConfig(level=a.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     return TrainConfig(data=a.data, data_dir=a.data_dir, frames=a.frames,
                        worlds=tuple(w for w in a.worlds.split(",") if w), epochs=a.epochs,
                        batch=a.batch, lr=a.lr, threads=a.threads, seed=a.seed,
                        max_minutes=a.max_minutes, out=a.out,
-                       widths=_widths(a.widths, p), evaluate=not a.no_evaluate,
+                       widths=_widths(a.widths, p), full_res=a.full_res,
+                       small_figure_boost=not a.no_small_figure_boost,
+                       evaluate=not a.no_evaluate,
                        checkpoint=a.checkpoint, resume=a.resume)
 
 

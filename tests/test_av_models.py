@@ -81,6 +81,46 @@ def test_save_load_round_trip_and_bn_folding(tmp_path, random_model: AVNet) -> N
     assert torch.allclose(unfused, fused, atol=1e-4)
 
 
+@pytest.mark.parametrize("full_res", [0, 4])
+def test_full_resolution_stage_round_trip(tmp_path, full_res: int) -> None:
+    """The full-resolution stage is saved in the file's config and survives BN folding; a
+    version-2 file (no ``full_res`` key) loads as the layout without it."""
+    torch.manual_seed(1)
+    model = AVNet(AVNetConfig(widths=(8, 16, 24, 32), full_res=full_res))
+    model.train()
+    with torch.no_grad():
+        for _ in range(3):
+            model(torch.rand(4, 3, 96, 96))
+    model.eval()
+    path = save_weights(model, tmp_path / "w.pt")
+    x = torch.rand(2, 3, 96, 96)
+    with torch.no_grad():
+        ref = load_model(path, fuse=False).predict(x)
+        fused = load_model(path).predict(x)
+    assert load_model(path).config.full_res == full_res
+    assert hasattr(load_model(path), "dec0") == bool(full_res)
+    assert torch.allclose(ref, fused, atol=1e-4)
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    payload["version"] = 2
+    del payload["config"]["full_res"]
+    torch.save(payload, tmp_path / "v2.pt")
+    if full_res:
+        with pytest.raises(WeightsError, match="does not match the network"):
+            load_model(tmp_path / "v2.pt")
+    else:
+        assert load_model(tmp_path / "v2.pt").config.full_res == 0
+
+
+def test_newer_weights_version_is_refused_with_the_command(tmp_path) -> None:
+    path = save_weights(AVNet(AVNetConfig(widths=(8, 16, 24, 32), full_res=0)), tmp_path / "w.pt")
+    payload = torch.load(path, map_location="cpu", weights_only=True)
+    payload["version"] = 99
+    torch.save(payload, path)
+    with pytest.raises(WeightsError, match="has version 99") as err:
+        load_model(path)
+    assert REGENERATE_COMMAND in str(err.value)
+
+
 def test_perception_output_layout_and_gray(random_model: AVNet) -> None:
     p = Perception(PerceptionConfig(threads=1), model=random_model)
     frames = _frames(3)

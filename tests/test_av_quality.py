@@ -132,3 +132,25 @@ def test_evaluate_reports_near_pixels_apart() -> None:
     assert NEAR_DEPTH_M == 0.3
     assert f["abs_rel_near"] == pytest.approx(3.0, rel=1e-3)
     assert f["abs_rel"] == pytest.approx(0.0, abs=1e-3)  # the 0.3-10 m pixels are exact
+
+
+def test_small_figures_weigh_more_in_the_heatmap_loss() -> None:
+    from active_vision.train import (
+        POSITIVE_WEIGHT,
+        SMALL_FIGURE_MAX_BOOST,
+        SMALL_FIGURE_PX,
+        figure_weights,
+    )
+
+    mask = torch.zeros(2, 1, 96, 96)
+    mask[0, 0, 10:40, 10:30] = 1  # 600 px: a near figure
+    mask[0, 0, 60:70, 60:65] = 1  # 50 px: a figure 4-5 m away
+    mask[0, 0, 80:82, 90:92] = 1  # 4 px: a sliver at the frame's edge
+    w = figure_weights(mask)
+    assert w.shape == mask.shape
+    assert torch.all(w[1] == 1.0)  # an empty frame: background only
+    assert torch.all(w[0][mask[0] == 0] == 1.0)
+    assert torch.all(w[0, 0, 10:40, 10:30] == POSITIVE_WEIGHT)
+    assert torch.allclose(w[0, 0, 60:70, 60:65],
+                          torch.tensor(POSITIVE_WEIGHT * (SMALL_FIGURE_PX / 50) ** 0.5))
+    assert torch.all(w[0, 0, 80:82, 90:92] == POSITIVE_WEIGHT * SMALL_FIGURE_MAX_BOOST)
