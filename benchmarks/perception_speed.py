@@ -2,6 +2,7 @@
 and the original pipeline's detector (YOLO11n at 640x640, five frames per output).
 
     PYTHONPATH=. .venv/bin/python benchmarks/perception_speed.py [--quick] [--no-daemon]
+        [--weights OTHER.pt ...]
 
 What runs:
 
@@ -21,6 +22,11 @@ What runs:
    FPN/PAN neck, Detect head with DFL decoding (no NMS), random weights, batch norm folded
    as ultralytics does for inference. Its parameter count is checked against the published
    2,624,080 of YOLO11n before it is timed. Latency only.
+
+``--weights FILE`` (repeatable) adds rows for other weights files, timed in the same run
+and in the same way (batch 1 and 8, one thread), so two networks are compared at the same
+machine load: e.g. the previous network, ``git show REV:active_vision/weights/avnet.pt >
+/tmp/old.pt``.
 
 Targets (issue 4): <= 2 ms/frame at batch 1 on one thread for all three channels; <= 1 ms/frame
 at batch 8. The machine's other load is reported with the table: timings on a shared
@@ -68,13 +74,17 @@ class Args:
     """Time the YOLO11n-shaped comparison."""
     backend: str = "auto"
     """Perception backend (``auto``, ``onnx``, ``torch``) for the Perception and daemon rows."""
+    weights: tuple[Path, ...] = ()
+    """Other weights files timed beside the shipped ones (one thread, batch 1 and 8)."""
 
 
 # --- perception -----------------------------------------------------------------------------
 
 
-def bench_perception(threads: int, batch: int, args: Args) -> dict[str, float]:
-    p = Perception(PerceptionConfig(threads=threads, max_batch=batch, backend=args.backend))
+def bench_perception(threads: int, batch: int, args: Args,
+                     weights: Path | None = None) -> dict[str, float]:
+    p = Perception(PerceptionConfig(threads=threads, max_batch=batch, backend=args.backend,
+                                    weights=weights))
     frames = np.random.default_rng(0).integers(0, 256, (batch, 96, 96, 3), dtype=np.uint8)
     iters = max(10, args.iters // (4 if batch > 1 else 1))
     for _ in range(20):
@@ -350,8 +360,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-yolo", action="store_true")
     p.add_argument("--backend", choices=("auto", "onnx", "torch"), default="auto",
                    help="perception backend (the daemon's default is auto: onnx if installed)")
+    p.add_argument("--weights", type=Path, action="append", default=[],
+                   help="another weights file to time beside the shipped one (repeatable)")
     a = p.parse_args(argv)
-    args = Args(daemon=not a.no_daemon, yolo=not a.no_yolo, backend=a.backend)
+    for w in a.weights:
+        if not w.is_file():
+            p.error(f"--weights {w}: no such file")
+    args = Args(daemon=not a.no_daemon, yolo=not a.no_yolo, backend=a.backend,
+                weights=tuple(a.weights))
     if a.quick:
         args.iters, args.repeats, args.daemon_frames = 40, 3, 100
     load = os.getloadavg()[0]
@@ -367,6 +383,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| Perception batch {batch}, {threads} thread{'s' if threads > 1 else ''} "
                   f"| {r['gray']:.3f} | {r['heatmap+depth']:.3f} | {r['total']:.3f} "
                   f"({r['best']:.3f}) | {1e3 / r['total']:.0f} |")
+    for w in args.weights:
+        for batch in (1, 8):
+            r = bench_perception(1, batch, args, weights=w)
+            print(f"| {w.name}: Perception batch {batch}, 1 thread | {r['gray']:.3f} | "
+                  f"{r['heatmap+depth']:.3f} | {r['total']:.3f} ({r['best']:.3f}) | "
+                  f"{1e3 / r['total']:.0f} |")
     if args.daemon:
         for slots in (1, 8):
             d = bench_daemon(slots, args)
