@@ -100,14 +100,15 @@ def run_env(name: str, slot: int, steps: int, world: str, out: mp.Queue) -> None
     )
 
 
-def perception_alone(threads: int, backend: str, n: int = 300) -> float:
+def perception_alone(threads: int, backend: str, n: int = 300,
+                     weights: Path | None = None) -> float:
     """Seconds per frame of the daemon's perception, batch 1, in this process."""
     import torch
 
     from active_vision import Perception, PerceptionConfig
 
     torch.set_num_threads(threads)
-    perc = Perception(PerceptionConfig(threads=threads, backend=backend))
+    perc = Perception(PerceptionConfig(threads=threads, backend=backend, weights=weights))
     frame = np.random.default_rng(0).integers(0, 255, (1, 96, 96, 3), dtype=np.uint8)
     for _ in range(20):
         perc(frame)
@@ -156,8 +157,9 @@ def _ipc_child(name: str, n: int, q: mp.Queue) -> None:
     q.put(lat[10:])
 
 
-def daemon_args(threads: int, backend: str) -> list[str]:
-    return ["--threads", str(threads), "--backend", backend, "--log-level", "WARNING"]
+def daemon_args(threads: int, backend: str, weights: Path | None = None) -> list[str]:
+    extra = ["--weights", str(weights)] if weights is not None else []
+    return ["--threads", str(threads), "--backend", backend, "--log-level", "WARNING", *extra]
 
 
 def run_envs(name: str, n_envs: int, steps: int, world: str) -> tuple[list[dict], float]:
@@ -196,7 +198,10 @@ def train_speed(backend: str, steps: int, threads: int, world: str,
 def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
     """The env-stepping table: per backend, 1 env then 2 envs on 2 slots."""
     alone_ipc = ipc_handoff()
-    alone_perc = {b: perception_alone(a.threads, b) for b in backends}
+    # (backend, weights file or None for the shipped one): the rows, in run order
+    runs: list[tuple[str, Path | None]] = [(b, None) for b in backends]
+    runs += [(b, w) for w in a.weights for b in backends]
+    alone_perc = {(b, w): perception_alone(a.threads, b, weights=w) for b, w in runs}
     print(
         f"\nRoverEnvFused end to end ({a.world}, {a.steps} steps per env, "
         f"daemon --threads {a.threads}); IPC hand-off alone (p50): {alone_ipc * 1e6:.0f} us"
@@ -208,19 +213,21 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
     one: dict[str, float] = {}
-    for backend in backends:
+    for backend, weights in runs:
+        label = backend if weights is None else f"{backend}, {weights.name}"
         for n_envs in (1, 2):
             name = f"bench_fused_{os.getpid()}_{backend}_{n_envs}"
-            with spawn_daemon(name, n_envs, extra_args=daemon_args(a.threads, backend)):
+            with spawn_daemon(name, n_envs,
+                              extra_args=daemon_args(a.threads, backend, weights)):
                 results, _ = run_envs(name, n_envs, a.steps, a.world)
             agg = sum(r["steps"] / r["wall"] for r in results)
             r0 = results[0]
             step_s = r0["wall"] / r0["steps"]
-            perc = alone_perc[backend]
+            perc = alone_perc[(backend, weights)]
             stages = r0["physics"] + r0["render"] + perc + 2 * alone_ipc
-            if n_envs == 1:
+            if n_envs == 1 and weights is None:
                 one[backend] = agg
-            print(f"| {backend} | {n_envs} | {agg:.0f} | {agg / SEED_STEPS_PER_S:.1f}x | "
+            print(f"| {label} | {n_envs} | {agg:.0f} | {agg / SEED_STEPS_PER_S:.1f}x | "
                   f"{step_s * 1e3:.2f} | {r0['physics'] * 1e3:.2f} | {r0['render'] * 1e3:.2f} | "
                   f"{r0['roundtrip'] * 1e3:.2f} | {perc * 1e3:.2f} | "
                   f"{(r0['roundtrip'] - perc) * 1e3:.2f} | {stages / step_s:.2f} | "
@@ -239,7 +246,13 @@ def main() -> int:
     p.add_argument("--train-steps", type=int, default=5120,
                    help="rover-train --env fused steps per backend (0: skip)")
     p.add_argument("--skip-envs", action="store_true", help="only the training rows")
+    p.add_argument("--weights", type=Path, action="append", default=[],
+                   help="env rows also with the daemon on this weights file (repeatable), "
+                   "in the same run, e.g. the previous network")
     a = p.parse_args()
+    for w in a.weights:
+        if not w.is_file():
+            p.error(f"--weights {w}: no such file")
     backends = [b.strip() for b in a.backends.split(",") if b.strip()]
 
     if not a.skip_envs:
