@@ -184,8 +184,8 @@ class PredictTrainConfig:
     """Options of :func:`train_predictor` (CLI flags of the same names)."""
 
     episodes: int = 450
-    """Training driving episodes (seed ``TRAIN_SEED``; 450 render in about 7 min, 10,253
-    targets)."""
+    """Training driving episodes (seed ``TRAIN_SEED``; 450 give 10,253 targets and rendered in
+    7 min on one core beside a training run)."""
     epochs: int = 10
     batch: int = 32
     lr: float = 3e-3

@@ -9,7 +9,7 @@ the same joint model (the daemon needs both heads from one file); they say so in
 Without ``--data`` the training split (``dataset.TRAIN_SEED``, 16,000 frames, 70 % recorded
 while driving, random pedestrian appearance) is rendered into ``--data-dir`` on first use
 (about a minute) and reused afterwards. CPU only, ``--threads`` torch threads (default 2):
-the default 25 epochs take about 30 min on a quiet 2-core machine (70 s an epoch). The
+the default 25 epochs take about 30 min on a quiet 2-core machine (60-80 s an epoch). The
 training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
 ``--resume`` continues an interrupted run. Writes ``active_vision/weights/avnet.pt`` (or
 ``--out``) with the held-out figures (driving split) of the result stored in its ``meta``.
@@ -144,11 +144,13 @@ def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
     return x, mask, depth
 
 
-def figure_weights(mask: torch.Tensor) -> torch.Tensor:
+def figure_weights(mask: torch.Tensor, small_boost: bool = True) -> torch.Tensor:
     """Per-pixel heatmap weights ``(N, 1, H, W)`` for a float mask ``(N, 1, H, W)``: 1 on the
-    background, ``POSITIVE_WEIGHT`` on pedestrian pixels, times
+    background, ``POSITIVE_WEIGHT`` on pedestrian pixels, and with ``small_boost`` times
     ``min(SMALL_FIGURE_MAX_BOOST, sqrt(SMALL_FIGURE_PX / area))`` on a figure (8-connected
     component) of fewer than ``SMALL_FIGURE_PX`` pixels."""
+    if not small_boost:
+        return 1.0 + (POSITIVE_WEIGHT - 1.0) * mask
     m = mask[:, 0].numpy() > 0.5
     w = np.ones(m.shape, np.float32)
     for i in range(m.shape[0]):
@@ -165,18 +167,11 @@ def figure_weights(mask: torch.Tensor) -> torch.Tensor:
 
 
 def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
-           heat_weight: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
-    """(heatmap loss, depth loss) for logits ``(N, 2, H, W)``, mask and metres ``(N,1,H,W)``.
-
-    :param heat_weight: per-pixel cross-entropy weights (:func:`figure_weights`); None weighs
-        pedestrian pixels ``POSITIVE_WEIGHT`` and the background 1.
-    """
+           heat_weight: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(heatmap loss, depth loss) for logits ``(N, 2, H, W)``, mask and metres ``(N,1,H,W)``,
+    with per-pixel cross-entropy weights ``heat_weight`` (:func:`figure_weights`)."""
     heat_logit = logits[:, HEAD_HEATMAP:HEAD_HEATMAP + 1]
-    if heat_weight is None:
-        bce = F.binary_cross_entropy_with_logits(
-            heat_logit, mask, pos_weight=heat_logit.new_tensor(POSITIVE_WEIGHT))
-    else:
-        bce = F.binary_cross_entropy_with_logits(heat_logit, mask, weight=heat_weight)
+    bce = F.binary_cross_entropy_with_logits(heat_logit, mask, weight=heat_weight)
     prob = torch.sigmoid(heat_logit)
     dice = 1.0 - (2.0 * (prob * mask).sum() + 1.0) / (prob.sum() + mask.sum() + 1.0)
     # hard negatives: the HARD_NEGATIVES highest background logits of each frame (pixels
@@ -242,8 +237,7 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
             idx = order[b * cfg.batch:(b + 1) * cfg.batch]
             x = rgb[idx].float() / 255.0
             x, m, d = _augment(x, mask[idx], depth_m[idx], gen)
-            weight = figure_weights(m) if cfg.small_figure_boost else None
-            heat, dep = losses(model(x), m, d, weight)
+            heat, dep = losses(model(x), m, d, figure_weights(m, cfg.small_figure_boost))
             loss = heat + dep
             opt.zero_grad(set_to_none=True)
             loss.backward()

@@ -213,10 +213,10 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
     )
     print("|---|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
     one: dict[str, float] = {}
-    for backend, weights in runs:
+    for k, (backend, weights) in enumerate(runs):
         label = backend if weights is None else f"{backend}, {weights.name}"
         for n_envs in (1, 2):
-            name = f"bench_fused_{os.getpid()}_{backend}_{n_envs}"
+            name = f"bench_fused_{os.getpid()}_{k}_{n_envs}"
             with spawn_daemon(name, n_envs,
                               extra_args=daemon_args(a.threads, backend, weights)):
                 results, _ = run_envs(name, n_envs, a.steps, a.world)

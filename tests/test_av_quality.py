@@ -154,3 +154,6 @@ def test_small_figures_weigh_more_in_the_heatmap_loss() -> None:
     assert torch.allclose(w[0, 0, 60:70, 60:65],
                           torch.tensor(POSITIVE_WEIGHT * (SMALL_FIGURE_PX / 50) ** 0.5))
     assert torch.all(w[0, 0, 80:82, 90:92] == POSITIVE_WEIGHT * SMALL_FIGURE_MAX_BOOST)
+    # without the boost every pedestrian pixel weighs POSITIVE_WEIGHT (the plain pos_weight)
+    plain = figure_weights(mask, small_boost=False)
+    assert torch.all(plain[mask == 1] == POSITIVE_WEIGHT) and torch.all(plain[mask == 0] == 1.0)
