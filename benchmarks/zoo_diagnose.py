@@ -5,7 +5,7 @@ would not, and whether it ended stuck.
     rover-pair --name diag -- python benchmarks/zoo_diagnose.py fused-inspect --file S.pt
 
 Episodes run as in ``rover_train.zoo_eval`` but on diagnostic seeds (50000+ by default:
-neither training seeds, which stay below 50000 in practice, nor the evaluation seeds at
+neither training seeds, which stay below 50000 (``run_dagger`` checks), nor the evaluation seeds at
 100000+), so that a change can be chosen here and reported there. At every step the
 planner expert labels the state beside the student (it only reads the simulator); a
 *phantom reverse* is a step where the student commands reverse and the expert does not.
@@ -25,9 +25,9 @@ import numpy as np
 
 from rover_train import zoo
 from rover_train.expert import PlannerExpert
+from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE
 from rover_train.zoo_eval import ExpertAgent, entry_env
 
-DIAGNOSTIC_SEED_BASE = 50_000
 STUCK_WINDOW = 200  # steps (10 s)
 STUCK_RADIUS = 0.35  # m
 

@@ -17,8 +17,9 @@ frame (:class:`FusedView`). Stage 2 turns on the image branch (its projection st
 zero, so the student starts as the stage-1 policy) and continues DAgger in RoverEnvFused
 with the daemon in the loop, fitting the image branch.
 
-Training episodes use reset seeds below ``EVAL_SEED_BASE`` (evaluation starts there) and
-run ``TRAIN_LENGTH`` steps, carrying on past goals (the env draws a new one).
+Training episodes use reset seeds below ``DIAGNOSTIC_SEED_BASE`` (the diagnostic seeds start
+there, the evaluation's at ``EVAL_SEED_BASE``) and run ``TRAIN_LENGTH`` steps, carrying on
+past goals (the env draws a new one).
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from rover_train.progress import StatusLine
 from rover_train.threads import available_cores
 from rover_train.zoo.agent import (
     HEADS,
+    EnsembleNet,
     FeatureSpec,
     ObsHistory,
     StudentAgent,
@@ -52,7 +54,7 @@ from rover_train.zoo.agent import (
     image_features,
     state_features,
 )
-from rover_train.zoo.registry import ENTRIES, EVAL_SEED_BASE
+from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE, ENTRIES, EVAL_SEED_BASE
 
 log = logging.getLogger("rover_train.distill")
 
@@ -63,6 +65,13 @@ FUSED_ITERATIONS = 6
 FUSED_STEPS = 8_000
 SCAN_BANDS = 16
 """Bands of a fused student's depth scan (``FeatureSpec.depth_scan``; 5.6 degrees each)."""
+TRAINING_FRAME_TIMEOUT = 30.0
+"""Seconds a training run's fused env waits for a frame (the env's default is 2 s). A run
+is long and shares the machine: on 2026-11-25 a fused distillation at load 6 died 25 minutes
+in when its daemon, alive, went 3 s without publishing. A dead daemon is still reported at
+once: the reader's liveness checks do not wait for the timeout."""
+MEMBER_DIR = Path("runs/distill")
+"""Where an ensemble's members are saved as they finish (``distill_entry(members=...)``)."""
 PEDESTRIAN_SCAN = False
 """Whether a fused student gets the pedestrian scan too (``FeatureSpec.pedestrian_scan``):
 off, it did not help (73 and 74 goals on 100 diagnostic episodes of fused-inspect and
@@ -344,10 +353,14 @@ def synthetic_samples(
             )
 
 
-def fit(net: StudentNet, data: Dataset, cfg: DAggerConfig, gen: torch.Generator) -> float:
+def fit(net: StudentNet | EnsembleNet, data: Dataset, cfg: DAggerConfig,
+        gen: torch.Generator) -> float:
     """Refit ``net`` on ``data`` (``bins`` head: cross-entropy on the expert action's class;
     ``regress``: MSE on speed, cos and sin of the heading). Returns the last epoch's mean
-    loss."""
+    loss. An ensemble's members are refit one after the other, each on its own sample
+    order (mean of their losses)."""
+    if isinstance(net, EnsembleNet):
+        return float(np.mean([fit(m, data, cfg, gen) for m in net.members]))
     states, images, targets, weights = data.tensors()
     if net.spec.head == "bins":
         targets = action_classes(targets)
@@ -435,8 +448,12 @@ def run_dagger(
             driver = agent
             beta = cfg.beta0 * 0.5 ** (it - (1 if cfg.first_round_expert else 0))
         seed_base = cfg.seed * 10_000 + it * 1_000
-        if seed_base + 1_000 > EVAL_SEED_BASE:
-            raise ValueError("training seeds would reach the evaluation seeds")
+        if seed_base + 1_000 > DIAGNOSTIC_SEED_BASE:
+            raise ValueError(
+                f"DAgger seed {cfg.seed}, round {it + 1}: training episode seeds would reach "
+                f"the diagnostic seeds ({DIAGNOSTIC_SEED_BASE}+); use seeds 0-4 (at most 10 "
+                "rounds)"
+            )
         t0 = time.monotonic()
         stats = collect(
             env, expert, driver, beta, cfg.steps, data, seed_base, rng, status, cfg.near_weight
@@ -501,8 +518,12 @@ def stage2_config(
 
 
 def make_training_env(kind: str, world: str, **kwargs: Any) -> Any:
+    """A training env of ``kind`` in ``world``; a fused one waits ``TRAINING_FRAME_TIMEOUT``
+    for each fused frame (``frame_timeout=`` overrides)."""
     from rover_train.envs import make_env
 
+    if kind == "fused":
+        kwargs.setdefault("frame_timeout", TRAINING_FRAME_TIMEOUT)
     return make_env(kind, world=world, length=TRAIN_LENGTH, **kwargs)
 
 
@@ -518,15 +539,82 @@ def distill_entry(
     stage1_only: bool = False,
     depth_scan: int = SCAN_BANDS,
     pedestrian_scan: bool = PEDESTRIAN_SCAN,
+    members: int = 1,
+    member_dir: Path = MEMBER_DIR,
+    resume: bool = False,
 ) -> StudentAgent:
     """Make zoo entry ``name`` (see the module docstring) and save it to ``out``; a new
     student gets output ``head`` (and, fused, ``depth_scan`` bands of depth scan, and a
     pedestrian scan with ``pedestrian_scan``).
     ``stage1_only`` (fused entries) saves the student after stage 1, without the daemon;
     ``init=`` that file later runs stage 2 alone. Stage 2 runs ``fused_cfg``, by default
-    :func:`stage2_config` of ``cfg``."""
+    :func:`stage2_config` of ``cfg``.
+
+    ``members`` > 1 makes an ensemble (:class:`rover_train.zoo.agent.EnsembleNet`): that
+    many whole runs, seeds ``cfg.seed``, ``cfg.seed + 1``, ..., each saved to
+    ``member_dir`` as it finishes; with ``resume``, a member whose file is there already is
+    loaded instead of made again (a run stopped between members loses only the one it was
+    making)."""
+    entry = ENTRIES[name]
+    if members < 1:
+        raise ValueError(f"members must be >= 1, got {members}")
+    if members == 1:
+        return _save_entry(
+            _distill_one(name, cfg, fused_cfg, init, shm_name, slot, head, stage1_only,
+                         depth_scan, pedestrian_scan, member_dir, resume),
+            name, entry, out,
+        )  # fmt: skip
+    if init is not None or stage1_only:
+        raise ValueError(
+            "--init and --stage1-only work on one student; an ensemble (--members) is made "
+            "from scratch, its members saved in --member-dir as they finish (--resume)"
+        )
+    agents = []
+    for i in range(members):
+        seed = cfg.seed + i
+        path = member_dir / f"{name}-seed{seed}.pt"
+        if resume and path.is_file():
+            print(f"distill {name}: member {i + 1}/{members} (seed {seed}) from {path}",
+                  flush=True)  # fmt: skip
+            agents.append(StudentAgent.load(path))
+            continue
+        print(f"distill {name}: member {i + 1}/{members} (seed {seed})", flush=True)
+        member_fused = replace(fused_cfg, seed=seed) if fused_cfg is not None else None
+        agent = _distill_one(name, replace(cfg, seed=seed), member_fused, None, shm_name, slot,
+                             head, False, depth_scan, pedestrian_scan, member_dir,
+                             resume)  # fmt: skip
+        agents.append(_save_entry(agent, name, entry, path))
+    return _save_entry(StudentAgent.ensemble(agents), name, entry, out)
+
+
+def _distill_one(
+    name: str,
+    cfg: DAggerConfig,
+    fused_cfg: DAggerConfig | None,
+    init: Path | None,
+    shm_name: str | None,
+    slot: int,
+    head: str,
+    stage1_only: bool,
+    depth_scan: int,
+    pedestrian_scan: bool,
+    checkpoint_dir: Path | None = None,
+    resume: bool = False,
+) -> StudentAgent:
+    """One student of entry ``name`` (see :func:`distill_entry`), not saved. A fused
+    student made from scratch saves its stage-1 network in ``checkpoint_dir`` (a stage 2
+    that fails, its daemon gone for good, loses only stage 2); with ``resume`` that file,
+    if there, replaces stage 1."""
     entry = ENTRIES[name]
     torch.manual_seed(cfg.seed)
+    stage1_file = (
+        checkpoint_dir / f"{name}-seed{cfg.seed}.stage1.pt"
+        if checkpoint_dir is not None and entry.kind == "fused" and init is None
+        else None
+    )
+    if resume and stage1_file is not None and stage1_file.is_file():
+        print(f"distill {name}: stage 1 from {stage1_file}", flush=True)
+        init = stage1_file
     if entry.kind == "lidar":
         env = make_training_env("lidar", entry.world)
         try:
@@ -561,8 +649,10 @@ def distill_entry(
             net = StudentNet(fused_spec)
             net.load_state_dict(state_agent.net.state_dict(), strict=False)
             agent = StudentAgent(net)
+            if stage1_file is not None:
+                _save_entry(agent, name, entry, stage1_file)
         if stage1_only:
-            return _save_entry(agent, name, entry, out)
+            return agent
         # stage 2: everything, with the daemon's fused images
         env = make_training_env("fused", entry.world, shm_name=shm_name, slot=slot)
         try:
@@ -570,7 +660,7 @@ def distill_entry(
             run_dagger(env, entry.world, agent, stage2, label=f"distill {name} stage 2")
         finally:
             env.close()
-    return _save_entry(agent, name, entry, out)
+    return agent
 
 
 def _save_entry(agent: StudentAgent, name: str, entry: Any, out: Path) -> StudentAgent:
@@ -636,7 +726,35 @@ def main(argv: Sequence[str] | None = None) -> int:
         "camera's view (what a fused student can see); default: camera for fused entries, "
         "all for LIDAR ones",
     )  # fmt: skip
+    p.add_argument(
+        "--members", type=int, default=None,
+        help="students in the entry: more than 1 makes an ensemble of that many whole runs "
+        "(seeds --seed, --seed+1, ...), their mean log-probabilities acting; default: the "
+        "entry's own count (rover_train.zoo.registry.MEMBERS)",
+    )  # fmt: skip
+    p.add_argument(
+        "--member-dir", type=Path, default=MEMBER_DIR,
+        help="where an ensemble's members, and a fused student's stage 1, are saved as they "
+        "finish",
+    )  # fmt: skip
+    p.add_argument(
+        "--resume", action="store_true",
+        help="load the members and fused stage 1s already in --member-dir instead of making "
+        "them again (a run stopped part-way loses only the part it was making)",
+    )  # fmt: skip
     args = p.parse_args(argv)
+    if args.members is None:
+        args.members = 1 if args.init or args.stage1_only else ENTRIES[args.entry].members
+    if args.members < 1:
+        p.error(f"--members must be >= 1, got {args.members}")
+    if args.members > 1 and (args.init or args.stage1_only):
+        p.error("--init and --stage1-only work on one student, not with --members")
+    if args.seed + args.members - 1 > 4:
+        p.error(
+            f"--seed {args.seed} with --members {args.members} uses seeds up to "
+            f"{args.seed + args.members - 1}; training episodes of seeds above 4 would reach "
+            f"the diagnostic seeds ({DIAGNOSTIC_SEED_BASE}+)"
+        )
     if args.stage1_only and ENTRIES[args.entry].kind != "fused":
         p.error(f"--stage1-only is for fused entries; {args.entry} is made in one stage")
     torch.set_num_threads(args.threads)
@@ -663,6 +781,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             stage1_only=args.stage1_only,
             depth_scan=args.depth_scan,
             pedestrian_scan=args.pedestrian_scan,
+            members=args.members,
+            member_dir=args.member_dir,
+            resume=args.resume,
         )
     except ShmError as exc:
         print(f"{exc}\n\n{args.entry} needs the daemon: {entry.command}", file=sys.stderr)

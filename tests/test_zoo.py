@@ -436,3 +436,155 @@ def test_dagger_fits_on_fit_threads_and_collects_on_the_callers_threads(monkeypa
     assert distill.fit_threads(64) == available_cores()
     with pytest.raises(ValueError, match="fit_threads"):
         distill.fit_threads(-1)
+
+
+def _tiny_students(n: int) -> list[zoo.StudentAgent]:
+    import torch
+
+    env = make_training_env("lidar", "inspect")
+    try:
+        spec = feature_spec("lidar", "inspect", env, "bins")
+    finally:
+        env.close()
+    agents = []
+    for seed in range(n):
+        torch.manual_seed(seed)
+        agents.append(zoo.StudentAgent(zoo.StudentNet(spec)))
+    return agents
+
+
+def test_an_ensemble_acts_on_its_members_mean_log_probabilities_and_round_trips(
+    tmp_path,
+) -> None:
+    import torch
+
+    from rover_train.zoo.agent import EnsembleNet
+
+    a, b = _tiny_students(2)
+    both = zoo.StudentAgent.ensemble([a, b])
+    state = torch.randn(4, a.spec.state_dim)
+    want = (a.net(state).log_softmax(-1) + b.net(state).log_softmax(-1)) / 2
+    torch.testing.assert_close(both.net(state), want)
+    # one student twice is that student (the decoding's softmax undoes the log-softmax)
+    same = zoo.StudentAgent.ensemble([a, a])
+    env = zoo.make_env("lidar-inspect")
+    try:
+        obs, _ = env.reset(seed=5)
+        np.testing.assert_allclose(same.act(obs), a.act(obs), atol=1e-5)
+        path = tmp_path / "ensemble.pt"
+        both.save(path)
+        again = zoo.StudentAgent.load(path)
+        assert isinstance(again.net, EnsembleNet) and len(again.net.members) == 2
+        np.testing.assert_allclose(again.act(obs), both.act(obs), atol=1e-3)
+        # an ensemble of an ensemble and a student is flat: three members
+        three = zoo.StudentAgent.ensemble([both, a])
+        assert len(three.net.members) == 3
+    finally:
+        env.close()
+
+
+def test_an_ensemble_refuses_members_of_another_entry_and_a_lone_member() -> None:
+    from dataclasses import replace
+
+    from rover_train.zoo.agent import EnsembleNet
+
+    (a,) = _tiny_students(1)
+    other = zoo.StudentNet(replace(a.spec, centre=(1.0, 2.0)))
+    with pytest.raises(ValueError, match="another feature spec"):
+        EnsembleNet([a.net, other])
+    with pytest.raises(ValueError, match="at least 2"):
+        EnsembleNet([a.net])
+
+
+def test_fit_refits_every_member_of_an_ensemble() -> None:
+    import torch
+
+    agents = _tiny_students(2)
+    both = zoo.StudentAgent.ensemble(agents)
+    data = Dataset.empty(both.spec)
+    rng = np.random.default_rng(0)
+    for _ in range(64):
+        data.add(rng.normal(size=both.spec.state_dim).astype(np.float32),
+                 encode_action(np.array([0.7, 0.3], np.float32), both.spec), 1.0)
+    before = [m.out.weight.detach().clone() for m in both.net.members]
+    fit(both.net, data, DAggerConfig(epochs=2, batch=32), torch.Generator().manual_seed(0))
+    for m, w in zip(both.net.members, before, strict=True):
+        assert not torch.equal(m.out.weight, w)
+
+
+def test_members_make_an_ensemble_from_whole_runs_and_resume_keeps_the_finished_ones(
+    tmp_path, monkeypatch
+) -> None:
+    from rover_train import distill
+
+    seeds: list[int] = []
+    real = distill._distill_one
+
+    def counting(name, cfg, *args):  # type: ignore[no-untyped-def]
+        seeds.append(cfg.seed)
+        return real(name, cfg, *args)
+
+    monkeypatch.setattr(distill, "_distill_one", counting)
+    cfg = DAggerConfig(iterations=1, steps=60, epochs=1, status_every=1e9, seed=1)
+    out = tmp_path / "entry.pt"
+    members = tmp_path / "members"
+    distill.distill_entry("lidar-inspect", out, cfg, members=2, member_dir=members)
+    assert seeds == [1, 2]
+    assert sorted(p.name for p in members.iterdir()) == [
+        "lidar-inspect-seed1.pt", "lidar-inspect-seed2.pt"
+    ]
+    agent = zoo.StudentAgent.load(out)
+    assert len(agent.net.members) == 2 and agent.meta["name"] == "lidar-inspect"
+    # a run stopped after its first member: --resume makes only the second again
+    (members / "lidar-inspect-seed2.pt").unlink()
+    distill.distill_entry("lidar-inspect", out, cfg, members=2, member_dir=members, resume=True)
+    assert seeds == [1, 2, 2]
+
+
+def test_members_flags_are_checked_before_any_work(capsys) -> None:
+    from rover_train.distill import main
+
+    for argv, needle in (
+        (["lidar-inspect", "--members", "0"], "--members must be >= 1"),
+        (["lidar-inspect", "--members", "3", "--seed", "3"], "diagnostic seeds"),
+        (["fused-inspect", "--members", "2", "--stage1-only"], "one student"),
+    ):
+        with pytest.raises(SystemExit):
+            main(argv)
+        assert needle in capsys.readouterr().err
+
+
+def test_a_fused_students_stage1_is_saved_and_resume_skips_it(tmp_path, monkeypatch) -> None:
+    from rover_train import distill
+
+    rounds: list[str] = []
+    real = distill.run_dagger
+
+    def counting(env, world, agent, cfg, label="dagger", **kw):  # type: ignore[no-untyped-def]
+        rounds.append(label)
+        return real(env, world, agent, cfg, label=label, **kw)
+
+    monkeypatch.setattr(distill, "run_dagger", counting)
+    cfg = DAggerConfig(iterations=1, steps=20, epochs=1, status_every=1e9, seed=3)
+    out = tmp_path / "fused.pt"
+    distill.distill_entry("fused-inspect", out, cfg, stage1_only=True, member_dir=tmp_path)
+    saved = tmp_path / "fused-inspect-seed3.stage1.pt"
+    assert saved.is_file() and rounds == ["distill fused-inspect stage 1"]
+    distill.distill_entry("fused-inspect", out, cfg, stage1_only=True, member_dir=tmp_path,
+                          resume=True)  # fmt: skip
+    assert rounds == ["distill fused-inspect stage 1"]  # stage 1 not made again
+    assert zoo.StudentAgent.load(out).spec.image
+
+
+def test_training_fused_envs_wait_out_a_starved_daemon(monkeypatch) -> None:
+    from rover_train import distill, envs
+
+    seen: dict[str, object] = {}
+    monkeypatch.setattr(envs, "make_env", lambda kind, **kw: seen.update(kind=kind, **kw))
+    distill.make_training_env("fused", "maze", shm_name="x")
+    assert seen["frame_timeout"] == distill.TRAINING_FRAME_TIMEOUT > 2.0
+    distill.make_training_env("fused", "maze", shm_name="x", frame_timeout=5.0)
+    assert seen["frame_timeout"] == 5.0
+    seen.clear()
+    distill.make_training_env("lidar", "maze")
+    assert "frame_timeout" not in seen

@@ -363,6 +363,38 @@ class StudentNet(nn.Module):
         return self.out(self.body(h))
 
 
+class EnsembleNet(nn.Module):
+    """Several students of one feature spec, each trained by its own DAgger run (another
+    seed: its own initialisation, episodes and sample order), acting as one.
+
+    Output: the mean of the members' log-probabilities (``bins`` head; the decoding's
+    softmax of it is their normalised geometric mean, so a class wins only where the
+    members agree on it) or of their outputs (``regress``). One run of the recipe is one
+    draw of a noisy process (two runs of lidar-inspect's recipe reached 82 and 89 % of the
+    same 100 episodes); averaging draws cuts the variance that one draw carries.
+    """
+
+    def __init__(self, members: list[StudentNet]) -> None:
+        super().__init__()
+        if len(members) < 2:
+            raise ValueError(f"an ensemble needs at least 2 members, got {len(members)}")
+        spec = members[0].spec
+        for i, m in enumerate(members[1:], start=1):
+            if m.spec != spec:
+                raise ValueError(
+                    f"ensemble member {i} has another feature spec than member 0 "
+                    f"({m.spec} against {spec}): combine students made for one entry"
+                )
+        self.spec = spec
+        self.members = nn.ModuleList(members)
+
+    def forward(self, state: torch.Tensor, image: torch.Tensor | None = None) -> torch.Tensor:
+        outs = torch.stack([m(state, image) for m in self.members])
+        if self.spec.head == "bins":
+            outs = outs.log_softmax(dim=-1)
+        return outs.mean(dim=0)
+
+
 class StudentAgent:
     """A zoo agent: ``reset()`` at each episode start, ``act(obs)`` -> action (deterministic).
 
@@ -370,7 +402,8 @@ class StudentAgent:
     episode's :class:`ObsHistory`, which ``reset()`` clears).
     """
 
-    def __init__(self, net: StudentNet, meta: dict[str, Any] | None = None) -> None:
+    def __init__(self, net: StudentNet | EnsembleNet, meta: dict[str, Any] | None = None
+                 ) -> None:
         self.net = net.eval()
         self.spec = net.spec
         self.meta = dict(meta or {})
@@ -395,16 +428,31 @@ class StudentAgent:
         weights = {k: v.detach().half() for k, v in self.net.state_dict().items()}
         spec = asdict(self.spec)
         spec["centre"] = list(spec["centre"])
-        return {"weights": weights, "spec": spec, "meta": self.meta}
+        members = len(self.net.members) if isinstance(self.net, EnsembleNet) else 1
+        return {"weights": weights, "spec": spec, "meta": self.meta, "members": members}
 
     @classmethod
     def from_state_dict(cls, blob: dict[str, Any]) -> StudentAgent:
         spec_d = dict(blob["spec"])
         spec_d["centre"] = tuple(spec_d["centre"])
         spec = FeatureSpec(**spec_d)
-        net = StudentNet(spec)
+        members = int(blob.get("members", 1))  # files before ensembles: one student
+        net: StudentNet | EnsembleNet = (
+            EnsembleNet([StudentNet(spec) for _ in range(members)]) if members > 1
+            else StudentNet(spec)
+        )
         net.load_state_dict({k: v.float() for k, v in blob["weights"].items()})
         return cls(net, blob.get("meta"))
+
+    @classmethod
+    def ensemble(cls, agents: list[StudentAgent], meta: dict[str, Any] | None = None
+                 ) -> StudentAgent:
+        """One agent acting as the :class:`EnsembleNet` of ``agents``' networks (members
+        that are ensembles themselves are flattened into it)."""
+        nets: list[StudentNet] = []
+        for a in agents:
+            nets.extend(a.net.members if isinstance(a.net, EnsembleNet) else [a.net])
+        return cls(EnsembleNet(nets), meta if meta is not None else agents[0].meta)
 
     def save(self, path: Any) -> None:
         torch.save(self.state_dict(), path)

@@ -9,6 +9,9 @@ from typing import Any
 ENTRY_DIR = Path(__file__).resolve().parent / "entries"
 EVAL_SEED_BASE = 100_000
 """Evaluation seeds start here; training (DAgger) episodes use seeds below it."""
+DIAGNOSTIC_SEED_BASE = 50_000
+"""Diagnostic seeds (``benchmarks/zoo_diagnose.py``) start here: a change is chosen on them
+and reported on the evaluation seeds; training episodes stay below them."""
 EVAL_MAX_STEPS = 600
 """An evaluation episode ends at the first goal, a termination or 600 steps (30 s)."""
 
@@ -21,12 +24,15 @@ class EntrySpec:
     :param world: the world it was trained in.
     :param env_kwargs: constructor keywords of the env it was trained for.
     :param command: the one command that reproduces its file.
+    :param members: students in the file: more than 1 is an ensemble of that many DAgger
+        runs (``rover_train.distill --members``, whose default this is).
     """
 
     kind: str
     world: str
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     command: str = ""
+    members: int = 1
 
     @property
     def path(self) -> Path:
@@ -39,8 +45,13 @@ def _entry(kind: str, world: str) -> EntrySpec:
         command = f"python -m rover_train.distill {name}"
     else:
         command = f"rover-pair --name distill_{world} -- python -m rover_train.distill {name}"
-    return EntrySpec(kind=kind, world=world, env_kwargs={"world_n": world}, command=command)
+    return EntrySpec(kind=kind, world=world, env_kwargs={"world_n": world}, command=command,
+                     members=MEMBERS.get(name, 1))  # fmt: skip
 
+
+MEMBERS = {"lidar-inspect": 3, "lidar-maze": 3, "fused-maze": 3}
+"""Entries that are ensembles, and of how many students (chosen on the diagnostic seeds;
+benchmarks/RESULTS.md, "Ensembles")."""
 
 ENTRIES: dict[str, EntrySpec] = {
     f"{kind}-{world}": _entry(kind, world)
