@@ -36,9 +36,11 @@ def env_kwargs(
     render_mode: str | None = None,
     pedestrian_mode: str | None = None,
     size: tuple[int, int] | None = None,
+    frame_timeout: float | None = None,
 ) -> dict[str, Any]:
     """Constructor keywords for env ``kind`` (a key of ``ENV_IDS``); ``size`` is the forward
-    camera's (height, width)."""
+    camera's (height, width); ``frame_timeout`` (fused kinds) the seconds to wait for each
+    fused frame."""
     if kind not in ENV_IDS:
         raise ValueError(f"unknown env kind {kind!r}; choose one of {sorted(ENV_IDS)}")
     kwargs: dict[str, Any] = {"world_n": world}
@@ -55,6 +57,10 @@ def env_kwargs(
         kwargs["slot"] = slot
         if connect_timeout is not None:
             kwargs["connection_check_timeout"] = connect_timeout
+        if frame_timeout is not None:
+            kwargs["frame_timeout"] = frame_timeout
+    elif frame_timeout is not None:
+        raise ValueError(f"frame_timeout is for the fused env kinds {FUSED_KINDS}, not {kind!r}")
     return kwargs
 
 
