@@ -70,6 +70,12 @@ TRAINING_FRAME_TIMEOUT = 30.0
 is long and shares the machine: on 2026-11-25 a fused distillation at load 6 died 25 minutes
 in when its daemon, alive, went 3 s without publishing. A dead daemon is still reported at
 once: the reader's liveness checks do not wait for the timeout."""
+SEED_STRIDE = 10_000
+"""Episode seeds of DAgger seed ``s`` start at ``s * SEED_STRIDE``, ..."""
+ROUND_STRIDE = 1_000
+"""... and round ``r``'s at ``+ r * ROUND_STRIDE``."""
+MAX_SEED = DIAGNOSTIC_SEED_BASE // SEED_STRIDE - 1
+"""The last DAgger seed whose episodes stay below the diagnostic seeds."""
 MEMBER_DIR = Path("runs/distill")
 """Where an ensemble's members are saved as they finish (``distill_entry(members=...)``)."""
 PEDESTRIAN_SCAN = False
@@ -93,7 +99,8 @@ class DAggerConfig:
     beta0: float = 0.5
     """Chance the expert drives in round 1 (halved each round; round 0 is all expert)."""
     seed: int = 0
-    """Seeds the torch init and the episode seeds (``seed * 10_000 + ...``)."""
+    """Seeds the torch init and the episode seeds (``seed * SEED_STRIDE + ...``; at most
+    ``MAX_SEED``)."""
     first_round_expert: bool = True
     """Round 0 drives with the expert (off when starting from a trained student)."""
     status_every: float = 5.0
@@ -447,12 +454,12 @@ def run_dagger(
         else:
             driver = agent
             beta = cfg.beta0 * 0.5 ** (it - (1 if cfg.first_round_expert else 0))
-        seed_base = cfg.seed * 10_000 + it * 1_000
-        if seed_base + 1_000 > DIAGNOSTIC_SEED_BASE:
+        seed_base = cfg.seed * SEED_STRIDE + it * ROUND_STRIDE
+        if seed_base + ROUND_STRIDE > DIAGNOSTIC_SEED_BASE:
             raise ValueError(
                 f"DAgger seed {cfg.seed}, round {it + 1}: training episode seeds would reach "
-                f"the diagnostic seeds ({DIAGNOSTIC_SEED_BASE}+); use seeds 0-4 (at most 10 "
-                "rounds)"
+                f"the diagnostic seeds ({DIAGNOSTIC_SEED_BASE}+); use seeds 0-{MAX_SEED} (at "
+                f"most {SEED_STRIDE // ROUND_STRIDE} rounds)"
             )
         t0 = time.monotonic()
         stats = collect(
@@ -556,19 +563,15 @@ def distill_entry(
     loaded instead of made again (a run stopped between members loses only the one it was
     making)."""
     entry = ENTRIES[name]
-    if members < 1:
-        raise ValueError(f"members must be >= 1, got {members}")
+    problem = members_problem(members, cfg.seed, init is not None, stage1_only)
+    if problem:
+        raise ValueError(problem)
     if members == 1:
         return _save_entry(
             _distill_one(name, cfg, fused_cfg, init, shm_name, slot, head, stage1_only,
                          depth_scan, pedestrian_scan, member_dir, resume),
             name, entry, out,
         )  # fmt: skip
-    if init is not None or stage1_only:
-        raise ValueError(
-            "--init and --stage1-only work on one student; an ensemble (--members) is made "
-            "from scratch, its members saved in --member-dir as they finish (--resume)"
-        )
     agents = []
     for i in range(members):
         seed = cfg.seed + i
@@ -585,6 +588,25 @@ def distill_entry(
                              resume)  # fmt: skip
         agents.append(_save_entry(agent, name, entry, path))
     return _save_entry(StudentAgent.ensemble(agents), name, entry, out)
+
+
+def members_problem(members: int, seed: int, init: bool, stage1_only: bool) -> str | None:
+    """What is wrong with making ``members`` students from ``seed`` (with ``--init`` /
+    ``--stage1-only`` given or not), or None."""
+    if members < 1:
+        return f"--members must be >= 1, got {members}"
+    if members > 1 and (init or stage1_only):
+        return (
+            "--init and --stage1-only work on one student; an ensemble (--members) is made "
+            "from scratch, its members saved in --member-dir as they finish (--resume)"
+        )
+    if seed + members - 1 > MAX_SEED:
+        return (
+            f"--seed {seed} with --members {members} uses seeds up to {seed + members - 1}; "
+            f"training episodes of seeds above {MAX_SEED} would reach the diagnostic seeds "
+            f"({DIAGNOSTIC_SEED_BASE}+)"
+        )
+    return None
 
 
 def _distill_one(
@@ -745,16 +767,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.members is None:
         args.members = 1 if args.init or args.stage1_only else ENTRIES[args.entry].members
-    if args.members < 1:
-        p.error(f"--members must be >= 1, got {args.members}")
-    if args.members > 1 and (args.init or args.stage1_only):
-        p.error("--init and --stage1-only work on one student, not with --members")
-    if args.seed + args.members - 1 > 4:
-        p.error(
-            f"--seed {args.seed} with --members {args.members} uses seeds up to "
-            f"{args.seed + args.members - 1}; training episodes of seeds above 4 would reach "
-            f"the diagnostic seeds ({DIAGNOSTIC_SEED_BASE}+)"
-        )
+    problem = members_problem(args.members, args.seed, args.init is not None, args.stage1_only)
+    if problem:
+        p.error(problem)
     if args.stage1_only and ENTRIES[args.entry].kind != "fused":
         p.error(f"--stage1-only is for fused entries; {args.entry} is made in one stage")
     torch.set_num_threads(args.threads)
