@@ -64,8 +64,9 @@ logger = logging.getLogger(__name__)
 WORLDS: tuple[str, ...] = ("inspect", "moon", "maze")
 TRAIN_SEED = 0
 HELDOUT_SEED = 1_000_003
-DATASET_VERSION = 4
-"""Part of the cache file name: bump it when rendering changes, so stale files are not reused."""
+DATASET_VERSION = 5
+"""Part of the cache file name: bump it when rendering changes, so stale files are not reused
+(5: the moon's ground texture, 2026-11-25)."""
 KIND_EMPTY, KIND_WALKING, KIND_PLACED, KIND_DRIVING = 0, 1, 2, 3
 _GROUND_CHECK_M = 3.0
 _GROUND_MIN_M = 0.12

@@ -63,7 +63,7 @@ from shm_protocol import CHANNEL_HEATMAP
 
 logger = logging.getLogger(__name__)
 
-PRED_DATA_VERSION = 1
+PRED_DATA_VERSION = 2  # 2: the moon's ground texture (dataset.DATASET_VERSION 5)
 THRESHOLD = 0.5
 HELDOUT_EPISODES = 60
 """Held-out episodes (20 per world, 24 targets each at most)."""

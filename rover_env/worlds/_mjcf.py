@@ -21,6 +21,26 @@ def floor_assets(rgb1: str, rgb2: str) -> str:
     )
 
 
+def heightfield_floor_assets(rgb1: str, rgb2: str, mark_rgb: str, extent: tuple[float, float],
+                             square: float = 1.0, marks: float = 0.15) -> str:
+    """The floor material for a height field: ``square``-metre checker squares with random
+    darker texels (regolith grit, about 3 cm each at the default square).
+
+    MuJoCo maps a height field's texture over the whole field (``texuniform`` does not apply
+    to it): ``texrepeat`` counts tiles across the field, so it is set from the field's
+    ``extent`` (full x and y size, m) for squares of ``square`` metres. With the plane
+    floors' ``texrepeat`` instead, one checker square was stretched over 17 m and the
+    ground read as untextured grey: nothing in the frame for monocular depth to measure.
+    """
+    tile = 2.0 * square  # a checker tile is two squares across
+    return (
+        f'<texture name="{FLOOR_MATERIAL}" type="2d" builtin="checker" width="64" height="64" '
+        f'rgb1="{rgb1}" rgb2="{rgb2}" mark="random" random="{marks}" markrgb="{mark_rgb}"/>'
+        f'<material name="{FLOOR_MATERIAL}" texture="{FLOOR_MATERIAL}" '
+        f'texrepeat="{extent[0] / tile:.4g} {extent[1] / tile:.4g}" reflectance="0"/>'
+    )
+
+
 def floor(centre: tuple[float, float], half: float) -> str:
     """A square plane floor rendered in 1 m quads (third size value 1)."""
     return (

@@ -101,7 +101,9 @@ def build() -> WorldSpec:
     # MuJoCo reads the elevation rows from +y down (like an image); HeightField (and so
     # spawn heights, rock placement, the dataset's poses) counts rows along +y: flip them.
     data = " ".join(f"{v:.5f}" for v in elevation[::-1].reshape(-1))
-    asset = _mjcf.floor_assets("0.56 0.56 0.54", "0.5 0.5 0.48") + (
+    asset = _mjcf.heightfield_floor_assets(
+        "0.58 0.58 0.56", "0.48 0.48 0.46", "0.40 0.40 0.38", (2 * _RADIUS[0], 2 * _RADIUS[1])
+    ) + (
         f'<hfield name="terrain" nrow="{nrow}" ncol="{ncol}" '
         f'size="{_RADIUS[0]} {_RADIUS[1]} {z_top:.5f} {_BASE}" elevation="{data}"/>'
     )
