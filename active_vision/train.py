@@ -7,9 +7,10 @@ trains it on the sum of the two losses. ``heatmap`` and ``depth`` are accepted t
 the same joint model (the daemon needs both heads from one file); they say so in a log line.
 
 Without ``--data`` the training split (``dataset.TRAIN_SEED``, 20,000 frames, 70 % recorded
-while driving, random pedestrian appearance, half of them in inspect) is rendered into ``--data-dir`` on first use
-(about a minute) and reused afterwards. CPU only, ``--threads`` torch threads (default 2):
-the default 25 epochs take about 40 min on a quiet 2-core machine (80-100 s an epoch). The
+while driving, random pedestrian appearance, half of them in inspect) is rendered into
+``--data-dir`` on first use (about two minutes) and reused afterwards. CPU only,
+``--threads`` torch threads (default 2): the default 25 epochs take about 30 min on a quiet
+2-core machine (70 s an epoch). The
 training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
 ``--resume`` continues an interrupted run. Writes ``active_vision/weights/avnet.pt`` (or
 ``--out``) with the held-out figures (driving split) of the result stored in its ``meta``.
@@ -53,7 +54,6 @@ import torch.nn.functional as F
 from active_vision.dataset import (
     DEFAULT_DATA_DIR,
     TRAIN_SEED,
-    WORLDS,
     Dataset,
     DatasetConfig,
     build,
