@@ -1,14 +1,15 @@
 """Data, training and evaluation of the predictive heatmap (:mod:`active_vision.predict`).
 
     python -m active_vision.predict_train [--episodes 450] [--epochs 10] [--threads 2]
-    python -m active_vision.predict_train --evaluate-only [--json]
+    python -m active_vision.predict_train --evaluate-only [--split validation] [--json]
 
 Data: driving episodes (:meth:`active_vision.driving.DriveRecorder.record_sequence`, the
 same drivers, lighting and random pedestrian appearance as the detection data) with every
 control step's camera frame (0.05 s apart, the env's cadence, so the window is what the
 daemon sees) and, every 3rd step from step 4 on, the future-occupancy mask (1.5 s, rover
 held still) and the current mask. Training episodes come from ``TRAIN_SEED``, held-out ones
-from ``HELDOUT_SEED`` (different paths, appearances and lighting). Files are cached in
+from ``HELDOUT_SEED`` (different paths, appearances and lighting), and validation ones, to
+choose between predictors on, from ``VALIDATION_SEED``. Files are cached in
 ``--data-dir`` (``pred_<worlds>_s<seed>_e<episodes>_v<version>.npz``).
 
 The detection network (the shipped :class:`~active_vision.models.AVNet`, or ``--weights``)
@@ -66,6 +67,10 @@ logger = logging.getLogger(__name__)
 PRED_DATA_VERSION = 2  # 2: the moon's ground texture (dataset.DATASET_VERSION 5)
 THRESHOLD = 0.5
 HELDOUT_EPISODES = 60
+VALIDATION_SEED = 2_000_003
+"""Seed of the validation episodes (``--split validation``): neither training nor held-out,
+for choosing between predictors (epochs, seeds, initialisations) without looking at the
+figures reported."""
 """Held-out episodes (20 per world, 24 targets each at most)."""
 
 
@@ -283,11 +288,17 @@ def evaluate_predictor(predictor: Predictor, data: SequenceData, win: np.ndarray
     return out
 
 
+SPLIT_SEEDS = {"heldout": HELDOUT_SEED, "validation": VALIDATION_SEED}
+
+
 def evaluate_heldout(predict_weights: Path | None = None, weights: Path | None = None,
                      data_dir: Path = DEFAULT_DATA_DIR, episodes: int = HELDOUT_EPISODES,
-                     threads: int = 2) -> dict[str, object]:
-    """The three figures on the held-out driving episodes (rendered on first use)."""
-    data = build_sequences(data_dir, HELDOUT_SEED, episodes)
+                     threads: int = 2, split: str = "heldout") -> dict[str, object]:
+    """The three figures on the held-out (or ``split="validation"``) driving episodes
+    (rendered on first use)."""
+    if split not in SPLIT_SEEDS:
+        raise ValueError(f"split must be one of {sorted(SPLIT_SEEDS)}, got {split!r}")
+    data = build_sequences(data_dir, SPLIT_SEEDS[split], episodes)
     win = windows(data, weights, threads)
     return evaluate_predictor(Predictor(weights=predict_weights), data, win)
 
@@ -310,6 +321,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="fine-tune from these predictor weights instead of training afresh")
     p.add_argument("--evaluate-only", action="store_true",
                    help="evaluate --out on the held-out episodes, no training")
+    p.add_argument("--split", choices=sorted(SPLIT_SEEDS), default="heldout",
+                   help="episodes to evaluate on: the reported held-out ones, or the "
+                        "validation ones to choose between predictors")
     p.add_argument("--json", action="store_true", help="end with one JSON line")
     p.add_argument("--log-level", default="INFO")
     a = p.parse_args(argv)
@@ -322,7 +336,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         model, facts = train_predictor(cfg)
         save_predictor(model, a.out, facts)
         print(f"wrote {a.out} after {facts['epochs']:.0f} epochs in {facts['seconds']:.0f} s")
-    m = evaluate_heldout(a.out, a.weights, a.data_dir, threads=a.threads)
+    m = evaluate_heldout(a.out, a.weights, a.data_dir, threads=a.threads, split=a.split)
+    print(f"{a.split} episodes ({SPLIT_SEEDS[a.split]}):")
     pw = m["per_world"]
     assert isinstance(pw, dict)
     print(f"{'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}")
