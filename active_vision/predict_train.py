@@ -67,11 +67,12 @@ logger = logging.getLogger(__name__)
 PRED_DATA_VERSION = 2  # 2: the moon's ground texture (dataset.DATASET_VERSION 5)
 THRESHOLD = 0.5
 HELDOUT_EPISODES = 60
+"""Held-out episodes (20 per world, 24 targets each at most)."""
 VALIDATION_SEED = 2_000_003
 """Seed of the validation episodes (``--split validation``): neither training nor held-out,
 for choosing between predictors (epochs, seeds, initialisations) without looking at the
 figures reported."""
-"""Held-out episodes (20 per world, 24 targets each at most)."""
+SPLIT_SEEDS = {"heldout": HELDOUT_SEED, "validation": VALIDATION_SEED}
 
 
 @dataclass
@@ -286,9 +287,6 @@ def evaluate_predictor(predictor: Predictor, data: SequenceData, win: np.ndarray
     out["per_world"] = {w: figures(c) for w, c in counts.items()}
     out["targets"] = int(len(win))
     return out
-
-
-SPLIT_SEEDS = {"heldout": HELDOUT_SEED, "validation": VALIDATION_SEED}
 
 
 def evaluate_heldout(predict_weights: Path | None = None, weights: Path | None = None,
