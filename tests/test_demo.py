@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -21,7 +22,7 @@ MAX_STEPS = 15
 
 
 @pytest.fixture()
-def daemon(monkeypatch: pytest.MonkeyPatch):  # type: ignore[no-untyped-def]
+def daemon(monkeypatch: pytest.MonkeyPatch) -> Iterator[Daemon]:
     d = Daemon(f"test_demo_{uuid.uuid4().hex[:8]}").start()
     monkeypatch.setenv(NAME_ENV_VAR, d.name)  # what rover-pair sets for the demo
     try:
