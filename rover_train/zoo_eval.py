@@ -24,8 +24,9 @@ from typing import Any
 import numpy as np
 
 from rover_train import zoo
+from rover_train.distill import teacher_manners_for
 from rover_train.evaluate import EpisodeResult, format_table, run_episode, summarise
-from rover_train.expert import PlannerExpert
+from rover_train.expert import MANNERS, ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
 
 
@@ -72,9 +73,9 @@ def entry_env(name: str, daemon_name: str | None = None) -> Any:
 class ExpertAgent:
     """The planner expert behind the agent interface (it reads the env's privileged state)."""
 
-    def __init__(self, env: Any, world: str) -> None:
+    def __init__(self, env: Any, world: str, config: ExpertConfig | None = None) -> None:
         self.env = env
-        self.expert = PlannerExpert(world)
+        self.expert = PlannerExpert(world, config)
 
     def reset(self) -> None:
         self.expert.reset()
@@ -106,7 +107,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("entry", choices=sorted(zoo.ENTRIES))
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=zoo.EVAL_SEED_BASE)
-    p.add_argument("--expert", action="store_true", help="evaluate the planner expert instead")
+    p.add_argument(
+        "--expert", action="store_true",
+        help="evaluate the planner expert that teaches the entry instead (all-round view)",
+    )  # fmt: skip
+    p.add_argument(
+        "--manners", choices=sorted(MANNERS), default=None,
+        help="with --expert: its pedestrian terms (default: those of the entry's teacher)",
+    )  # fmt: skip
     p.add_argument("--random", action="store_true", help="evaluate a seeded random policy")
     p.add_argument("--file", help="a student file instead of the shipped entry")
     p.add_argument(
@@ -126,8 +134,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     env = entry_env(args.entry, args.daemon_name)
     try:
         if args.expert:
-            agent: Any = ExpertAgent(env, spec.world)
-            who = "planner expert"
+            manners = args.manners or teacher_manners_for(spec.kind)
+            config = ExpertConfig.with_manners(manners)
+            agent: Any = ExpertAgent(env, spec.world, config)
+            who = f"planner expert ({manners})"
         elif args.random:
             agent = RandomAgent(env.action_space, args.seed)
             who = "random policy"

@@ -23,6 +23,8 @@ from rover_train.distill import (
     run_dagger,
     sample_weight,
     stage2_config,
+    teacher_config,
+    teacher_manners_for,
 )
 from rover_train.expert import ExpertConfig, PlannerExpert, in_camera_view
 from rover_train.progress import StatusLine
@@ -206,6 +208,40 @@ def test_camera_expert_reacts_only_to_the_pedestrians_a_fused_student_can_see() 
     assert changed >= 1  # the all-round expert did react to one the camera cannot see
     with pytest.raises(ValueError, match="sees"):
         ExpertConfig(sees="lidar")
+
+
+def test_firm_expert_passes_a_pedestrian_beside_its_path_that_the_polite_one_gives_way_to() -> None:
+    """``firm`` manners (the LIDAR students' teacher) drive on past a pedestrian standing
+    0.6-1 m beside the way, where ``polite`` slows and swerves (in the maze's corridors
+    that is what timed it out); neither drives on into a pedestrian standing in its way."""
+    polite = PlannerExpert("maze")
+    firm = PlannerExpert("maze", ExpertConfig.with_manners("firm"))
+    assert polite.config == ExpertConfig.with_manners("polite")
+    x, y, yaw, goal = -3.0, -4.0, 0.0, (3.0, -4.0)  # the open south corridor, facing the goal
+    for dx, dy in ((1.0, 0.8), (1.2, 0.7), (0.8, 0.9), (1.5, 0.6)):
+        peds = np.array([[x + dx, y + dy]])
+        for expert in (polite, firm):
+            expert.reset()
+        p_speed, p_heading = polite.act((x, y), yaw, goal, peds, time=0.0)
+        f_speed, f_heading = firm.act((x, y), yaw, goal, peds, time=0.0)
+        assert f_speed == pytest.approx(1.0) and f_heading == pytest.approx(0.0)
+        assert p_speed < 0.8 and abs(p_heading) > 0.3
+    for dx, dy in ((0.7, -0.1), (0.9, 0.0), (1.2, 0.1)):  # standing in the way
+        for expert in (polite, firm):
+            expert.reset()
+            speed, heading = expert.act((x, y), yaw, goal, np.array([[x + dx, y + dy]]), 0.0)
+            # a second of this action keeps the rover clear of contact (about 0.55 m)
+            ahead = np.array([math.cos(heading), math.sin(heading)]) * speed * 1.0
+            assert math.hypot(dx - ahead[0], dy - ahead[1]) > 0.6, (expert.config, dx, dy)
+    with pytest.raises(ValueError, match="firm"):
+        ExpertConfig.with_manners("rude")
+
+
+def test_lidar_students_are_taught_by_the_firm_expert_and_fused_ones_by_the_polite() -> None:
+    assert teacher_manners_for("lidar") == "firm" and teacher_manners_for("fused") == "polite"
+    cfg = DAggerConfig(teacher_manners="firm", teacher_sees="camera")
+    assert teacher_config(cfg) == ExpertConfig.with_manners("firm", sees="camera")
+    assert teacher_config(DAggerConfig()) == ExpertConfig()
 
 
 @pytest.mark.parametrize("head", ["bins", "regress"])
