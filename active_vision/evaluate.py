@@ -8,7 +8,9 @@ JSON object with the keys ``iou``, ``recall``, ``false_positive_rate``, ``abs_re
 ``delta1`` (plus counts, ``abs_rel_near``, ``worst`` and ``per_world``). With
 ``--heatmap predict`` it also evaluates the predictive heatmap on held-out driving
 sequences (:mod:`active_vision.predict_train`) and adds ``predict_iou``,
-``detect_baseline_iou`` and ``oracle_now_iou``, overall and in each ``per_world`` entry.
+``detect_baseline_iou`` and ``oracle_now_iou``, overall and in each ``per_world`` entry,
+and ``margin_interval``: the 90 % interval of predict - detect over bootstrap draws of whole
+episodes.
 
 Definitions (``THRESHOLD`` = 0.5, ``MIN_PEDESTRIAN_PX`` = 30, ``MIN_BLOB_PX`` = 5):
 
@@ -285,12 +287,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         keys = ("predict_iou", "detect_baseline_iou", "oracle_now_iou")
         print(f"predictive heatmap, {pm['targets']} held-out targets (IoU with the 1.5 s "
               "future-occupancy mask):")
-        print(f"  {'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}")
+        print(f"  {'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}  predict-detect, "
+              "90 % interval over episodes")
         per = pm["per_world"]
         assert isinstance(per, dict)
         for w, f in [("all", pm), *per.items()]:
-            print(f"  {w:<8} " + " ".join(f"{f[k]:8.4f}" for k in keys))  # type: ignore[index]
-        out.update({k: pm[k] for k in keys})
+            lo, hi = f["margin_interval"]  # type: ignore[index]
+            print(f"  {w:<8} " + " ".join(f"{f[k]:8.4f}" for k in keys)  # type: ignore[index]
+                  + f"  {lo:+.3f} .. {hi:+.3f}")
+        out.update({k: pm[k] for k in (*keys, "margin_interval")})
         pw = out["per_world"]
         assert isinstance(pw, dict)
         for w, f in per.items():

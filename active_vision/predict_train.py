@@ -76,6 +76,8 @@ VALIDATION_SEED = 2_000_003
 for choosing between predictors (epochs, seeds, initialisations) without looking at the
 figures reported."""
 SPLIT_SEEDS = {"heldout": HELDOUT_SEED, "validation": VALIDATION_SEED}
+BOOTSTRAP_RESAMPLES = 2000
+"""Bootstrap draws of episodes behind ``margin_interval``."""
 
 
 @dataclass
@@ -267,29 +269,59 @@ def train_predictor(cfg: PredictTrainConfig) -> tuple[PredictNet, dict[str, floa
 
 def evaluate_predictor(predictor: Predictor, data: SequenceData, win: np.ndarray
                        ) -> dict[str, object]:
-    """``predict_iou``, ``detect_baseline_iou``, ``oracle_now_iou`` overall and per world."""
-    counts = {w: np.zeros((3, 2), np.int64) for w in data.worlds}  # rows: pred, det, now
+    """``predict_iou``, ``detect_baseline_iou``, ``oracle_now_iou`` overall and per world,
+    and ``margin_interval``: the 90 % interval of ``predict_iou - detect_baseline_iou`` over
+    episodes (:func:`margin_interval`)."""
+    episodes = np.unique(data.episode_row)
+    index = {int(e): k for k, e in enumerate(episodes)}
+    # per episode, rows: pred, det, now; columns: intersection, union
+    counts = np.zeros((len(episodes), 3, 2), np.int64)
+    episode_world = np.zeros(len(episodes), np.int64)
     for i in range(0, len(win), 64):
         prob = predictor(win[i:i + 64].astype(np.float32))
         det = win[i:i + 64, -1, :, :, :, ][..., CHANNEL_HEATMAP].astype(np.float32)
         for j in range(len(prob)):
             t = i + j
             fut = data.future[t]
-            c = counts[data.worlds[int(data.world[t])]]
+            e = index[int(data.episode_row[t])]
+            episode_world[e] = int(data.world[t])
             for row, guess in enumerate((prob[j] >= THRESHOLD, det[j] >= THRESHOLD,
                                          data.now[t])):
-                c[row, 0] += np.count_nonzero(guess & fut)
-                c[row, 1] += np.count_nonzero(guess | fut)
+                counts[e, row, 0] += np.count_nonzero(guess & fut)
+                counts[e, row, 1] += np.count_nonzero(guess | fut)
 
-    def figures(c: np.ndarray) -> dict[str, float]:
-        iou = [float(c[r, 0] / c[r, 1]) if c[r, 1] else float("nan") for r in range(3)]
-        return {"predict_iou": iou[0], "detect_baseline_iou": iou[1], "oracle_now_iou": iou[2]}
+    def figures(c: np.ndarray) -> dict[str, object]:
+        total = c.sum(axis=0)
+        iou = [float(total[r, 0] / total[r, 1]) if total[r, 1] else float("nan")
+               for r in range(3)]
+        return {"predict_iou": iou[0], "detect_baseline_iou": iou[1], "oracle_now_iou": iou[2],
+                "margin_interval": margin_interval(c)}
 
-    total = sum(counts.values())
-    out: dict[str, object] = dict(figures(total))  # type: ignore[arg-type]
-    out["per_world"] = {w: figures(c) for w, c in counts.items()}
+    out: dict[str, object] = dict(figures(counts))
+    out["per_world"] = {w: figures(counts[episode_world == k]) for k, w in enumerate(data.worlds)}
     out["targets"] = int(len(win))
     return out
+
+
+def margin_interval(counts: np.ndarray, resamples: int = BOOTSTRAP_RESAMPLES,
+                    seed: int = 0) -> list[float]:
+    """The 5th and 95th percentiles of ``predict_iou - detect_baseline_iou`` over
+    ``resamples`` bootstrap draws of whole episodes: how sure a margin measured on these
+    episodes is (an episode's frames are not independent, so episodes are the unit).
+
+    :param counts: ``(episodes, 3, 2)`` intersections and unions per episode, rows
+        predictor, detection, current ground truth.
+    """
+    n = len(counts)
+    if n == 0:
+        return [float("nan"), float("nan")]
+    draws = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
+    total = counts[draws].sum(axis=1)  # (resamples, 3, 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        iou = total[:, :, 0] / total[:, :, 1]
+    margin = iou[:, 0] - iou[:, 1]
+    lo, hi = np.nanpercentile(margin, [5.0, 95.0])
+    return [float(lo), float(hi)]
 
 
 def evaluate_heldout(predict_weights: Path | None = None, weights: Path | None = None,
@@ -341,10 +373,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"{a.split} episodes ({SPLIT_SEEDS[a.split]}):")
     pw = m["per_world"]
     assert isinstance(pw, dict)
-    print(f"{'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}")
+    print(f"{'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}  predict-detect, 90 % "
+          "interval over episodes")
     for w, f in [("all", m), *pw.items()]:
+        lo, hi = f["margin_interval"]
         print(f"{w:<8} {f['predict_iou']:8.4f} {f['detect_baseline_iou']:8.4f} "
-              f"{f['oracle_now_iou']:8.4f}")
+              f"{f['oracle_now_iou']:8.4f}  {lo:+.3f} .. {hi:+.3f}")
     if a.json:
         print(json.dumps(m))
     return 0

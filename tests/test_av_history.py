@@ -175,7 +175,28 @@ def test_predictive_ground_truth_and_baselines_on_driving_sequences() -> None:
     for k in ("predict_iou", "detect_baseline_iou", "oracle_now_iou"):
         assert 0.0 <= m[k] <= 1.0, (k, m)
     assert set(m["per_world"]) == set(data.worlds)
+    lo, hi = m["margin_interval"]
+    assert -1.0 <= lo <= hi <= 1.0
     assert first.any()
+
+
+def test_margin_interval_is_over_whole_episodes() -> None:
+    """The predict - detect interval resamples episodes: identical episodes give the point
+    margin itself; episodes that disagree give an interval around the pooled margin, and
+    more of them (the same mix) a narrower one."""
+    from active_vision.predict_train import margin_interval
+
+    # per episode: (predictor, detection, now) x (intersection, union)
+    good = np.array([[60, 100], [30, 100], [50, 100]])  # margin +0.30
+    bad = np.array([[20, 100], [30, 100], [50, 100]])  # margin -0.10
+    lo, hi = margin_interval(np.stack([good] * 10))
+    assert lo == pytest.approx(0.30) and hi == pytest.approx(0.30)
+    few = margin_interval(np.stack([good, bad] * 5))
+    many = margin_interval(np.stack([good, bad] * 50))
+    assert few[0] < 0.10 < few[1]  # pooled: (80 - 60) / 200 = +0.10
+    assert many[0] < 0.10 < many[1]
+    assert many[1] - many[0] < 0.5 * (few[1] - few[0])
+    assert np.isnan(margin_interval(np.zeros((0, 3, 2), np.int64))).all()
 
 
 def test_shipped_predictor_loads_and_outputs_probabilities() -> None:
