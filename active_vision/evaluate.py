@@ -248,6 +248,8 @@ def _json_safe(obj: object) -> object:
     """NaN (a figure with nothing to measure) as null, so the line is strict JSON."""
     if isinstance(obj, dict):
         return {k: _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_json_safe(v) for v in obj]
     if isinstance(obj, float) and obj != obj:
         return None
     return obj

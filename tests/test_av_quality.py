@@ -118,6 +118,18 @@ def test_train_and_evaluate_clis_run_end_to_end(tmp_path, heldout: ds.Dataset, c
     assert figures["worst"]["abs_rel"] >= figures["abs_rel"] - 1e-9
 
 
+def test_evaluate_json_is_strict_with_nothing_to_measure() -> None:
+    """A figure with nothing to measure (NaN), in a dict or in an interval's list, is null:
+    the --json line parses as strict JSON."""
+    from active_vision.evaluate import _json_safe
+
+    out = {"iou": float("nan"), "margin_interval": [float("nan"), 0.2],
+           "per_world": {"maze": {"margin_interval": (float("nan"), float("nan"))}}}
+    line = json.dumps(_json_safe(out), allow_nan=False)
+    assert json.loads(line) == {"iou": None, "margin_interval": [None, 0.2],
+                                "per_world": {"maze": {"margin_interval": [None, None]}}}
+
+
 def test_evaluate_reports_near_pixels_apart() -> None:
     from active_vision.evaluate import NEAR_DEPTH_M, _figures, frame_counts
     from shm_protocol import depth_to_channel
