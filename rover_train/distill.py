@@ -513,10 +513,10 @@ def teacher_manners_for(kind: str) -> str:
     """The labelling expert's manners for a student of ``kind``: ``firm`` for LIDAR
     students (the polite teacher set their ceiling, 80 % of the maze's evaluation episodes;
     firm reaches more goals with fewer collisions on the diagnostic seeds, see
-    ``rover_train.expert.MANNERS``; its ensembles reached 89 and 92 % of 200 diagnostic
-    episodes against the polite teacher's 86 and 87 %, with more collided episodes: 12 and
-    10 % against 7.5 and 6.5 %), ``polite`` for fused students, whose point is to keep out
-    of personal space."""
+    ``rover_train.expert.MANNERS``; its lidar-maze and lidar-inspect ensembles reached 89
+    and 92 % of 200 diagnostic episodes against the polite teacher's 86 and 87 %, with more
+    collided episodes: 12.5 and 10 % against 7.5 and 6.5 %), ``polite`` for fused students,
+    whose point is to keep out of personal space."""
     return "firm" if kind == "lidar" else "polite"
 
 
