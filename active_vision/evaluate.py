@@ -282,21 +282,16 @@ def main(argv: Sequence[str] | None = None) -> int:
                               "worst": m.worst(),
                               "per_world": {w: dict(f) for w, f in m.per_world.items()}}
     if args.heatmap == "predict":
-        from active_vision.predict_train import evaluate_heldout
+        from active_vision.predict_train import evaluate_heldout, figure_rows
 
         pm = evaluate_heldout(args.predict_weights, args.weights, args.data_dir,
                               threads=args.threads)
         keys = ("predict_iou", "detect_baseline_iou", "oracle_now_iou")
         print(f"predictive heatmap, {pm['targets']} held-out targets (IoU with the 1.5 s "
               "future-occupancy mask):")
-        print(f"  {'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}  predict-detect, "
-              "90 % interval over episodes")
+        print("\n".join("  " + row for row in figure_rows(pm)))
         per = pm["per_world"]
         assert isinstance(per, dict)
-        for w, f in [("all", pm), *per.items()]:
-            lo, hi = f["margin_interval"]  # type: ignore[index]
-            print(f"  {w:<8} " + " ".join(f"{f[k]:8.4f}" for k in keys)  # type: ignore[index]
-                  + f"  {lo:+.3f} .. {hi:+.3f}")
         out.update({k: pm[k] for k in (*keys, "margin_interval")})
         pw = out["per_world"]
         assert isinstance(pw, dict)

@@ -324,6 +324,20 @@ def margin_interval(counts: np.ndarray, resamples: int = BOOTSTRAP_RESAMPLES,
     return [float(lo), float(hi)]
 
 
+def figure_rows(m: dict[str, object]) -> list[str]:
+    """:func:`evaluate_predictor`'s figures as table lines: a header, then overall and per
+    world the three IoUs and the margin's interval."""
+    per = m["per_world"]
+    assert isinstance(per, dict)
+    rows = [f"{'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}  predict-detect, 90 % "
+            "interval over episodes"]
+    for w, f in [("all", m), *per.items()]:
+        lo, hi = f["margin_interval"]  # type: ignore[index]
+        rows.append(f"{w:<8} {f['predict_iou']:8.4f} {f['detect_baseline_iou']:8.4f} "  # type: ignore[index]
+                    f"{f['oracle_now_iou']:8.4f}  {lo:+.3f} .. {hi:+.3f}")  # type: ignore[index]
+    return rows
+
+
 def evaluate_heldout(predict_weights: Path | None = None, weights: Path | None = None,
                      data_dir: Path = DEFAULT_DATA_DIR, episodes: int = HELDOUT_EPISODES,
                      threads: int = 2, split: str = "heldout") -> dict[str, object]:
@@ -371,14 +385,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"wrote {a.out} after {facts['epochs']:.0f} epochs in {facts['seconds']:.0f} s")
     m = evaluate_heldout(a.out, a.weights, a.data_dir, threads=a.threads, split=a.split)
     print(f"{a.split} episodes ({SPLIT_SEEDS[a.split]}):")
-    pw = m["per_world"]
-    assert isinstance(pw, dict)
-    print(f"{'world':<8} {'predict':>8} {'detect':>8} {'now-GT':>8}  predict-detect, 90 % "
-          "interval over episodes")
-    for w, f in [("all", m), *pw.items()]:
-        lo, hi = f["margin_interval"]
-        print(f"{w:<8} {f['predict_iou']:8.4f} {f['detect_baseline_iou']:8.4f} "
-              f"{f['oracle_now_iou']:8.4f}  {lo:+.3f} .. {hi:+.3f}")
+    print("\n".join(figure_rows(m)))
     if a.json:
         print(json.dumps(m))
     return 0

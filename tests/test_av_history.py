@@ -177,6 +177,9 @@ def test_predictive_ground_truth_and_baselines_on_driving_sequences() -> None:
     assert set(m["per_world"]) == set(data.worlds)
     lo, hi = m["margin_interval"]
     assert -1.0 <= lo <= hi <= 1.0
+    rows = pt.figure_rows(m)  # what both CLIs print: a header, "all", one row a world
+    assert [r.split()[0] for r in rows[1:]] == ["all", *data.worlds]
+    assert f"{lo:+.3f} .. {hi:+.3f}" in rows[1]
     assert first.any()
 
 
