@@ -1,13 +1,17 @@
 """What an ensemble entry costs per step: ``agent.act`` of each zoo LIDAR entry against one
-of its own students, alternated in one run.
+of its own students, alternated in one run; with ``--against FILE``, the entry against
+another file of it (say the version before, to see what a new feature costs).
 
     MUJOCO_GL=egl python benchmarks/zoo_act_speed.py --threads 1 --acts 2000
+    git show REV:rover_train/zoo/entries/lidar-maze.pt > /tmp/old.pt
+    MUJOCO_GL=egl python benchmarks/zoo_act_speed.py --against /tmp/old.pt
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 import torch
 
@@ -30,6 +34,10 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--acts", type=int, default=2000)
     p.add_argument("--repeats", type=int, default=2)
+    p.add_argument(
+        "--against", type=Path, action="append", default=[],
+        help="another file of a LIDAR entry, timed against the entry (repeatable)",
+    )  # fmt: skip
     a = p.parse_args()
     torch.set_num_threads(a.threads)
     print("| entry | students | ms per act (entry) | ms per act (one of its students) | ratio |")
@@ -45,6 +53,21 @@ def main() -> None:
         for _ in range(a.repeats):
             full, single = ms_per_act(entry, obs, a.acts), ms_per_act(one, obs, a.acts)
             print(f"| {name} | {len(members)} | {full:.3f} | {single:.3f} | {full / single:.1f} |")
+    if a.against:
+        print("\n| entry | ms per act (entry) | file | ms per act (file) | ratio |")
+        print("|---|---|---|---|---|")
+    for path in a.against:
+        other = StudentAgent.load(path)
+        name = other.meta.get("name", "")
+        if name not in zoo.ENTRIES or zoo.ENTRIES[name].kind != "lidar":
+            raise SystemExit(f"{path} is not a file of a LIDAR zoo entry (its name: {name!r})")
+        entry = zoo.load(name)
+        env = zoo.make_env(name)
+        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+        env.close()
+        for _ in range(a.repeats):
+            new, old = ms_per_act(entry, obs, a.acts), ms_per_act(other, obs, a.acts)
+            print(f"| {name} | {new:.3f} | {path.name} | {old:.3f} | {new / old:.2f} |")
 
 
 if __name__ == "__main__":

@@ -222,10 +222,11 @@ def sample_weight(position: Any, pedestrians: Any, near_weight: float) -> float:
 
 def feature_spec(kind: str, world: str, env: Any, head: str = "bins",
                  history: bool = True, depth_scan: int = 0,
-                 pedestrian_scan: bool = False) -> FeatureSpec:
+                 pedestrian_scan: bool = False, unmapped_scan: bool = False) -> FeatureSpec:
     """The feature spec of a student for ``kind`` (lidar, fused, or state) in ``env``'s world,
     with output ``head`` (``bins`` or ``regress``: see :mod:`rover_train.zoo.agent`) and
-    ``depth_scan`` bands of scan, and ``pedestrian_scan`` (fused students)."""
+    ``depth_scan`` bands of scan, and ``pedestrian_scan`` (fused students), and
+    ``unmapped_scan`` (LIDAR students)."""
     base = env.unwrapped
     rect = base.world.goal
     centre = ((rect.x[0] + rect.x[1]) / 2, (rect.y[0] + rect.y[1]) / 2)
@@ -242,6 +243,8 @@ def feature_spec(kind: str, world: str, env: Any, head: str = "bins",
         history=history,
         depth_scan=depth_scan,
         pedestrian_scan=pedestrian_scan and depth_scan > 0,
+        unmapped_scan=unmapped_scan and kind == "lidar",
+        world=base.world.name,
     )
 
 
@@ -565,13 +568,15 @@ def distill_entry(
     stage1_only: bool = False,
     depth_scan: int = SCAN_BANDS,
     pedestrian_scan: bool = PEDESTRIAN_SCAN,
+    unmapped_scan: bool | None = None,
     members: int = 1,
     member_dir: Path = MEMBER_DIR,
     resume: bool = False,
 ) -> StudentAgent:
     """Make zoo entry ``name`` (see the module docstring) and save it to ``out``; a new
     student gets output ``head`` (and, fused, ``depth_scan`` bands of depth scan, and a
-    pedestrian scan with ``pedestrian_scan``).
+    pedestrian scan with ``pedestrian_scan``; LIDAR, the scan of the returns the map does not
+    explain with ``unmapped_scan``, by default the entry's ``EntrySpec.unmapped_scan``).
     ``stage1_only`` (fused entries) saves the student after stage 1, without the daemon;
     ``init=`` that file later runs stage 2 alone. Stage 2 runs ``fused_cfg``, by default
     :func:`stage2_config` of ``cfg``.
@@ -582,13 +587,15 @@ def distill_entry(
     loaded instead of made again (a run stopped between members loses only the one it was
     making)."""
     entry = ENTRIES[name]
+    if unmapped_scan is None:
+        unmapped_scan = entry.unmapped_scan
     problem = members_problem(members, cfg.seed, init is not None, stage1_only)
     if problem:
         raise ValueError(problem)
     if members == 1:
         return _save_entry(
             _distill_one(name, cfg, fused_cfg, init, shm_name, slot, head, stage1_only,
-                         depth_scan, pedestrian_scan, member_dir, resume),
+                         depth_scan, pedestrian_scan, unmapped_scan, member_dir, resume),
             name, entry, out,
         )  # fmt: skip
     agents = []
@@ -603,8 +610,8 @@ def distill_entry(
         print(f"distill {name}: member {i + 1}/{members} (seed {seed})", flush=True)
         member_fused = replace(fused_cfg, seed=seed) if fused_cfg is not None else None
         agent = _distill_one(name, replace(cfg, seed=seed), member_fused, None, shm_name, slot,
-                             head, False, depth_scan, pedestrian_scan, member_dir,
-                             resume)  # fmt: skip
+                             head, False, depth_scan, pedestrian_scan, unmapped_scan,
+                             member_dir, resume)  # fmt: skip
         agents.append(_save_entry(agent, name, entry, path))
     return _save_entry(StudentAgent.ensemble(agents), name, entry, out)
 
@@ -639,6 +646,7 @@ def _distill_one(
     stage1_only: bool,
     depth_scan: int,
     pedestrian_scan: bool,
+    unmapped_scan: bool = False,
     checkpoint_dir: Path | None = None,
     resume: bool = False,
 ) -> StudentAgent:
@@ -662,7 +670,9 @@ def _distill_one(
             if init is not None:
                 agent = StudentAgent.load(init)
             else:
-                agent = StudentAgent(StudentNet(feature_spec("lidar", entry.world, env, head)))
+                agent = StudentAgent(StudentNet(
+                    feature_spec("lidar", entry.world, env, head, unmapped_scan=unmapped_scan)
+                ))
             run_dagger(env, entry.world, agent, cfg, label=f"distill {name}")
         finally:
             env.close()
@@ -762,6 +772,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="with --depth-scan: a second scan of the pixels the heatmap marks as a pedestrian",
     )  # fmt: skip
     p.add_argument(
+        "--unmapped-scan", action=argparse.BooleanOptionalAction, default=None,
+        help="a new LIDAR student's second scan of the returns the world's map does not "
+        "explain (the pedestrians); default: the entry's own (rover_train.zoo.registry)",
+    )  # fmt: skip
+    p.add_argument(
         "--teacher-sees", choices=SEES, default=None,
         help="pedestrians the labelling expert reacts to: all, or only those in the forward "
         "camera's view (what a fused student can see); default: camera for fused entries, "
@@ -821,6 +836,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             stage1_only=args.stage1_only,
             depth_scan=args.depth_scan,
             pedestrian_scan=args.pedestrian_scan,
+            unmapped_scan=args.unmapped_scan,
             members=args.members,
             member_dir=args.member_dir,
             resume=args.resume,

@@ -76,6 +76,37 @@ def test_footprint_distances() -> None:
     np.testing.assert_allclose(vector, scalar)
 
 
+def test_ray_distances_cast_against_the_footprints_as_mujoco_casts_the_scenery() -> None:
+    """``WorldSpec.ray_distances`` (the unmapped scan's map) against hand-worked rays, and
+    against MuJoCo's own rays on the maze's scenery (groups 0 only: no pedestrians) from
+    poses all over the maze."""
+    import mujoco
+
+    from rover_env.simulation import RoverSim
+
+    world = make_world("maze")
+    # from (-2, 0): the inner wall x = 0 (0.2 m thick) ahead, the outer wall x = -6 behind
+    d = world.ray_distances(-2.0, 0.0, np.array([0.0, math.pi]), 12.0)
+    np.testing.assert_allclose(d, [1.9, 3.9])
+    # from (-3, 0) along +y: the wall y = 2, x in [-6, -2]
+    assert world.ray_distances(-3.0, 0.0, np.array([math.pi / 2]), 12.0)[0] == pytest.approx(1.9)
+    assert world.ray_distances(-3.0, 0.0, np.array([math.pi / 2]), 1.0)[0] == 1.0  # out of reach
+    assert world.ray_distances(0.0, 0.0, np.array([1.0]), 12.0)[0] == 0.0  # inside the wall
+    sim = RoverSim("maze")
+    m, d_ = sim.model, sim.data
+    scenery = np.array([1, 0, 0, 0, 0, 0], np.uint8)
+    geom = np.zeros(1, np.int32)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x, y = world.sample_free(rng, world.goal, 0.4)
+        angles = rng.uniform(-math.pi, math.pi, 8)
+        ours = world.ray_distances(x, y, angles, 12.0)
+        for a, expected in zip(angles, ours, strict=True):
+            ray = np.array([math.cos(a), math.sin(a), 0.0])
+            dist = mujoco.mj_ray(m, d_, np.array([x, y, 0.3]), ray, scenery, 1, -1, geom)
+            assert (dist if 0 <= dist <= 12.0 else 12.0) == pytest.approx(expected, abs=1e-6)
+
+
 def test_moon_has_terrain_steep_enough_to_flip() -> None:
     world = make_world("moon")
     hf = world.heightfield

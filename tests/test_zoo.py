@@ -33,6 +33,7 @@ from rover_train.zoo.agent import (
     HEADING_BINS,
     HISTORY_STEPS,
     LIDAR_CLIP,
+    FeatureSpec,
     ObsHistory,
     _scan_geometry,
     action_classes,
@@ -40,6 +41,7 @@ from rover_train.zoo.agent import (
     depth_scan,
     encode_action,
     state_features,
+    unmapped_scan,
 )
 from rover_train.zoo_eval import RandomAgent, evaluate_agent
 
@@ -53,8 +55,11 @@ def test_the_zoo_ships_the_four_entries_in_a_few_megabytes() -> None:
     for name in zoo.names():
         assert "rover_train.distill" in zoo.command(name) and name in zoo.command(name)
         # the file holds as many students as its command makes
-        net = zoo.load(name).net
+        agent = zoo.load(name)
+        net = agent.net
         assert len(getattr(net, "members", [net])) == zoo.ENTRIES[name].members
+        # ... and sees what its command's students see
+        assert agent.spec.unmapped_scan == zoo.ENTRIES[name].unmapped_scan
 
 
 def test_an_unknown_entry_names_the_ones_there_are() -> None:
@@ -394,6 +399,61 @@ def test_stage1_scan_shows_a_pedestrian_stood_ahead_in_the_middle_bands() -> Non
         assert spec.state_dim == len(state_features(seen, spec, ObsHistory(spec)))
     finally:
         env.close()
+
+
+def test_unmapped_scan_marks_a_pedestrian_and_not_the_maze_walls() -> None:
+    """A LIDAR student's unmapped scan: with the pedestrians away it marks nothing, walls
+    included, from poses all over the maze; a pedestrian stood 1.5 m ahead is marked in the
+    points ahead at its range (less its half width), and nowhere else."""
+    env = make_training_env("lidar", "maze")
+    try:
+        env.reset(seed=3)
+        sim, base = env.unwrapped.sim, env.unwrapped
+        world = base.world
+        for i in range(len(sim.pedestrian_positions)):
+            sim.place_pedestrian(i, 40.0, 40.0 + i, 0.0)
+
+        def observe(x: float, y: float, yaw: float) -> dict[str, np.ndarray]:
+            return {
+                "pose": np.array([x, y, 0.0], np.float32),
+                "imu": np.array([0.0, 0.0, yaw], np.float32),
+                "velocities": np.zeros(2, np.float32),
+                "lidar": sim.lidar(base.lidar_points, base.max_lidar_range),
+            }
+
+        rng = np.random.default_rng(0)
+        for _ in range(30):
+            x, y = world.sample_free(rng, world.goal, 0.4)
+            yaw = float(rng.uniform(-math.pi, math.pi))
+            sim.set_rover_pose(x, y, yaw)
+            np.testing.assert_array_equal(unmapped_scan(observe(x, y, yaw), "maze"), 1.0)
+        # facing +x from (-3, 0): the open corridor reaches the wall x = 0 (2.9 m)
+        sim.set_rover_pose(-3.0, 0.0, 0.0)
+        assert np.all(unmapped_scan(observe(-3.0, 0.0, 0.0), "maze") == 1.0)
+        sim.place_pedestrian(0, -1.5, 0.0, 0.0)
+        scan = unmapped_scan(observe(-3.0, 0.0, 0.0), "maze") * LIDAR_CLIP
+        ahead = base.lidar_points // 2  # the points either side of the heading
+        assert 1.1 < scan[ahead - 1 : ahead + 1].min() < 1.5
+        assert np.count_nonzero(scan < LIDAR_CLIP) <= 3
+    finally:
+        env.close()
+
+
+def test_unmapped_scan_is_a_lidar_students_and_needs_its_world() -> None:
+    env = make_training_env("lidar", "maze")
+    try:
+        plain = feature_spec("lidar", "maze", env)
+        spec = feature_spec("lidar", "maze", env, unmapped_scan=True)
+        assert spec.world == "maze" and spec.scan_points == spec.lidar_points == 32
+        assert spec.state_dim == plain.state_dim + 2 * 32  # the scan, and its change
+        obs, _ = env.reset(seed=1)
+        assert spec.state_dim == len(state_features(obs, spec, ObsHistory(spec)))
+        # a fused student has no LIDAR: the flag is dropped, not refused
+        assert not feature_spec("fused", "maze", env, unmapped_scan=True).unmapped_scan
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="unmapped_scan needs"):
+        FeatureSpec(centre=(0.0, 0.0), scale=4.0, lidar_points=32, unmapped_scan=True)
 
 
 def test_sample_weight_counts_pedestrians_within_two_metres_only() -> None:

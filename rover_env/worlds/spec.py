@@ -197,6 +197,39 @@ class WorldSpec:
             best = np.minimum(best, d.min(axis=-1))
         return best
 
+    def ray_distances(self, x: float, y: float, angles: np.ndarray, max_range: float) -> np.ndarray:
+        """Distance along each ray from (x, y) at ``angles`` (rad, world frame) to the first
+        obstacle footprint it meets, ``max_range`` where it meets none within that (0 from
+        inside one). A level 2D cast against the footprints: what a planar LIDAR sees of
+        the scenery, without the pedestrians."""
+        angles = np.asarray(angles, dtype=float)
+        dx, dy = np.cos(angles)[:, None], np.sin(angles)[:, None]
+        best = np.full(angles.shape, float(max_range))
+        circles, boxes = self._footprints
+        if len(circles):
+            ox, oy = x - circles[:, 0], y - circles[:, 1]
+            b = ox * dx + oy * dy
+            c = ox**2 + oy**2 - circles[:, 2] ** 2
+            disc = b**2 - c
+            with np.errstate(invalid="ignore"):
+                t = np.where(c <= 0.0, 0.0, -b - np.sqrt(disc))
+            t = np.where((disc >= 0.0) & (t >= 0.0), t, np.inf)
+            best = np.minimum(best, t.min(axis=1))
+        if len(boxes):
+            co, si = boxes[:, 4], boxes[:, 5]
+            ox, oy = x - boxes[:, 0], y - boxes[:, 1]
+            lx, ly = co * ox + si * oy, -si * ox + co * oy  # origin in each box's frame
+            ldx, ldy = co * dx + si * dy, -si * dx + co * dy  # directions likewise
+            ldx = np.where(np.abs(ldx) < 1e-12, 1e-12, ldx)
+            ldy = np.where(np.abs(ldy) < 1e-12, 1e-12, ldy)
+            tx1, tx2 = (-boxes[:, 2] - lx) / ldx, (boxes[:, 2] - lx) / ldx
+            ty1, ty2 = (-boxes[:, 3] - ly) / ldy, (boxes[:, 3] - ly) / ldy
+            near = np.maximum(np.minimum(tx1, tx2), np.minimum(ty1, ty2))
+            far = np.minimum(np.maximum(tx1, tx2), np.maximum(ty1, ty2))
+            t = np.where((near <= far) & (far >= 0.0), np.maximum(near, 0.0), np.inf)
+            best = np.minimum(best, t.min(axis=1))
+        return best
+
     def clearance(self, x: float, y: float) -> float:
         """Distance from (x, y) to the nearest obstacle footprint (inf with none)."""
         return float(self.clearance_many(np.array(x), np.array(y)))
