@@ -10,6 +10,9 @@ and its weights. Its features:
   routing);
 - yaw (cos, sin), pitch, roll, the target's distance and bearing (cos, sin), odometry;
 - ``lidar`` (LIDAR students): ranges clipped to ``LIDAR_CLIP`` m, scaled to [0, 1];
+- ``unmapped_scan`` (lidar-maze since 2026-11-25): the same ranges kept only where a return
+  falls short of the world's map (:func:`unmapped_scan`), so that a pedestrian standing
+  still does not look like the scenery;
 - with ``FeatureSpec.history`` (the current entries), what one observation cannot show,
   kept by the agent between steps (:class:`ObsHistory`, cleared by ``reset()``): whether
   ``HISTORY_STEPS`` (2 s) of the episode have been seen, how much nearer the goal is than
