@@ -2,7 +2,7 @@
 
     python benchmarks/learning.py                      # lidar: 3 seeds x 100k steps; fused: 2 x 20k
     python benchmarks/learning.py --lidar-steps 30000 --seeds 1 --fused-steps 0   # quick look
-    python benchmarks/learning.py --curves --world maze --budget 30000 --points 3 --episodes 10
+    python benchmarks/learning.py --curves --world maze --budget 160000 --points 8 --episodes 30
 
 ``--curves`` trains, in one run and with the same env-step budget on RoverEnv, the zoo's
 recipe (DAgger from the planner expert, ``rover_train.distill``) and rover-train's PPO
@@ -107,23 +107,34 @@ def _zoo_eval(env: object, act: object, episodes: int) -> dict:
 
 
 def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[dict]:
-    from rover_train.distill import DAggerConfig, feature_spec, make_training_env, run_dagger
-    from rover_train.zoo import StudentAgent, StudentNet
+    """One student of the zoo's LIDAR entry for ``world`` made as its command makes each
+    member (its teacher's manners, its features), evaluated after each round."""
+    from rover_train.distill import (
+        DAggerConfig,
+        feature_spec,
+        make_training_env,
+        run_dagger,
+        teacher_manners_for,
+    )
+    from rover_train.zoo import ENTRIES, StudentAgent, StudentNet
 
+    entry = ENTRIES[f"lidar-{world}"]
     env = make_training_env("lidar", world)
     eval_env = make_env("lidar", world=world)
     rows: list[dict] = []
     history: list[dict] = []
     try:
-        agent = StudentAgent(StudentNet(feature_spec("lidar", world, env)))
+        spec = feature_spec("lidar", world, env, unmapped_scan=entry.unmapped_scan)
+        agent = StudentAgent(StudentNet(spec))
 
         def on_round(steps: int, student: StudentAgent) -> None:
             s = _zoo_eval(eval_env, student.act, episodes)
             rows.append({"steps": steps, **s})
 
         cfg = DAggerConfig(
-            iterations=points, steps=budget // points, epochs=8, status_every=30.0,
+            iterations=points, steps=budget // points, status_every=30.0,
             synthetic_goals=150, synthetic_per_goal=200,
+            teacher_manners=teacher_manners_for("lidar"),
         )  # fmt: skip
         run_dagger(env, world, agent, cfg, "curve dagger", history, on_round)
     finally:
@@ -142,7 +153,7 @@ def curve_ppo(world: str, budget: int, points: int, episodes: int) -> list[dict]
     with tempfile.TemporaryDirectory() as tmp:
         args = TrainArgs(
             env="lidar", world=world, timesteps=budget, logdir=Path(tmp), checkpoint_every=0,
-            progress=False, length=1000, n_envs=4,
+            progress=False, length=1000, slots=4,
         )  # fmt: skip
         venv = build_vec_env(args, Path(tmp))
         try:

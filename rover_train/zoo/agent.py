@@ -207,8 +207,9 @@ def unmapped_scan(obs: dict[str, np.ndarray], world: str) -> np.ndarray:
     step, ``PHYSICS_DT`` before ``obs["pose"]`` (up to 0.1 rad behind when turning fast), so
     the map is cast from there, dead-reckoned back with the odometry, and at
     ``UNMAPPED_YAW_SPREAD`` either side (the nearest kept): on random driving 0.5 % of the
-    scenery's returns within ``LIDAR_CLIP`` are then marked in the maze (11 % without
-    going back), and 96 % of the pedestrians'. Assumes a level rover (the flat worlds).
+    scenery's returns within ``LIDAR_CLIP`` are then marked in the maze (11 % cast from
+    ``obs["pose"]`` as it is), and 96 % of the pedestrians'. Assumes a level rover (the
+    flat worlds).
     """
     lidar = np.asarray(obs["lidar"], dtype=np.float32)
     angles, per_point = _lidar_layout(len(lidar))
