@@ -10,7 +10,9 @@ JSON object with the keys ``iou``, ``recall``, ``false_positive_rate``, ``abs_re
 sequences (:mod:`active_vision.predict_train`) and adds ``predict_iou``,
 ``detect_baseline_iou`` and ``oracle_now_iou``, overall and in each ``per_world`` entry,
 and ``margin_interval``: the 90 % interval of predict - detect over bootstrap draws of whole
-episodes.
+episodes. ``--sweep 0.5,0.3,0.1`` also prints the heatmap figures (IoU, recall,
+false-positive frames) per world at each of those detection thresholds, from the same pass
+of the network: where a threshold other than 0.5 would put the operating point.
 
 Definitions (``THRESHOLD`` = 0.5, ``MIN_PEDESTRIAN_PX`` = 30, ``MIN_BLOB_PX`` = 5):
 
@@ -45,7 +47,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -145,11 +147,13 @@ def _blobs(binary: np.ndarray, min_px: int) -> np.ndarray:
     return np.where(keep[labels], labels, 0)
 
 
-def frame_counts(heat: np.ndarray, depth_ch: np.ndarray, gt_mask: np.ndarray,
-                 gt_depth: np.ndarray) -> _Counts:
-    """Counts for one frame (heatmap and depth channel predicted; mask and metres true)."""
+def frame_counts(heat: np.ndarray, depth_ch: np.ndarray | None, gt_mask: np.ndarray,
+                 gt_depth: np.ndarray, threshold: float = THRESHOLD) -> _Counts:
+    """Counts for one frame (heatmap and depth channel predicted; mask and metres true); a
+    heatmap pixel is a detection at ``threshold`` or above. Without ``depth_ch``, the
+    heatmap's counts only."""
     c = _Counts(frames=1)
-    pred = heat >= THRESHOLD
+    pred = heat >= threshold
     c.inter = int(np.count_nonzero(pred & gt_mask))
     c.union = int(np.count_nonzero(pred | gt_mask))
     det = _blobs(pred, MIN_BLOB_PX) > 0
@@ -163,6 +167,8 @@ def frame_counts(heat: np.ndarray, depth_ch: np.ndarray, gt_mask: np.ndarray,
         if ids.size:
             hit = np.unique(peds[det & (peds > 0)])
             c.peds_hit = int(hit.size)
+    if depth_ch is None:
+        return c
     finite = np.isfinite(gt_depth) & (gt_depth > 0)
     near = finite & (gt_depth < NEAR_DEPTH_M)
     if near.any():
@@ -195,25 +201,59 @@ def _figures(c: _Counts) -> dict[str, float]:
     }
 
 
-def evaluate(model: AVNet, data: Dataset, *, batch: int = 32, threads: int | None = None
-             ) -> Metrics:
-    """Run ``model`` through :class:`Perception` on ``data`` and compute :class:`Metrics`."""
+def _fused_frames(model: AVNet, data: Dataset, batch: int,
+                  threads: int | None) -> Iterator[tuple[int, np.ndarray]]:
+    """(index, fused frame) of every frame of ``data``, through :class:`Perception` as the
+    daemon runs it."""
     perception = Perception(PerceptionConfig(size=data.rgb.shape[1], threads=threads,
                                              max_batch=batch), model=model)
-    total = _Counts()
-    per_world = {w: _Counts() for w in data.worlds}
     for start in range(0, len(data), batch):
         fused = perception(data.rgb[start:start + batch])
         for j in range(fused.shape[0]):
-            i = start + j
-            c = frame_counts(fused[j, :, :, CHANNEL_HEATMAP], fused[j, :, :, CHANNEL_DEPTH],
-                             data.mask[i], data.depth[i])
-            total.add(c)
-            per_world[data.worlds[int(data.world[i])]].add(c)
+            yield start + j, fused[j]
+
+
+def evaluate(model: AVNet, data: Dataset, *, batch: int = 32, threads: int | None = None
+             ) -> Metrics:
+    """Run ``model`` through :class:`Perception` on ``data`` and compute :class:`Metrics`."""
+    total = _Counts()
+    per_world = {w: _Counts() for w in data.worlds}
+    for i, fused in _fused_frames(model, data, batch, threads):
+        c = frame_counts(fused[:, :, CHANNEL_HEATMAP], fused[:, :, CHANNEL_DEPTH],
+                         data.mask[i], data.depth[i])
+        total.add(c)
+        per_world[data.worlds[int(data.world[i])]].add(c)
     f = {k: v for k, v in _figures(total).items() if k in TARGETS or k == "abs_rel_near"}
     return Metrics(**f, frames=len(data), pedestrians=total.peds,
                    empty_frames=total.empty_frames,
                    per_world={w: _figures(c) for w, c in per_world.items() if c.frames})
+
+
+SWEEP_KEYS = ("iou", "recall", "false_positive_rate")
+
+
+def threshold_sweep(model: AVNet, data: Dataset, thresholds: Sequence[float], *,
+                    batch: int = 32, threads: int | None = None
+                    ) -> dict[float, dict[str, dict[str, float]]]:
+    """The heatmap figures (``SWEEP_KEYS``) per world at each detection threshold, from one
+    pass of ``model`` over ``data``: ``{threshold: {world: {figure: value}}}``."""
+    counts = {t: {w: _Counts() for w in data.worlds} for t in thresholds}
+    for i, fused in _fused_frames(model, data, batch, threads):
+        world = data.worlds[int(data.world[i])]
+        for t in thresholds:
+            counts[t][world].add(frame_counts(fused[:, :, CHANNEL_HEATMAP], None,
+                                              data.mask[i], data.depth[i], t))
+    return {t: {w: {k: _figures(c)[k] for k in SWEEP_KEYS} for w, c in per.items() if c.frames}
+            for t, per in counts.items()}
+
+
+def format_sweep(sweep: dict[float, dict[str, dict[str, float]]]) -> str:
+    lines = ["detection threshold sweep (heatmap figures per world):",
+             f"  {'threshold':>9} {'world':<8} " + " ".join(f"{k[:12]:>12}" for k in SWEEP_KEYS)]
+    for t, per in sweep.items():
+        for w, f in per.items():
+            lines.append(f"  {t:9.2f} {w:<8} " + " ".join(f"{f[k]:12.4f}" for k in SWEEP_KEYS))
+    return "\n".join(lines)
 
 
 def heldout(data_dir: Path = DEFAULT_DATA_DIR, frames: int = HELDOUT_FRAMES,
@@ -255,6 +295,19 @@ def _json_safe(obj: object) -> object:
     return obj
 
 
+def _thresholds(text: str) -> list[float]:
+    """``--sweep``'s comma-separated thresholds, each in (0, 1)."""
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a comma-separated list of numbers (e.g. 0.5,0.3,0.1)"
+        ) from None
+    if not values or not all(0.0 < v < 1.0 for v in values):
+        raise argparse.ArgumentTypeError(f"thresholds must be in (0, 1), got {text!r}")
+    return values
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m active_vision.evaluate",
                                 description="Heatmap and depth quality on the held-out split.")
@@ -270,6 +323,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="predict: also evaluate the predictive heatmap (future occupancy)")
     p.add_argument("--predict-weights", type=Path, default=None,
                    help="predictor weights (default: the shipped predict.pt)")
+    p.add_argument("--sweep", type=_thresholds, default=None, metavar="T1,T2,...",
+                   help="also print IoU, recall and false-positive frames per world at each "
+                   "of these detection thresholds (in (0, 1))")
     p.add_argument("--log-level", default="WARNING")
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
@@ -277,6 +333,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     model = load_model(args.weights)
     m = evaluate(model, data, threads=args.threads)
     print(format_metrics(m))
+    if args.sweep:
+        print(format_sweep(threshold_sweep(model, data, args.sweep, threads=args.threads)))
     out: dict[str, object] = {**m.summary(), "frames": m.frames, "pedestrians": m.pedestrians,
                               "empty_frames": m.empty_frames, "abs_rel_near": m.abs_rel_near,
                               "worst": m.worst(),

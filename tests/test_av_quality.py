@@ -146,6 +146,33 @@ def test_evaluate_reports_near_pixels_apart() -> None:
     assert f["abs_rel"] == pytest.approx(0.0, abs=1e-3)  # the 0.3-10 m pixels are exact
 
 
+def test_a_lower_threshold_finds_a_faint_figure_and_the_sweep_reports_it(
+    heldout: ds.Dataset, capsys
+) -> None:
+    """``frame_counts`` detects at its ``threshold``: a figure the heatmap marks at 0.3 is
+    missed at 0.5 and found at 0.2. ``threshold_sweep`` at 0.5 gives the evaluation's own
+    heatmap figures, and a lower threshold never finds fewer figures; ``--sweep`` refuses a
+    threshold outside (0, 1)."""
+    from active_vision.evaluate import _figures, frame_counts, threshold_sweep
+
+    mask = np.zeros((16, 16), bool)
+    mask[4:12, 5:10] = True  # 40 px: a pedestrian for recall
+    heat = np.where(mask, 0.3, 0.0).astype(np.float32)
+    depth = np.full((16, 16), np.inf, np.float32)
+    assert _figures(frame_counts(heat, None, mask, depth))["recall"] == 0.0
+    assert _figures(frame_counts(heat, None, mask, depth, 0.2))["recall"] == 1.0
+    model = load_model()
+    m = evaluate(model, heldout, threads=1)
+    sweep = threshold_sweep(model, heldout, [0.5, 0.1], threads=1)
+    for w, f in m.per_world.items():
+        for k in ("iou", "recall", "false_positive_rate"):
+            assert sweep[0.5][w][k] == pytest.approx(f[k], nan_ok=True)
+        assert sweep[0.1][w]["recall"] >= sweep[0.5][w]["recall"]
+    with pytest.raises(SystemExit):
+        evaluate_main(["--sweep", "0.5,1.5"])
+    assert "thresholds must be in (0, 1)" in capsys.readouterr().err
+
+
 def test_small_figures_weigh_more_in_the_heatmap_loss() -> None:
     from active_vision.train import (
         POSITIVE_WEIGHT,
