@@ -29,6 +29,20 @@ def ms_per_act(agent: StudentAgent, obs: dict, acts: int) -> float:
     return (time.perf_counter() - t) / acts * 1e3
 
 
+def first_obs(name: str) -> dict:
+    """The first observation of entry ``name``'s first evaluation episode."""
+    env = zoo.make_env(name)
+    obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+    env.close()
+    return obs
+
+
+def alternated(a: StudentAgent, b: StudentAgent, obs: dict, acts: int,
+               repeats: int) -> list[tuple[float, float]]:
+    """ms per act of ``a`` and of ``b`` on ``obs``, alternated ``repeats`` times."""
+    return [(ms_per_act(a, obs, acts), ms_per_act(b, obs, acts)) for _ in range(repeats)]
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--threads", type=int, default=1)
@@ -47,11 +61,7 @@ def main() -> None:
         net = entry.net
         members = net.members if isinstance(net, EnsembleNet) else [net]
         one = StudentAgent(members[0], entry.meta)
-        env = zoo.make_env(name)
-        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
-        env.close()
-        for _ in range(a.repeats):
-            full, single = ms_per_act(entry, obs, a.acts), ms_per_act(one, obs, a.acts)
+        for full, single in alternated(entry, one, first_obs(name), a.acts, a.repeats):
             print(f"| {name} | {len(members)} | {full:.3f} | {single:.3f} | {full / single:.1f} |")
     if a.against:
         print("\n| entry | ms per act (entry) | file | ms per act (file) | ratio |")
@@ -61,12 +71,8 @@ def main() -> None:
         name = other.meta.get("name", "")
         if name not in zoo.ENTRIES or zoo.ENTRIES[name].kind != "lidar":
             raise SystemExit(f"{path} is not a file of a LIDAR zoo entry (its name: {name!r})")
-        entry = zoo.load(name)
-        env = zoo.make_env(name)
-        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
-        env.close()
-        for _ in range(a.repeats):
-            new, old = ms_per_act(entry, obs, a.acts), ms_per_act(other, obs, a.acts)
+        pairs = alternated(zoo.load(name), other, first_obs(name), a.acts, a.repeats)
+        for new, old in pairs:
             print(f"| {name} | {new:.3f} | {path.name} | {old:.3f} | {new / old:.2f} |")
 
 
