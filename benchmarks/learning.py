@@ -107,8 +107,8 @@ def _zoo_eval(env: object, act: object, episodes: int) -> dict:
 
 
 def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[dict]:
-    """One student of the zoo's LIDAR entry for ``world`` made as its command makes each
-    member (its teacher's manners, its features), evaluated after each round."""
+    """One student of the zoo's LIDAR entry for ``world`` made as its command makes its first
+    member (seed 0, its teacher's manners, its features), evaluated after each round."""
     from rover_train.distill import (
         DAggerConfig,
         feature_spec,
@@ -124,6 +124,9 @@ def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[di
     rows: list[dict] = []
     history: list[dict] = []
     try:
+        import torch
+
+        torch.manual_seed(0)  # as distill seeds a member (seed 0) before building it
         spec = feature_spec("lidar", world, env, unmapped_scan=entry.unmapped_scan)
         agent = StudentAgent(StudentNet(spec))
 
