@@ -8,6 +8,7 @@ group 2 (no collision), so the LIDAR (groups 0 and 1) never sees the rover itsel
 
 from __future__ import annotations
 
+import functools
 import math
 
 import mujoco
@@ -156,6 +157,18 @@ def wheel_odometry(wheel_speeds: np.ndarray) -> tuple[float, float]:
     return 0.5 * (left + right), (right - left) / EFFECTIVE_TRACK
 
 
+@functools.cache
+def lidar_ray_angles(n_points: int) -> tuple[np.ndarray, int]:
+    """The LIDAR's raw rays for ``n_points`` points (see :class:`Lidar`): their angles in the
+    rover's frame (rad, from -pi counter-clockwise) and how many consecutive rays each point
+    is the minimum of. A read-only array, shared."""
+    per_point = max(1, math.ceil(LIDAR_RAW_RAYS / n_points))
+    n_rays = n_points * per_point
+    angles = -math.pi + (np.arange(n_rays) + 0.5) * (2 * math.pi / n_rays)
+    angles.setflags(write=False)
+    return angles, per_point
+
+
 class Lidar:
     """Planar LIDAR by ray casting from the ``lidar`` site, in the rover's frame.
 
@@ -180,9 +193,8 @@ class Lidar:
         self._model, self._data = model, data
         self.n_points = int(n_points)
         self.max_range = float(max_range)
-        self.rays_per_point = max(1, math.ceil(LIDAR_RAW_RAYS / self.n_points))
-        self.n_rays = self.n_points * self.rays_per_point
-        angles = -math.pi + (np.arange(self.n_rays) + 0.5) * (2 * math.pi / self.n_rays)
+        angles, self.rays_per_point = lidar_ray_angles(self.n_points)
+        self.n_rays = len(angles)
         self._local = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
         self._vec = np.zeros((self.n_rays, 3))
         self._dist = np.zeros(self.n_rays)
