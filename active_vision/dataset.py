@@ -64,6 +64,11 @@ logger = logging.getLogger(__name__)
 WORLDS: tuple[str, ...] = ("inspect", "moon", "maze")
 TRAIN_SEED = 0
 HELDOUT_SEED = 1_000_003
+VALIDATION_SEED = 2_000_003
+"""Seed of the validation splits (neither training nor held-out): for choosing between
+trained networks (options, epochs, seeds) without looking at the figures reported."""
+SPLIT_SEEDS = {"heldout": HELDOUT_SEED, "validation": VALIDATION_SEED}
+"""The evaluation splits by name: the figures reported, and the one to choose on."""
 DATASET_VERSION = 5
 """Part of the cache file name: bump it when rendering changes, so stale files are not reused
 (5: the moon's ground texture, 2026-11-25)."""

@@ -45,7 +45,7 @@ import torch.nn.functional as F
 
 from active_vision.dataset import (
     DEFAULT_DATA_DIR,
-    HELDOUT_SEED,
+    SPLIT_SEEDS,
     TRAIN_SEED,
     WORLDS,
     DatasetConfig,
@@ -71,11 +71,6 @@ HELDOUT_EPISODES = 180
 world (the first 60, until 2026-11-25) the maze's predict - detect margin read +0.069 on the
 held-out episodes and -0.011 on the validation ones, +0.198 and +0.110 with 60 per world: a
 few episodes of a pedestrian standing in front of the rover decided the figure."""
-VALIDATION_SEED = 2_000_003
-"""Seed of the validation episodes (``--split validation``): neither training nor held-out,
-for choosing between predictors (epochs, seeds, initialisations) without looking at the
-figures reported."""
-SPLIT_SEEDS = {"heldout": HELDOUT_SEED, "validation": VALIDATION_SEED}
 BOOTSTRAP_RESAMPLES = 2000
 """Bootstrap draws of episodes behind ``margin_interval``."""
 

@@ -2,15 +2,14 @@
 
     python -m active_vision.train [--data FILE] [--frames N] [--epochs E] [--threads 2]
 
-One network (:class:`~active_vision.models.AVNet`) serves both fused channels, so ``both``
-trains it on the sum of the two losses. ``heatmap`` and ``depth`` are accepted too and train
-the same joint model (the daemon needs both heads from one file); they say so in a log line.
+One network (:class:`~active_vision.models.AVNet`) serves both fused channels (the daemon
+needs both heads from one file), so it is trained on the sum of the two losses.
 
 Without ``--data`` the training split (``dataset.TRAIN_SEED``, 20,000 frames, 70 % recorded
 while driving, random pedestrian appearance, half of them in inspect) is rendered into
 ``--data-dir`` on first use (about two minutes) and reused afterwards. CPU only,
-``--threads`` torch threads (default 2): the default 25 epochs take about 30 min on a quiet
-2-core machine (70 s an epoch). The
+``--threads`` torch threads (default 2): the default 30 epochs take about 38 min on a
+2-core machine (75 s an epoch). The
 training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
 ``--resume`` continues an interrupted run. Writes ``active_vision/weights/avnet.pt`` (or
 ``--out``) with the held-out figures (driving split) of the result stored in its ``meta``.
@@ -31,8 +30,9 @@ Losses:
   only need to read as "at or beyond the limit" (channel 0); pedestrian pixels count
   ``1 + PEDESTRIAN_DEPTH_WEIGHT`` times.
 
-Augmentation: horizontal flip (image, mask and depth together), brightness, contrast,
-per-channel gain and pixel noise.
+Augmentation: copy-paste of pedestrians between the frames of a batch, occluded by what
+is nearer (:func:`paste_figures`, half of the frames), horizontal flip (image, mask and
+depth together), brightness, contrast, per-channel gain and pixel noise.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -65,6 +65,7 @@ from active_vision.models import (
     MIN_DEPTH_M,
     AVNet,
     AVNetConfig,
+    load_model,
 )
 from active_vision.models import save_weights as _save
 from shm_protocol import DEPTH_MAX_M
@@ -82,6 +83,14 @@ SMALL_FIGURE_PX = 200
 """A pedestrian (8-connected mask component) smaller than this gets its pixels' heatmap weight
 raised by ``sqrt(SMALL_FIGURE_PX / pixels)``, at most ``SMALL_FIGURE_MAX_BOOST`` times."""
 SMALL_FIGURE_MAX_BOOST = 3.0
+DEPTH_WORLD_WEIGHTS: dict[str, float] = {}
+"""Depth-loss weight of a world's frames by name (a world not named: 1). None by default:
+weighting the moon's frames 3 times (its depth is the worst world's) moved its delta1 by
+less than run-to-run noise in a fine-tune (benchmarks/RESULTS.md)."""
+PASTE_PROB = 0.5
+"""Share of training frames that receive another frame's pedestrians (:func:`paste_figures`)."""
+PASTE_MAX_SHIFT = 40
+"""Most columns a pasted figure is moved sideways."""
 TRAIN_WORLDS: tuple[str, ...] = ("inspect", "moon", "maze", "inspect")
 """The training split's world cycle: inspect twice, as the world with the most pedestrians
 missed (its panel rows hide and shade them; recall 0.84 there against 0.96-0.98 elsewhere
@@ -101,7 +110,7 @@ class TrainConfig:
     worlds: tuple[str, ...] = TRAIN_WORLDS
     """Worlds to render the training split from, cycled episode by episode and frame by
     frame (a name twice gets twice the frames)."""
-    epochs: int = 25
+    epochs: int = 30
     """Passes over the training data."""
     batch: int = 32
     """Frames per optimiser step."""
@@ -121,6 +130,14 @@ class TrainConfig:
     """Channels of the network's full-resolution stage (0: none)."""
     small_figure_boost: bool = True
     """Weight small figures' pixels up (``SMALL_FIGURE_PX``) in the heatmap loss."""
+    paste_prob: float = PASTE_PROB
+    """Copy-paste augmentation: share of frames that receive another frame's pedestrians
+    (:func:`paste_figures`; 0 turns it off)."""
+    depth_world_weights: dict[str, float] = field(
+        default_factory=lambda: dict(DEPTH_WORLD_WEIGHTS))
+    """Depth-loss weight of each world's frames (a world not named: 1)."""
+    init: Path | None = None
+    """Start from these AVNet weights (same widths) instead of random ones: a fine-tune."""
     evaluate: bool = True
     """Evaluate on the held-out split after training and store the figures in the file."""
     checkpoint: Path | None = None
@@ -130,9 +147,63 @@ class TrainConfig:
     """Continue from ``checkpoint`` if it exists (same data and options)."""
 
 
-def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
-             gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _shift_columns(t: torch.Tensor, shift: int) -> torch.Tensor:
+    """``t`` (``(..., W)``) moved ``shift`` columns right (left if negative), zero-filled."""
+    if shift == 0:
+        return t
+    out = torch.zeros_like(t)
+    if shift > 0:
+        out[..., shift:] = t[..., :-shift]
+    else:
+        out[..., :shift] = t[..., -shift:]
+    return out
+
+
+def paste_figures(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
+                  gen: torch.Generator, prob: float = PASTE_PROB
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Copy-paste augmentation: with probability ``prob`` a frame receives the pedestrians
+    of another frame of the batch, moved sideways by up to ``PASTE_MAX_SHIFT`` columns.
+
+    A pasted pixel replaces the frame's pixel only where the figure is nearer than what the
+    frame shows there (its true depth), so nearer panels and walls still hide it, and the
+    mask and the depth take the figure's values: the image, the mask and the depth stay
+    consistent. Rows are kept, so a figure stands on the same image row (about the same
+    ground distance) as in its own frame. Returns new tensors; the inputs are unchanged.
+
+    Why: on driving frames the network missed figures standing in front of inspect's
+    structures (a grey figure before a pink wall, a dark one before a green box) while it
+    found the same figures against the ground or the sky; pasting puts figures in front of
+    every kind of background the worlds have.
+    """
     n = x.shape[0]
+    use = torch.rand(n, generator=gen) < prob
+    donors = torch.randint(0, n, (n,), generator=gen)
+    shifts = torch.randint(-PASTE_MAX_SHIFT, PASTE_MAX_SHIFT + 1, (n,), generator=gen)
+    x, mask, depth = x.clone(), mask.clone(), depth.clone()
+    has_figure = mask.flatten(1).amax(dim=1) > 0.5
+    for i in torch.nonzero(use).flatten().tolist():
+        j = int(donors[i])
+        if j == i or not bool(has_figure[j]):
+            continue
+        s = int(shifts[i])
+        d_mask = _shift_columns(mask[j], s) > 0.5
+        d_depth = _shift_columns(depth[j], s)
+        put = d_mask & (d_depth < depth[i])
+        if not bool(put.any()):
+            continue
+        x[i] = torch.where(put, _shift_columns(x[j], s), x[i])
+        mask[i] = torch.where(put, torch.ones_like(mask[i]), mask[i])
+        depth[i] = torch.where(put, d_depth, depth[i])
+    return x, mask, depth
+
+
+def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
+             gen: torch.Generator, paste_prob: float = 0.0
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    n = x.shape[0]
+    if paste_prob > 0.0:
+        x, mask, depth = paste_figures(x, mask, depth, gen, paste_prob)
     flip = torch.rand(n, generator=gen) < 0.5
     x = torch.where(flip.view(n, 1, 1, 1), x.flip(-1), x)
     mask = torch.where(flip.view(n, 1, 1, 1), mask.flip(-1), mask)
@@ -171,9 +242,11 @@ def figure_weights(mask: torch.Tensor, small_boost: bool = True) -> torch.Tensor
 
 
 def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
-           heat_weight: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+           heat_weight: torch.Tensor, depth_weight: torch.Tensor | None = None
+           ) -> tuple[torch.Tensor, torch.Tensor]:
     """(heatmap loss, depth loss) for logits ``(N, 2, H, W)``, mask and metres ``(N,1,H,W)``,
-    with per-pixel cross-entropy weights ``heat_weight`` (:func:`figure_weights`)."""
+    with per-pixel cross-entropy weights ``heat_weight`` (:func:`figure_weights`) and
+    optional per-frame depth-loss weights ``depth_weight`` ``(N,)``."""
     heat_logit = logits[:, HEAD_HEATMAP:HEAD_HEATMAP + 1]
     bce = F.binary_cross_entropy_with_logits(heat_logit, mask, weight=heat_weight)
     prob = torch.sigmoid(heat_logit)
@@ -190,8 +263,10 @@ def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
     per_px = torch.where(near, (log_d - torch.log(depth_m.clamp(min=MIN_DEPTH_M))).abs(),
                          F.relu(far_log - log_d))
     # pedestrians are few pixels but the ones whose distance matters most
-    depth = (per_px * (1.0 + PEDESTRIAN_DEPTH_WEIGHT * mask)).mean()
-    return heat, depth
+    per_px = per_px * (1.0 + PEDESTRIAN_DEPTH_WEIGHT * mask)
+    if depth_weight is not None:
+        per_px = per_px * depth_weight.view(-1, 1, 1, 1)
+    return heat, per_px.mean()
 
 
 def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[str, float]]:
@@ -208,7 +283,18 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
     depth_m = torch.from_numpy(np.nan_to_num(data.depth, nan=1e3, posinf=1e3)).unsqueeze(1)
     depth_m = depth_m.clamp(min=1e-3)
     n = rgb.shape[0]
+    frame_depth_weight = torch.tensor(
+        [cfg.depth_world_weights.get(w, 1.0) for w in data.worlds], dtype=torch.float32
+    )[torch.from_numpy(data.world)]
     model = AVNet(AVNetConfig(widths=tuple(cfg.widths), full_res=cfg.full_res))
+    if cfg.init is not None:
+        start = load_model(cfg.init, fuse=False)
+        if start.config != model.config:
+            raise ValueError(f"--init {cfg.init} has widths {start.config.widths} and full_res "
+                             f"{start.config.full_res}, this run {model.config.widths} and "
+                             f"{model.config.full_res}: pass the same --widths/--full-res")
+        model.load_state_dict(start.state_dict())
+        logger.info("starting from %s", cfg.init)
     model.train()
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
     steps_per_epoch = math.ceil(n / cfg.batch)
@@ -240,8 +326,9 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
         for b in range(steps_per_epoch):
             idx = order[b * cfg.batch:(b + 1) * cfg.batch]
             x = rgb[idx].float() / 255.0
-            x, m, d = _augment(x, mask[idx], depth_m[idx], gen)
-            heat, dep = losses(model(x), m, d, figure_weights(m, cfg.small_figure_boost))
+            x, m, d = _augment(x, mask[idx], depth_m[idx], gen, cfg.paste_prob)
+            heat, dep = losses(model(x), m, d, figure_weights(m, cfg.small_figure_boost),
+                               frame_depth_weight[idx])
             loss = heat + dep
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -301,6 +388,14 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                    help="channels of the full-resolution stage (0: none, the v2 layout)")
     p.add_argument("--no-small-figure-boost", action="store_true",
                    help="weigh every pedestrian pixel alike in the heatmap loss")
+    p.add_argument("--paste-prob", type=float, default=d.paste_prob,
+                   help="share of frames that receive another frame's pedestrians (0: off)")
+    p.add_argument("--depth-world-weight", action="append", default=None, metavar="WORLD=W",
+                   help="depth-loss weight of a world's frames, repeatable (default: "
+                   + ",".join(f"{k}={v:g}" for k, v in DEPTH_WORLD_WEIGHTS.items())
+                   + "; WORLD=1 to weigh it like the others)")
+    p.add_argument("--init", type=Path, default=None,
+                   help="start from these weights (a fine-tune) instead of random ones")
     p.add_argument("--no-evaluate", action="store_true", help="skip the held-out evaluation")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="training state file, written every epoch (default: OUT.ckpt)")
@@ -308,6 +403,19 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                    help="continue from --checkpoint after an interruption")
     p.add_argument("--log-level", default="INFO")
     a = p.parse_args(argv)
+    if not 0.0 <= a.paste_prob <= 1.0:
+        p.error(f"--paste-prob {a.paste_prob}: give a share in [0, 1]")
+    weights = dict(DEPTH_WORLD_WEIGHTS)
+    for item in a.depth_world_weight or ():
+        world, _, value = item.partition("=")
+        try:
+            weights[world.strip()] = float(value)
+        except ValueError:
+            p.error(f"--depth-world-weight {item!r}: give WORLD=WEIGHT, e.g. moon=3")
+        if weights[world.strip()] < 0:
+            p.error(f"--depth-world-weight {item!r}: a weight cannot be negative")
+    if a.init is not None and not a.init.is_file():
+        p.error(f"--init {a.init}: no such weights file")
     if a.full_res < 0:
         p.error(f"--full-res {a.full_res}: give 0 (no full-resolution stage) or a channel count")
     logging.basicConfig(level=a.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
@@ -317,6 +425,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                        max_minutes=a.max_minutes, out=a.out,
                        widths=_widths(a.widths, p), full_res=a.full_res,
                        small_figure_boost=not a.no_small_figure_boost,
+                       paste_prob=a.paste_prob, init=a.init, depth_world_weights=weights,
                        evaluate=not a.no_evaluate,
                        checkpoint=a.checkpoint, resume=a.resume)
 

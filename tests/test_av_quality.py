@@ -15,7 +15,7 @@ import torch  # noqa: E402
 from active_vision import dataset as ds  # noqa: E402
 from active_vision.evaluate import Metrics, evaluate  # noqa: E402
 from active_vision.evaluate import main as evaluate_main  # noqa: E402
-from active_vision.models import AVNet, load_model, save_weights  # noqa: E402
+from active_vision.models import AVNet, AVNetConfig, load_model, save_weights  # noqa: E402
 from active_vision.train import TrainConfig, train  # noqa: E402
 
 TEST_SEED = 424_242  # neither the training nor the evaluation split
@@ -108,11 +108,16 @@ def test_train_and_evaluate_clis_run_end_to_end(tmp_path, heldout: ds.Dataset, c
     last = capsys.readouterr().out.strip().splitlines()[-1]
     figures = json.loads(last)
     assert {"iou", "recall", "false_positive_rate", "abs_rel", "delta1", "abs_rel_near",
-            "per_world", "worst"} <= figures.keys()
+            "per_world", "worst", "intervals"} <= figures.keys()
     assert set(figures["per_world"]) == set(ds.WORLDS)
     for w in ds.WORLDS:
         keys = figures["per_world"][w].keys()
         assert {"iou", "recall", "abs_rel", "delta1", "abs_rel_near"} <= keys
+    for w in ds.WORLDS:  # each world's figures lie inside its interval over episodes
+        for k in ("iou", "recall", "delta1"):
+            lo, hi = figures["intervals"][w][k]
+            v = figures["per_world"][w][k]
+            assert v is None or lo - 1e-9 <= v <= hi + 1e-9, (w, k, lo, v, hi)
     # the worst world is no better than the whole set
     assert figures["worst"]["iou"] <= figures["iou"] + 1e-9
     assert figures["worst"]["abs_rel"] >= figures["abs_rel"] - 1e-9
@@ -196,3 +201,120 @@ def test_small_figures_weigh_more_in_the_heatmap_loss() -> None:
     # without the boost every pedestrian pixel weighs POSITIVE_WEIGHT (the plain pos_weight)
     plain = figure_weights(mask, small_boost=False)
     assert torch.all(plain[mask == 1] == POSITIVE_WEIGHT) and torch.all(plain[mask == 0] == 1.0)
+
+
+def test_pasted_figures_are_hidden_by_what_is_nearer() -> None:
+    """Copy-paste moves a figure sideways into another frame: its pixels, mask and depth
+    where it is nearer than the frame, nothing where the frame is nearer (a wall in front),
+    and the inputs untouched."""
+    from active_vision.train import paste_figures
+
+    x = torch.zeros(2, 3, 8, 12)
+    mask = torch.zeros(2, 1, 8, 12)
+    depth = torch.full((2, 1, 8, 12), 1e3)
+    x[0, :, 2:6, 1:3] = 0.8  # frame 0: a figure at columns 1-2, 3 m away
+    mask[0, :, 2:6, 1:3] = 1
+    depth[0, :, 2:6, 1:3] = 3.0
+    wall = torch.ones(12, dtype=torch.bool)
+    wall[6:8] = False  # frame 1: a wall 1.5 m away with a gap at columns 6-7
+    depth[1, :, :, wall] = 1.5
+    x[1, :, :, wall] = 0.3
+    before = (x.clone(), mask.clone(), depth.clone())
+    # a generator whose draws give frame 1 frame 0's figure: find one by seed
+    for seed in range(200):
+        gen = torch.Generator().manual_seed(seed)
+        px, pm, pd = paste_figures(x, mask, depth, gen, prob=1.0)
+        if pm[1].sum() > 0:
+            break
+    else:
+        pytest.fail("no seed pasted frame 0's figure into frame 1")
+    assert torch.equal(x, before[0]) and torch.equal(mask, before[1])
+    assert torch.equal(depth, before[2])
+    cols = set(torch.nonzero(pm[1, 0].sum(dim=0)).flatten().tolist())
+    assert cols <= {6, 7}  # only through the gap: behind the wall nothing shows
+    assert torch.all(pd[1, 0][pm[1, 0] > 0] == 3.0)
+    assert torch.all(px[1, :, pm[1, 0] > 0] == 0.8)
+    assert torch.all(pd[1, 0, :, wall] == 1.5) and torch.all(px[1, :, :, wall] == 0.3)
+    # frame 1 had no figure to give, so frame 0 is as it was
+    assert torch.equal(pm[0], mask[0]) and torch.equal(px[0], x[0])
+    # prob 0: nothing changes
+    px, pm, pd = paste_figures(x, mask, depth, torch.Generator().manual_seed(0), prob=0.0)
+    assert torch.equal(px, x) and torch.equal(pm, mask) and torch.equal(pd, depth)
+
+
+def test_a_worlds_depth_weight_scales_its_frames_depth_loss() -> None:
+    from active_vision.train import losses
+
+    torch.manual_seed(0)
+    logits = torch.randn(2, 2, 16, 16)
+    mask = torch.zeros(2, 1, 16, 16)
+    depth = torch.rand(2, 1, 16, 16) * 5 + 0.5
+    w = torch.ones(2, 1, 16, 16)
+    _, plain = losses(logits, mask, depth, w)
+    _, ones = losses(logits, mask, depth, w, torch.ones(2))
+    _, first = losses(logits[:1], mask[:1], depth[:1], w[:1])
+    _, second = losses(logits[1:], mask[1:], depth[1:], w[1:])
+    _, tilted = losses(logits, mask, depth, w, torch.tensor([3.0, 1.0]))
+    assert torch.allclose(plain, ones)
+    assert torch.allclose(tilted, (3 * first + second) / 2)
+
+
+def test_training_can_start_from_weights_of_the_same_shape(tmp_path, heldout) -> None:
+    data = heldout.save(tmp_path / "tiny.npz")
+    start = AVNet(AVNetConfig(widths=(4, 8, 8, 8)))
+    path = save_weights(start, tmp_path / "start.pt")
+    cfg = TrainConfig(data=data, epochs=1, batch=16, threads=1, evaluate=False, lr=0.0,
+                      widths=(4, 8, 8, 8), init=path, out=tmp_path / "w.pt")
+    model, _ = train(cfg)  # lr 0: the weights stay the start's (batch norm stats move)
+    trained = {k: v for k, v in model.state_dict().items() if "running" not in k
+               and "num_batches" not in k}
+    for k, v in trained.items():
+        assert torch.allclose(v, start.state_dict()[k].half().float()), k
+    with pytest.raises(ValueError, match="--widths"):
+        train(TrainConfig(data=data, epochs=1, threads=1, evaluate=False,
+                          widths=(4, 8, 8, 16), init=path, out=tmp_path / "x.pt"))
+
+
+def test_episode_intervals_span_what_one_episode_can_move() -> None:
+    """The bootstrap draws whole episodes: identical episodes give a point; one episode that
+    misses every pedestrian among good ones widens recall's interval down towards it."""
+    from active_vision.evaluate import _Counts, episode_intervals
+
+    good = _Counts(inter=90, union=100, peds=10, peds_hit=10, empty_frames=5, fp_frames=0,
+                   frames=24, depth_px=1000, abs_rel_sum=100.0, delta1_hits=900)
+    same = episode_intervals([good] * 8)
+    assert same["recall"] == [1.0, 1.0] and same["iou"] == [0.9, 0.9]
+    assert same["abs_rel"] == pytest.approx([0.1, 0.1]) and same["delta1"] == [0.9, 0.9]
+    blind = _Counts(inter=0, union=100, peds=10, peds_hit=0, frames=24)
+    mixed = episode_intervals([good] * 7 + [blind])
+    lo, hi = mixed["recall"]
+    assert lo < 0.8 and hi == 1.0  # recall 7/8 measured; draws with 2+ blind copies below
+    assert all(np.isnan(v) for v in episode_intervals([])["recall"])
+
+
+def test_evaluate_refuses_an_unknown_split() -> None:
+    from active_vision.evaluate import heldout
+
+    with pytest.raises(ValueError, match="heldout, validation"):
+        heldout(split="test")
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--paste-prob", "1.5"], "--paste-prob 1.5"),
+    (["--depth-world-weight", "moon"], "WORLD=WEIGHT"),
+    (["--depth-world-weight", "moon=-1"], "cannot be negative"),
+    (["--init", "/nonexistent/avnet.pt"], "no such weights file"),
+])
+def test_train_cli_names_a_bad_option(argv, message, capsys) -> None:
+    from active_vision.train import _parse
+
+    with pytest.raises(SystemExit):
+        _parse(argv)
+    assert message in capsys.readouterr().err
+
+
+def test_train_cli_reads_world_depth_weights() -> None:
+    from active_vision.train import _parse
+
+    cfg = _parse(["--depth-world-weight", "moon=3", "--depth-world-weight", "maze=0.5"])
+    assert cfg.depth_world_weights == {"moon": 3.0, "maze": 0.5}
