@@ -220,11 +220,11 @@ def test_predictors_are_chosen_on_their_own_validation_episodes(tmp_path: Path) 
     """``--split validation`` renders and scores episodes of their own seed, never the
     training or held-out ones, and an unknown split is refused by name."""
     from active_vision import predict_train as pt
-    from active_vision.dataset import HELDOUT_SEED, TRAIN_SEED
+    from active_vision.dataset import HELDOUT_SEED, TRAIN_SEED, VALIDATION_SEED
 
-    assert len({pt.VALIDATION_SEED, HELDOUT_SEED, TRAIN_SEED}) == 3
+    assert len({VALIDATION_SEED, HELDOUT_SEED, TRAIN_SEED}) == 3
     m = pt.evaluate_heldout(data_dir=tmp_path, episodes=3, threads=1, split="validation")
-    assert pt.sequence_path(tmp_path, pt.VALIDATION_SEED, 3).is_file()
+    assert pt.sequence_path(tmp_path, VALIDATION_SEED, 3).is_file()
     assert not pt.sequence_path(tmp_path, HELDOUT_SEED, 3).exists()
     assert 0.0 <= m["predict_iou"] <= 1.0
     with pytest.raises(ValueError, match="split must be one of"):
