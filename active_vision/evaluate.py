@@ -237,18 +237,11 @@ def episode_intervals(units: Sequence[_Counts], resamples: int = BOOTSTRAP_RESAM
     keys = list(asdict(units[0]))
     table = np.array([[getattr(u, k) for k in keys] for u in units], np.float64)
     draws = np.random.default_rng(seed).integers(0, len(units), size=(resamples, len(units)))
-    total = table[draws].sum(axis=1)  # (resamples, fields)
-    col = {k: total[:, j] for j, k in enumerate(keys)}
-    with np.errstate(invalid="ignore", divide="ignore"):
-        values = {
-            "iou": col["inter"] / col["union"],
-            "recall": col["peds_hit"] / col["peds"],
-            "false_positive_rate": col["fp_frames"] / col["empty_frames"],
-            "abs_rel": col["abs_rel_sum"] / col["depth_px"],
-            "delta1": col["delta1_hits"] / col["depth_px"],
-        }
+    totals = table[draws].sum(axis=1)  # (resamples, fields): each draw's summed counts
+    figures = [_figures(_Counts(**dict(zip(keys, row, strict=True)))) for row in totals]
     out = {}
-    for k, v in values.items():
+    for k in TARGETS:
+        v = np.array([f[k] for f in figures])
         v = v[np.isfinite(v)]
         out[k] = [float(x) for x in np.percentile(v, [5.0, 95.0])] if v.size else nan
     return out

@@ -1,7 +1,8 @@
 """Train the perception network on frames rendered from our worlds.
 
     python -m active_vision.train [--data FILE] [--frames N] [--epochs E] [--threads 2]
-    python -m active_vision.train --init active_vision/weights/avnet.pt --epochs 2 --lr 1e-3   # a fine-tune
+    python -m active_vision.train --init active_vision/weights/avnet.pt --epochs 2 --lr 1e-3
+    (the second: a fine-tune of the shipped weights)
 
 One network (:class:`~active_vision.models.AVNet`) serves both fused channels (the daemon
 needs both heads from one file), so it is trained on the sum of the two losses.

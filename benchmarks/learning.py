@@ -127,7 +127,7 @@ def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[di
         import torch
 
         torch.manual_seed(0)  # as distill seeds a member (seed 0) before building it
-        spec = feature_spec("lidar", world, env, unmapped_scan=entry.unmapped_scan)
+        spec = feature_spec("lidar", env, unmapped_scan=entry.unmapped_scan)
         agent = StudentAgent(StudentNet(spec))
 
         def on_round(steps: int, student: StudentAgent) -> None:

@@ -220,7 +220,7 @@ def sample_weight(position: Any, pedestrians: Any, near_weight: float) -> float:
     return near_weight if float(d.min()) < NEAR_PEDESTRIAN else 1.0
 
 
-def feature_spec(kind: str, world: str, env: Any, head: str = "bins",
+def feature_spec(kind: str, env: Any, head: str = "bins",
                  history: bool = True, depth_scan: int = 0,
                  pedestrian_scan: bool = False, unmapped_scan: bool = False) -> FeatureSpec:
     """The feature spec of a student for ``kind`` (lidar, fused, or state) in ``env``'s world,
@@ -671,7 +671,7 @@ def _distill_one(
                 agent = StudentAgent.load(init)
             else:
                 agent = StudentAgent(StudentNet(
-                    feature_spec("lidar", entry.world, env, head, unmapped_scan=unmapped_scan)
+                    feature_spec("lidar", env, head, unmapped_scan=unmapped_scan)
                 ))
             run_dagger(env, entry.world, agent, cfg, label=f"distill {name}")
         finally:
@@ -687,7 +687,7 @@ def _distill_one(
                 env = WithFusedView(env)
             try:
                 fused_spec = replace(
-                    feature_spec("lidar", entry.world, env, head, depth_scan=depth_scan,
+                    feature_spec("lidar", env, head, depth_scan=depth_scan,
                                  pedestrian_scan=pedestrian_scan),
                     lidar_points=0,
                     image=True,

@@ -253,7 +253,7 @@ def test_lidar_students_are_taught_by_the_firm_expert_and_fused_ones_by_the_poli
 def test_dagger_fits_a_student_that_imitates_the_expert(head: str) -> None:
     env = make_training_env("lidar", "inspect")
     try:
-        spec = feature_spec("lidar", "inspect", env, head)
+        spec = feature_spec("lidar", env, head)
         agent = zoo.StudentAgent(zoo.StudentNet(spec))
         history: list[dict[str, float]] = []
         cfg = DAggerConfig(iterations=2, steps=300, epochs=15, status_every=1e9)
@@ -394,7 +394,7 @@ def test_stage1_scan_shows_a_pedestrian_stood_ahead_in_the_middle_bands() -> Non
         people = depth_scan(image[:, :, 2], 16, image[:, :, 1] > 0.5) * LIDAR_CLIP
         assert 0.7 < people[7:9].min() < 1.7
         assert people[0] == people[15] == LIDAR_CLIP
-        spec = feature_spec("fused", "inspect", env, depth_scan=16, pedestrian_scan=True)
+        spec = feature_spec("fused", env, depth_scan=16, pedestrian_scan=True)
         assert spec.scan_points == 32
         assert spec.state_dim == len(state_features(seen, spec, ObsHistory(spec)))
     finally:
@@ -469,14 +469,14 @@ def test_unmapped_scan_leaves_the_walls_unmarked_while_the_rover_drives_and_turn
 def test_unmapped_scan_is_a_lidar_students_and_needs_its_world() -> None:
     env = make_training_env("lidar", "maze")
     try:
-        plain = feature_spec("lidar", "maze", env)
-        spec = feature_spec("lidar", "maze", env, unmapped_scan=True)
+        plain = feature_spec("lidar", env)
+        spec = feature_spec("lidar", env, unmapped_scan=True)
         assert spec.world == "maze" and spec.scan_points == spec.lidar_points == 32
         assert spec.state_dim == plain.state_dim + 2 * 32  # the scan, and its change
         obs, _ = env.reset(seed=1)
         assert spec.state_dim == len(state_features(obs, spec, ObsHistory(spec)))
         # a fused student has no LIDAR: the flag is dropped, not refused
-        assert not feature_spec("fused", "maze", env, unmapped_scan=True).unmapped_scan
+        assert not feature_spec("fused", env, unmapped_scan=True).unmapped_scan
     finally:
         env.close()
     with pytest.raises(ValueError, match="unmapped_scan needs"):
@@ -550,7 +550,7 @@ def test_dagger_fits_on_fit_threads_and_collects_on_the_callers_threads(monkeypa
     torch.set_num_threads(1)
     env = make_training_env("lidar", "inspect")
     try:
-        agent = zoo.StudentAgent(zoo.StudentNet(feature_spec("lidar", "inspect", env)))
+        agent = zoo.StudentAgent(zoo.StudentNet(feature_spec("lidar", env)))
         cfg = DAggerConfig(iterations=2, steps=50, epochs=1, status_every=1e9, fit_threads=2)
         run_dagger(env, "inspect", agent, cfg, label="test")
         assert seen == [min(2, available_cores())] * 2
@@ -569,7 +569,7 @@ def _tiny_students(n: int) -> list[zoo.StudentAgent]:
 
     env = make_training_env("lidar", "inspect")
     try:
-        spec = feature_spec("lidar", "inspect", env, "bins")
+        spec = feature_spec("lidar", env, "bins")
     finally:
         env.close()
     agents = []
