@@ -8,11 +8,9 @@ detection frames (:class:`active_vision.history.SlotHistory`).
 
 :class:`PredictNet` is a small fully-convolutional network on ``2 K + 1`` channels: the
 ``K`` detection heatmaps and ``K`` gray images (oldest first) and the current depth
-channel, all at the fused resolution; its output is the occupancy logit. A *residual*
-network adds to it the newest detection's logit, so that it learns only where the next
-1.5 s differ from what is seen now. The detection network
-(:class:`~active_vision.models.AVNet`) runs first, unchanged, and the predictor reads its
-output, so ``detect`` and ``predict`` share one camera-to-fused pass.
+channel, all at the fused resolution; its output is the occupancy logit. The detection
+network (:class:`~active_vision.models.AVNet`) runs first, unchanged, and the predictor
+reads its output, so ``detect`` and ``predict`` share one camera-to-fused pass.
 
 Ground truth (:meth:`rover_env.simulation.RoverSim.future_pedestrian_mask`): hold the rover
 and camera still, walk only the pedestrians on for 1.5 s, OR their masks.
@@ -43,9 +41,6 @@ PREDICT_FORMAT = "roverav.predictnet"
 PREDICT_VERSION = 1
 REGENERATE_PREDICT = "python -m active_vision.predict_train"
 HEATMAP_MODES = ("detect", "predict")
-RESIDUAL_EPS = 1e-3
-"""A residual :class:`PredictNet` adds the newest detection's logit, its probability clamped
-to ``[RESIDUAL_EPS, 1 - RESIDUAL_EPS]`` (logits within +-6.9)."""
 
 
 def _conv(c_in: int, c_out: int, stride: int = 1, dilation: int = 1) -> nn.Sequential:
@@ -59,12 +54,10 @@ def _conv(c_in: int, c_out: int, stride: int = 1, dilation: int = 1) -> nn.Seque
 class PredictNet(nn.Module):
     """Window of fused detection frames -> future-occupancy logit ``(N, 1, H, W)``."""
 
-    def __init__(self, k: int = K, widths: tuple[int, int, int] = (16, 32, 48),
-                 residual: bool = False) -> None:
+    def __init__(self, k: int = K, widths: tuple[int, int, int] = (16, 32, 48)) -> None:
         super().__init__()
         self.k = k
         self.widths = tuple(widths)
-        self.residual = residual  # add the newest detection's logit to the output
         w1, w2, w3 = widths
         self.stem = _conv(2 * k + 1, w1, stride=2)                         # 1/2
         self.enc2 = nn.Sequential(_conv(w1, w2, stride=2), _conv(w2, w2))   # 1/4
@@ -91,13 +84,8 @@ class PredictNet(nn.Module):
         x3 = self.enc3(x2)
         y = self.dec2(F.interpolate(self.lat3(x3), scale_factor=2.0, mode="nearest") + x2)
         y = self.dec1(F.interpolate(self.lat2(y), scale_factor=2.0, mode="nearest") + x1)
-        out = F.interpolate(self.head(y), scale_factor=2.0, mode="bilinear",
-                            align_corners=False)
-        if self.residual:
-            # input channel k-1: the newest detection heatmap (a probability)
-            now = x[:, self.k - 1:self.k].clamp(RESIDUAL_EPS, 1.0 - RESIDUAL_EPS)
-            out = out + torch.log(now / (1.0 - now))
-        return out
+        return F.interpolate(self.head(y), scale_factor=2.0, mode="bilinear",
+                             align_corners=False)
 
     @torch.no_grad()
     def fuse_for_inference(self) -> PredictNet:
@@ -112,8 +100,7 @@ def save_predictor(model: PredictNet, path: Path, meta: dict[str, Any] | None = 
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {
         "format": PREDICT_FORMAT, "version": PREDICT_VERSION,
-        "config": {"k": model.k, "widths": list(model.widths), "residual": model.residual},
-        "meta": dict(meta or {}),
+        "config": {"k": model.k, "widths": list(model.widths)}, "meta": dict(meta or {}),
         "state_dict": half_state_dict(model),
     }
     tmp = path.with_suffix(path.suffix + ".tmp")
@@ -146,8 +133,7 @@ def load_predictor(path: Path | str | None = None, *, fuse: bool = True) -> Pred
         raise fail(f"has version {payload.get('version')!r}, this code reads {PREDICT_VERSION}")
     try:
         cfg = payload["config"]
-        model = PredictNet(int(cfg["k"]), tuple(int(w) for w in cfg["widths"]),  # type: ignore[arg-type]
-                           residual=bool(cfg.get("residual", False)))
+        model = PredictNet(int(cfg["k"]), tuple(int(w) for w in cfg["widths"]))  # type: ignore[arg-type]
         model.load_state_dict({k: v.float() if v.is_floating_point() else v
                                for k, v in payload["state_dict"].items()})
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:

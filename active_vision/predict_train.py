@@ -204,9 +204,6 @@ class PredictTrainConfig:
     max_minutes: float = 60.0
     init: Path | None = None
     """Start from these predictor weights (fine-tuning) instead of random ones."""
-    residual: bool = False
-    """Train a residual :class:`PredictNet` (the newest detection's logit added to its
-    output)."""
 
 
 def _loss(logit: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -220,21 +217,16 @@ def train_predictor(cfg: PredictTrainConfig) -> tuple[PredictNet, dict[str, floa
     """Train a fresh :class:`PredictNet` on the training episodes."""
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
-    model = PredictNet(residual=cfg.residual)
-    if cfg.init is not None:
-        from active_vision.predict import load_predictor
-
-        start = load_predictor(cfg.init, fuse=False)
-        if start.residual != cfg.residual:
-            fix = "pass --residual" if start.residual else "leave out --residual"
-            raise ValueError(f"--init {cfg.init} is {'a' if start.residual else 'not a'} "
-                             f"residual predictor: {fix} to fine-tune it, or train afresh")
-        model.load_state_dict(start.state_dict())
-        logger.info("starting from %s", cfg.init)
     data = build_sequences(cfg.data_dir, TRAIN_SEED, cfg.episodes)
     x = torch.from_numpy(windows(data, cfg.weights, cfg.threads))
     y = torch.from_numpy(data.future).unsqueeze(1).float()
     n = len(y)
+    model = PredictNet()
+    if cfg.init is not None:
+        from active_vision.predict import load_predictor
+
+        model.load_state_dict(load_predictor(cfg.init, fuse=False).state_dict())
+        logger.info("starting from %s", cfg.init)
     model.train()
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
     steps = math.ceil(n / cfg.batch)
@@ -369,8 +361,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=d.out, help="predictor weights to write")
     p.add_argument("--init", type=Path, default=None,
                    help="fine-tune from these predictor weights instead of training afresh")
-    p.add_argument("--residual", action="store_true",
-                   help="add the newest detection's logit to the network's output")
     p.add_argument("--evaluate-only", action="store_true",
                    help="evaluate --out on the held-out episodes, no training")
     p.add_argument("--split", choices=sorted(SPLIT_SEEDS), default="heldout",
@@ -384,7 +374,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cfg = PredictTrainConfig(episodes=a.episodes, epochs=a.epochs, batch=a.batch, lr=a.lr,
                                  threads=a.threads, seed=a.seed, data_dir=a.data_dir,
                                  weights=a.weights, out=a.out, max_minutes=a.max_minutes,
-                                 init=a.init, residual=a.residual)
+                                 init=a.init)
         model, facts = train_predictor(cfg)
         save_predictor(model, a.out, facts)
         print(f"wrote {a.out} after {facts['epochs']:.0f} epochs in {facts['seconds']:.0f} s")

@@ -229,36 +229,3 @@ def test_predictors_are_chosen_on_their_own_validation_episodes(tmp_path: Path) 
     assert 0.0 <= m["predict_iou"] <= 1.0
     with pytest.raises(ValueError, match="split must be one of"):
         pt.evaluate_heldout(data_dir=tmp_path, episodes=3, split="test")
-
-
-def test_residual_predictor_starts_from_the_newest_detection(tmp_path: Path) -> None:
-    """A residual PredictNet adds the newest detection's logit to its own output: with its
-    head zeroed it returns that detection (within the clamp), whatever the older frames; the
-    flag survives saving (files without it load as plain networks), and a fine-tune from a
-    file of the other kind is refused by name."""
-    from active_vision import predict_train as pt
-    from active_vision.predict import RESIDUAL_EPS, Predictor, load_predictor
-
-    torch.manual_seed(0)
-    net = PredictNet(residual=True).eval()
-    with torch.no_grad():
-        net.head.weight.zero_()
-        net.head.bias.zero_()
-    window = np.random.default_rng(1).random((2, K, 96, 96, 3), dtype=np.float32)
-    newest = np.clip(window[:, -1, :, :, 1], RESIDUAL_EPS, 1.0 - RESIDUAL_EPS)
-    np.testing.assert_allclose(Predictor(net)(window), newest, atol=1e-5)
-    plain = PredictNet().eval()
-    with torch.no_grad():
-        plain.head.weight.zero_()
-        plain.head.bias.zero_()
-    np.testing.assert_allclose(Predictor(plain)(window), 0.5)  # no detection in its output
-
-    path = save_predictor(net, tmp_path / "residual.pt")
-    assert load_predictor(path).residual
-    payload = torch.load(path, weights_only=True)
-    del payload["config"]["residual"]  # a file written before the flag existed
-    torch.save(payload, tmp_path / "old.pt")
-    assert not load_predictor(tmp_path / "old.pt").residual
-    with pytest.raises(ValueError, match="is a residual predictor: pass --residual"):
-        pt.train_predictor(pt.PredictTrainConfig(init=path, residual=False, episodes=3,
-                                                 data_dir=tmp_path, epochs=1, threads=1))
