@@ -13,6 +13,8 @@ and ``margin_interval``: the 90 % interval of predict - detect over bootstrap dr
 episodes. ``--sweep 0.5,0.3,0.1`` also prints the heatmap figures (IoU, recall,
 false-positive frames) per world at each of those detection thresholds, from the same pass
 of the network: where a threshold other than 0.5 would put the operating point.
+``--depth-bands`` also prints, per world, the depth figures by true depth and by image row
+(:func:`depth_bands`): where the depth channel goes wrong.
 
 Definitions (``THRESHOLD`` = 0.5, ``MIN_PEDESTRIAN_PX`` = 30, ``MIN_BLOB_PX`` = 5):
 
@@ -50,7 +52,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -289,6 +291,75 @@ def threshold_sweep(model: AVNet, data: Dataset, thresholds: Sequence[float], *,
             for t, per in counts.items()}
 
 
+DEPTH_BANDS_M = (NEAR_DEPTH_M, 1.0, 2.0, 3.0, 4.0, 6.0, 8.0, DEPTH_MAX_M)
+"""Edges of the true-depth bands of :func:`depth_bands` (metres)."""
+ROW_BAND = 16
+"""Image rows per band of :func:`depth_bands`."""
+
+
+def depth_bands(model: AVNet, data: Dataset, *, batch: int = 32, threads: int | None = None
+                ) -> dict[str, dict[str, list[dict[str, float]]]]:
+    """Where the depth channel goes wrong: :func:`depth_band_figures` of one pass of
+    ``model`` over ``data``."""
+    return depth_band_figures(_fused_frames(model, data, batch, threads), data)
+
+
+def depth_band_figures(frames: Iterable[tuple[int, np.ndarray]], data: Dataset
+                       ) -> dict[str, dict[str, list[dict[str, float]]]]:
+    """Per world, delta1, AbsRel and the mean log ratio ``log(d_pred / d)`` (its sign says
+    too far or too near) of the 0.3-10 m pixels grouped by true depth (``DEPTH_BANDS_M``,
+    with each band's share of the world's pixels) and by image row (``ROW_BAND`` rows a
+    band, top first), for fused ``frames`` ``(index in data, (H, W, 3) frame)``:
+    ``{world: {"depth": [...], "rows": [...]}}``, each entry a dict with ``lo``, ``hi``,
+    ``share``, ``delta1``, ``abs_rel``, ``log_ratio``."""
+    edges = np.asarray(DEPTH_BANDS_M)
+    size = data.rgb.shape[1]
+    n_rows = -(-size // ROW_BAND)
+    # per world: (band, [pixels, delta1 hits, abs rel sum, log ratio sum])
+    by_depth = {w: np.zeros((len(edges) - 1, 4)) for w in data.worlds}
+    by_row = {w: np.zeros((n_rows, 4)) for w in data.worlds}
+    for i, fused in frames:
+        world = data.worlds[int(data.world[i])]
+        d = data.depth[i].astype(np.float64)
+        valid = np.isfinite(d) & (d >= edges[0]) & (d < edges[-1])
+        if not valid.any():
+            continue
+        rows, _ = np.nonzero(valid)
+        d = d[valid]
+        p = np.maximum(channel_to_depth(fused[:, :, CHANNEL_DEPTH][valid]).astype(np.float64),
+                       MIN_DEPTH_M)
+        stats = np.stack([np.ones_like(d), np.maximum(p / d, d / p) < 1.25,
+                          np.abs(p - d) / d, np.log(p / d)], axis=1)
+        np.add.at(by_depth[world], np.searchsorted(edges, d, side="right") - 1, stats)
+        np.add.at(by_row[world], rows // ROW_BAND, stats)
+
+    def table(acc: np.ndarray, lo: Sequence[float], hi: Sequence[float]) -> list[dict[str, float]]:
+        total = acc[:, 0].sum()
+        return [{"lo": float(a), "hi": float(b), "share": float(n / total),
+                 "delta1": float(h / n), "abs_rel": float(r / n), "log_ratio": float(g / n)}
+                for a, b, (n, h, r, g) in zip(lo, hi, acc, strict=True) if n]
+
+    row_lo = [r * ROW_BAND for r in range(n_rows)]
+    row_hi = [min(size, r + ROW_BAND) - 1 for r in row_lo]
+    return {w: {"depth": table(by_depth[w], edges[:-1], edges[1:]),
+                "rows": table(by_row[w], row_lo, row_hi)}
+            for w in data.worlds if by_depth[w][:, 0].sum()}
+
+
+def format_depth_bands(bands: dict[str, dict[str, list[dict[str, float]]]]) -> str:
+    lines = ["depth by true depth and by image row (0.3-10 m pixels; log ratio > 0: too far):",
+             f"  {'world':<8} {'band':<14} {'share':>6} {'delta1':>7} {'abs_rel':>8} "
+             f"{'log_ratio':>9}"]
+    for w, kinds in bands.items():
+        for kind, unit in (("depth", "m"), ("rows", "")):
+            for b in kinds[kind]:
+                band = (f"{b['lo']:g}-{b['hi']:g} {unit}" if unit
+                        else f"rows {b['lo']:g}-{b['hi']:g}")
+                lines.append(f"  {w:<8} {band:<14} {b['share']:6.3f} {b['delta1']:7.3f} "
+                             f"{b['abs_rel']:8.3f} {b['log_ratio']:+9.3f}")
+    return "\n".join(lines)
+
+
 def format_sweep(sweep: dict[float, dict[str, dict[str, float]]]) -> str:
     lines = ["detection threshold sweep (heatmap figures per world):",
              f"  {'threshold':>9} {'world':<8} " + " ".join(f"{k[:12]:>12}" for k in SWEEP_KEYS)]
@@ -382,6 +453,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--sweep", type=_thresholds, default=None, metavar="T1,T2,...",
                    help="also print IoU, recall and false-positive frames per world at each "
                    "of these detection thresholds (in (0, 1))")
+    p.add_argument("--depth-bands", action="store_true",
+                   help="also print delta1, AbsRel and the mean log ratio per world by true "
+                   "depth and by image row: where the depth channel goes wrong")
     p.add_argument("--log-level", default="WARNING")
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
@@ -392,6 +466,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(format_metrics(m))
     if args.sweep:
         print(format_sweep(threshold_sweep(model, data, args.sweep, threads=args.threads)))
+    if args.depth_bands:
+        print(format_depth_bands(depth_bands(model, data, threads=args.threads)))
     out: dict[str, object] = {**m.summary(), "frames": m.frames, "pedestrians": m.pedestrians,
                               "empty_frames": m.empty_frames, "abs_rel_near": m.abs_rel_near,
                               "worst": m.worst(),

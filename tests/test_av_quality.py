@@ -104,8 +104,11 @@ def test_train_and_evaluate_clis_run_end_to_end(tmp_path, heldout: ds.Dataset, c
     assert facts["epochs"] == 1
     path = save_weights(model, cfg.out, facts)
     assert evaluate_main(["--weights", str(path), "--data", str(data), "--json",
-                          "--threads", "1"]) == 0
-    last = capsys.readouterr().out.strip().splitlines()[-1]
+                          "--threads", "1", "--depth-bands"]) == 0
+    printed = capsys.readouterr().out
+    assert "depth by true depth and by image row" in printed
+    assert "moon     0.3-1 m" in printed
+    last = printed.strip().splitlines()[-1]
     figures = json.loads(last)
     assert {"iou", "recall", "false_positive_rate", "abs_rel", "delta1", "abs_rel_near",
             "per_world", "worst", "intervals"} <= figures.keys()
@@ -318,3 +321,37 @@ def test_train_cli_reads_world_depth_weights() -> None:
 
     cfg = _parse(["--depth-world-weight", "moon=3", "--depth-world-weight", "maze=0.5"])
     assert cfg.depth_world_weights == {"moon": 3.0, "maze": 0.5}
+
+
+def test_depth_bands_say_where_the_depth_goes_wrong() -> None:
+    """``depth_band_figures`` groups the 0.3-10 m pixels by true depth and by image row: a
+    prediction 10 % too far on the top rows (2 m) and twice too far on the bottom rows
+    (0.5 m) reads delta1 1 and 0 in those bands, with log ratios log 1.1 and log 2; pixels
+    beyond 10 m count nowhere, and the shares weight the bands back to the world's own
+    delta1 as the evaluation computes it."""
+    from active_vision.evaluate import ROW_BAND, _figures, depth_band_figures, frame_counts
+    from shm_protocol import CHANNEL_DEPTH, depth_to_channel
+
+    size = 2 * ROW_BAND
+    true = np.full((size, size), 2.0, np.float32)
+    true[ROW_BAND:] = 0.5
+    true[:2] = np.inf  # sky
+    pred = np.where(np.arange(size)[:, None] < ROW_BAND, true * 1.1, true * 2.0)
+    fused = np.zeros((size, size, 3), np.float32)
+    fused[:, :, CHANNEL_DEPTH] = depth_to_channel(np.where(np.isfinite(pred), pred, 20.0))
+    data = ds.Dataset(rgb=np.zeros((1, size, size, 3), np.uint8), depth=true[None],
+                      mask=np.zeros((1, size, size), bool), world=np.zeros(1, np.int64),
+                      worlds=("moon",), kind=np.zeros(1, np.int64), seed=0)
+    bands = depth_band_figures([(0, fused)], data)["moon"]
+    by_row = {b["lo"]: b for b in bands["rows"]}
+    assert by_row[0]["delta1"] == 1.0 and by_row[ROW_BAND]["delta1"] == 0.0
+    assert by_row[0]["log_ratio"] == pytest.approx(np.log(1.1), abs=0.01)
+    assert by_row[ROW_BAND]["log_ratio"] == pytest.approx(np.log(2.0), abs=0.01)
+    by_depth = {b["lo"]: b for b in bands["depth"]}
+    assert set(by_depth) == {0.3, 2.0}  # the sky is in no band
+    assert by_depth[2.0]["delta1"] == 1.0 and by_depth[0.3]["delta1"] == 0.0
+    assert by_depth[0.3]["abs_rel"] == pytest.approx(1.0, abs=0.02)
+    whole = _figures(frame_counts(fused[:, :, 1], fused[:, :, CHANNEL_DEPTH], data.mask[0],
+                                  true))["delta1"]
+    assert sum(b["share"] * b["delta1"] for b in bands["depth"]) == pytest.approx(whole)
+    assert sum(b["share"] for b in bands["rows"]) == pytest.approx(1.0)
