@@ -191,9 +191,10 @@ class PredictTrainConfig:
 
     episodes: int = 900
     """Training driving episodes (seed ``TRAIN_SEED``): 900 give 20,373 targets, rendered in
-    10 min on one core beside a training run. Twice the 450 used until 2026-11-26, which
-    scored 0.02 / 0.01 / 0.01 lower IoU in inspect / moon / maze on the validation
-    episodes (benchmarks/RESULTS.md)."""
+    10 min on one core beside a training run; training on them takes about 10 min with 2
+    threads and 11.5 GB of memory at its peak (the windows are held in memory). Twice the
+    450 used until 2026-11-26, which scored 0.02 / 0.01 / 0.01 lower IoU in inspect / moon /
+    maze on the validation episodes (benchmarks/RESULTS.md)."""
     epochs: int = 10
     batch: int = 32
     lr: float = 3e-3
