@@ -164,9 +164,10 @@ def build_sequences(data_dir: Path, seed: int, episodes: int,
     return data
 
 
-def windows(data: SequenceData, weights: Path | None = None, threads: int = 2) -> np.ndarray:
-    """``(T, K, S, S, 3)`` float16: each target's window of fused detection frames, made
-    with the detection network and :class:`SlotHistory` exactly as the daemon makes them."""
+def fused_frames(data: SequenceData, weights: Path | None = None, threads: int = 2
+                 ) -> np.ndarray:
+    """``(rows, S, S, 3)`` float16: every recorded frame through the detection network
+    (:class:`~active_vision.perception.Perception`, as the daemon runs it)."""
     from active_vision.perception import Perception, PerceptionConfig
 
     perception = Perception(PerceptionConfig(size=data.rgb.shape[1], threads=threads,
@@ -174,6 +175,22 @@ def windows(data: SequenceData, weights: Path | None = None, threads: int = 2) -
     fused = np.empty(data.rgb.shape, np.float16)
     for i in range(0, len(data.rgb), 64):
         fused[i:i + 64] = perception(data.rgb[i:i + 64])
+    return fused
+
+
+def window_rows(data: SequenceData) -> np.ndarray:
+    """``(T, K)`` int64: the rows of :func:`fused_frames` that make each target's window,
+    oldest first, by :class:`SlotHistory`'s rule (the episode's first frame repeated while
+    fewer than ``K`` were seen). ``fused[window_rows(data)]`` equals :func:`windows`, without
+    holding every window in memory at once."""
+    offsets = np.arange(K, dtype=np.int64) - (K - 1)
+    return np.maximum(data.target_row[:, None] + offsets, data.episode_row[:, None])
+
+
+def windows(data: SequenceData, weights: Path | None = None, threads: int = 2) -> np.ndarray:
+    """``(T, K, S, S, 3)`` float16: each target's window of fused detection frames, made
+    with the detection network and :class:`SlotHistory` exactly as the daemon makes them."""
+    fused = fused_frames(data, weights, threads)
     s = data.rgb.shape[1]
     hist = SlotHistory(1, K, (s, s, 3))
     out = np.empty((len(data.target_row), K, s, s, 3), np.float16)
@@ -192,7 +209,8 @@ class PredictTrainConfig:
     episodes: int = 900
     """Training driving episodes (seed ``TRAIN_SEED``): 900 give 20,373 targets, rendered in
     10 min on one core beside a training run; training on them takes about 10 min with 2
-    threads and 11.5 GB of memory at its peak (the windows are held in memory). Twice the
+    threads, and the command peaks at 6.8 GB of memory (11.5 GB while every target's
+    window was held at once; now they are gathered per batch, :func:`window_rows`). Twice the
     450 used until 2026-11-26, which scored 0.02 / 0.01 / 0.01 lower IoU in inspect / moon /
     maze on the validation episodes (benchmarks/RESULTS.md)."""
     epochs: int = 10
@@ -221,7 +239,9 @@ def train_predictor(cfg: PredictTrainConfig) -> tuple[PredictNet, dict[str, floa
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     data = build_sequences(cfg.data_dir, TRAIN_SEED, cfg.episodes)
-    x = torch.from_numpy(windows(data, cfg.weights, cfg.threads))
+    # windows are gathered per batch: all of them at once took 5.6 GB for 900 episodes
+    fused = torch.from_numpy(fused_frames(data, cfg.weights, cfg.threads))
+    rows = torch.from_numpy(window_rows(data))
     y = torch.from_numpy(data.future).unsqueeze(1).float()
     n = len(y)
     model = PredictNet()
@@ -243,7 +263,7 @@ def train_predictor(cfg: PredictTrainConfig) -> tuple[PredictNet, dict[str, floa
         loss_sum = 0.0
         for b in range(steps):
             idx = order[b * cfg.batch:(b + 1) * cfg.batch]
-            xb = PredictNet.inputs(x[idx].float())
+            xb = PredictNet.inputs(fused[rows[idx]].float())
             yb = y[idx]
             flip = (torch.rand(len(idx), generator=gen) < 0.5).view(-1, 1, 1, 1)
             xb = torch.where(flip, xb.flip(-1), xb)

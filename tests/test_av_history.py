@@ -10,6 +10,7 @@ the window, which is all these tests need.
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import uuid
 from collections.abc import Iterator
@@ -167,6 +168,12 @@ def test_predictive_ground_truth_and_baselines_on_driving_sequences() -> None:
     assert np.all(data.future[data.now])
     win = pt.windows(data, threads=1)
     assert win.shape == (len(data.target_row), K, 96, 96, 3)
+    # training gathers the same windows per batch from the fused frames
+    fused = pt.fused_frames(data, threads=1)
+    np.testing.assert_array_equal(fused[pt.window_rows(data)], win)
+    # ... also near an episode's start, where the first frame is repeated (SlotHistory's rule)
+    early = dataclasses.replace(data, target_row=data.episode_row + 1)
+    np.testing.assert_array_equal(fused[pt.window_rows(early)], pt.windows(early, threads=1))
     # a window ends with its target's own fused frame, and starts within its episode
     first = data.target_row == data.episode_row + 4
     assert np.all(data.episode_row <= data.target_row)
