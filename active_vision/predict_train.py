@@ -51,7 +51,6 @@ from active_vision.dataset import (
     DatasetConfig,
     FrameRenderer,
 )
-from active_vision.history import SlotHistory
 from active_vision.predict import (
     DEFAULT_PREDICT_WEIGHTS,
     HORIZON_S,
@@ -180,26 +179,18 @@ def fused_frames(data: SequenceData, weights: Path | None = None, threads: int =
 
 def window_rows(data: SequenceData) -> np.ndarray:
     """``(T, K)`` int64: the rows of :func:`fused_frames` that make each target's window,
-    oldest first, by :class:`SlotHistory`'s rule (the episode's first frame repeated while
-    fewer than ``K`` were seen). ``fused[window_rows(data)]`` equals :func:`windows`, without
-    holding every window in memory at once."""
+    oldest first, by :class:`~active_vision.history.SlotHistory`'s rule (the episode's
+    first frame repeated while fewer than ``K`` were seen); training gathers a batch's
+    windows with it instead of holding every window in memory at once."""
     offsets = np.arange(K, dtype=np.int64) - (K - 1)
     return np.maximum(data.target_row[:, None] + offsets, data.episode_row[:, None])
 
 
 def windows(data: SequenceData, weights: Path | None = None, threads: int = 2) -> np.ndarray:
-    """``(T, K, S, S, 3)`` float16: each target's window of fused detection frames, made
-    with the detection network and :class:`SlotHistory` exactly as the daemon makes them."""
-    fused = fused_frames(data, weights, threads)
-    s = data.rgb.shape[1]
-    hist = SlotHistory(1, K, (s, s, 3))
-    out = np.empty((len(data.target_row), K, s, s, 3), np.float16)
-    for t, (row, first) in enumerate(zip(data.target_row, data.episode_row, strict=True)):
-        hist.clear(0)
-        for r in range(max(first, row - K + 1), row + 1):
-            hist.push(0, fused[r])
-        out[t] = hist.window(0)
-    return out
+    """``(T, K, S, S, 3)`` float16: each target's window of fused detection frames, as the
+    daemon's :class:`~active_vision.history.SlotHistory` makes them
+    (:func:`window_rows`), all held at once."""
+    return fused_frames(data, weights, threads)[window_rows(data)]
 
 
 @dataclass

@@ -168,12 +168,17 @@ def test_predictive_ground_truth_and_baselines_on_driving_sequences() -> None:
     assert np.all(data.future[data.now])
     win = pt.windows(data, threads=1)
     assert win.shape == (len(data.target_row), K, 96, 96, 3)
-    # training gathers the same windows per batch from the fused frames
+    # the windows are the daemon's: SlotHistory fed the episode's frames up to the target,
+    # also near an episode's start, where its first frame is repeated
     fused = pt.fused_frames(data, threads=1)
-    np.testing.assert_array_equal(fused[pt.window_rows(data)], win)
-    # ... also near an episode's start, where the first frame is repeated (SlotHistory's rule)
     early = dataclasses.replace(data, target_row=data.episode_row + 1)
-    np.testing.assert_array_equal(fused[pt.window_rows(early)], pt.windows(early, threads=1))
+    for d, w in ((data, win), (early, fused[pt.window_rows(early)])):
+        hist = SlotHistory(1, K, fused.shape[1:])
+        for t, (row, first) in enumerate(zip(d.target_row, d.episode_row, strict=True)):
+            hist.clear(0)
+            for r in range(max(first, row - K + 1), row + 1):
+                hist.push(0, fused[r])
+            np.testing.assert_array_equal(w[t], hist.window(0))
     # a window ends with its target's own fused frame, and starts within its episode
     first = data.target_row == data.episode_row + 4
     assert np.all(data.episode_row <= data.target_row)
