@@ -245,6 +245,39 @@ def test_pasted_figures_are_hidden_by_what_is_nearer() -> None:
     assert torch.equal(px, x) and torch.equal(pm, mask) and torch.equal(pd, depth)
 
 
+def test_edge_pastes_cut_figures_at_the_frame_side() -> None:
+    """With ``edge_share=1`` every paste lands at the left or right edge with a quarter to
+    three quarters of the figure cut off; with ``edge_share=0`` a paste keeps the whole
+    figure (a 10-column figure in the middle, shifts of at most PASTE_MAX_SHIFT)."""
+    from active_vision.train import paste_figures
+
+    x = torch.zeros(4, 3, 96, 96)
+    mask = torch.zeros(4, 1, 96, 96)
+    depth = torch.full((4, 1, 96, 96), 1e3)
+    x[0, :, 40:80, 43:53] = 0.9
+    mask[0, :, 40:80, 43:53] = 1
+    depth[0, :, 40:80, 43:53] = 3.0
+    kept, sides = [], set()
+    for seed in range(100):
+        gen = torch.Generator().manual_seed(seed)
+        _, pm, pd = paste_figures(x, mask, depth, gen, prob=1.0, edge_share=1.0)
+        for i in range(1, 4):
+            cols = torch.nonzero(pm[i, 0].sum(dim=0)).flatten()
+            if len(cols) == 0:
+                continue
+            kept.append(len(cols) / 10)
+            sides.add("left" if int(cols[0]) == 0 else "right")
+            assert int(cols[0]) == 0 or int(cols[-1]) == 95  # touches an edge
+            assert torch.all(pd[i, 0][pm[i, 0] > 0] == 3.0)
+    assert kept and sides == {"left", "right"}
+    assert min(kept) >= 0.25 and max(kept) <= 0.75
+    for seed in range(30):
+        _, pm, _ = paste_figures(x, mask, depth, torch.Generator().manual_seed(seed),
+                                 prob=1.0, edge_share=0.0)
+        for i in range(1, 4):
+            assert pm[i].sum() in (0, 400)  # whole figures only
+
+
 def test_a_worlds_depth_weight_scales_its_frames_depth_loss() -> None:
     from active_vision.train import losses
 
