@@ -13,8 +13,11 @@ while driving, random pedestrian appearance, half of them in inspect) is rendere
 ``--threads`` torch threads (default 2): the default 15 epochs take about 40 min on a
 2-core machine (150-165 s an epoch). The
 training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
-``--resume`` continues an interrupted run. Writes ``active_vision/weights/avnet.pt`` (or
-``--out``) with the held-out figures (driving split) of the result stored in its ``meta``.
+``--resume`` continues an interrupted run. After training, the heatmap head is calibrated
+on the validation split (:mod:`active_vision.calibrate`: the detection threshold that
+serves recall best within the false-positive budget becomes the head's 0.5;
+``--no-calibrate`` skips it). Writes ``active_vision/weights/avnet.pt`` (or ``--out``)
+with the held-out figures (driving split) of the result stored in its ``meta``.
 
 Losses:
 
@@ -33,7 +36,8 @@ Losses:
   ``1 + PEDESTRIAN_DEPTH_WEIGHT`` times.
 
 Augmentation: copy-paste of pedestrians between the frames of a batch, occluded by what
-is nearer (:func:`paste_figures`, half of the frames), horizontal flip (image, mask and
+is nearer (:func:`paste_figures`, half of the frames; half of those pastes put the figures
+at a side edge, cut by it), horizontal flip (image, mask and
 depth together), brightness, contrast, per-channel gain and pixel noise.
 """
 
@@ -154,6 +158,9 @@ class TrainConfig:
     """Start from these AVNet weights (same widths) instead of random ones: a fine-tune."""
     evaluate: bool = True
     """Evaluate on the held-out split after training and store the figures in the file."""
+    calibrate: bool = True
+    """Fold the heatmap threshold chosen on the validation split into the head
+    (:mod:`active_vision.calibrate`) before the held-out evaluation."""
     checkpoint: Path | None = None
     """Write the training state here after every epoch (default: ``out`` + ``.ckpt``);
     with ``resume`` a run picks up from it after an interruption."""
@@ -429,6 +436,8 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     p.add_argument("--init", type=Path, default=None,
                    help="start from these weights (a fine-tune) instead of random ones")
     p.add_argument("--no-evaluate", action="store_true", help="skip the held-out evaluation")
+    p.add_argument("--no-calibrate", action="store_true",
+                   help="leave the heatmap uncalibrated (no threshold chosen on validation)")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="training state file, written every epoch (default: OUT.ckpt)")
     p.add_argument("--resume", action="store_true",
@@ -461,7 +470,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                        small_figure_boost=not a.no_small_figure_boost,
                        paste_prob=a.paste_prob, edge_paste_share=a.edge_paste_share,
                        init=a.init, depth_world_weights=weights,
-                       evaluate=not a.no_evaluate,
+                       evaluate=not a.no_evaluate, calibrate=not a.no_calibrate,
                        checkpoint=a.checkpoint, resume=a.resume)
 
 
@@ -470,6 +479,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     model, facts = train(cfg)
     meta: dict[str, float | str] = {**facts}
     path = _save(model, cfg.out, meta)  # first without figures: evaluation may fail
+    if cfg.calibrate:
+        from active_vision.calibrate import calibrate
+        from active_vision.evaluate import heldout
+
+        t, shift, table = calibrate(model, heldout(cfg.data_dir, split="validation"),
+                                    threads=cfg.threads)
+        print(table)
+        meta.update({"heat_threshold": t, "heat_logit_shift": shift})
+        path = _save(model, cfg.out, meta)
     if cfg.evaluate:
         from active_vision.evaluate import evaluate, format_metrics, heldout
 

@@ -4,6 +4,7 @@ frames rendered here (a held-out seed), and an untrained network does not."""
 from __future__ import annotations
 
 import json
+import math
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -15,7 +16,13 @@ import torch  # noqa: E402
 from active_vision import dataset as ds  # noqa: E402
 from active_vision.evaluate import Metrics, evaluate  # noqa: E402
 from active_vision.evaluate import main as evaluate_main  # noqa: E402
-from active_vision.models import AVNet, AVNetConfig, load_model, save_weights  # noqa: E402
+from active_vision.models import (  # noqa: E402
+    DEFAULT_WEIGHTS,
+    AVNet,
+    AVNetConfig,
+    load_model,
+    save_weights,
+)
 from active_vision.train import TrainConfig, train  # noqa: E402
 
 TEST_SEED = 424_242  # neither the training nor the evaluation split
@@ -388,3 +395,69 @@ def test_depth_bands_say_where_the_depth_goes_wrong() -> None:
                                   true))["delta1"]
     assert sum(b["share"] * b["delta1"] for b in bands["depth"]) == pytest.approx(whole)
     assert sum(b["share"] for b in bands["rows"]) == pytest.approx(1.0)
+
+
+def _sweep_row(iou: float, recall: float, fp: float) -> dict[str, float]:
+    return {"iou": iou, "recall": recall, "false_positive_rate": fp}
+
+
+def test_calibration_picks_the_best_worst_world_recall_within_the_budgets() -> None:
+    from active_vision.calibrate import FP_BUDGET, choose_threshold
+    from active_vision.evaluate import THRESHOLD
+
+    sweep = {
+        0.2: {"a": _sweep_row(0.8, 0.99, FP_BUDGET + 0.001), "b": _sweep_row(0.8, 0.99, 0.0)},
+        0.3: {"a": _sweep_row(0.8, 0.96, 0.004), "b": _sweep_row(0.8, 0.95, FP_BUDGET)},
+        0.4: {"a": _sweep_row(0.8, 0.97, 0.0), "b": _sweep_row(0.8, 0.95, 0.0)},
+        0.5: {"a": _sweep_row(0.8, 0.99, 0.0), "b": _sweep_row(0.8, 0.93, 0.0)},
+        0.6: {"a": _sweep_row(0.5, 0.99, 0.0), "b": _sweep_row(0.8, 0.99, 0.0)},
+    }
+    # 0.2 is over the false-positive budget in world a, 0.6 under the IoU target there;
+    # 0.3 and 0.4 tie at a worst recall of 0.95: the higher threshold wins
+    assert choose_threshold(sweep) == 0.4
+    sweep[0.3]["b"]["recall"] = 0.951
+    assert choose_threshold(sweep) == 0.3
+    nothing = {t: {"a": _sweep_row(0.8, 0.99, 0.5)} for t in (0.3, 0.5)}
+    assert choose_threshold(nothing) == THRESHOLD  # none qualifies: left as it is
+
+
+def test_folding_a_threshold_moves_the_heatmaps_operating_point_only() -> None:
+    from active_vision.calibrate import fold_threshold
+    from active_vision.models import HEAD_DEPTH, HEAD_HEATMAP
+
+    torch.manual_seed(0)
+    model = AVNet(AVNetConfig(widths=(4, 8, 8, 8))).eval()
+    x = torch.rand(3, 3, 32, 32)
+    with torch.no_grad():
+        before = model(x)
+        shift = fold_threshold(model, 0.3)
+        after = model(x)
+    assert shift == pytest.approx(-math.log(0.3 / 0.7))
+    p0 = torch.sigmoid(before[:, HEAD_HEATMAP])
+    p1 = torch.sigmoid(after[:, HEAD_HEATMAP])
+    sure = (p0 - 0.3).abs() > 1e-4  # away from the boundary, where rounding decides
+    assert torch.equal((p1 >= 0.5)[sure], (p0 >= 0.3)[sure])
+    assert torch.equal(after[:, HEAD_DEPTH], before[:, HEAD_DEPTH])
+    with pytest.raises(ValueError, match=r"give a value in \(0, 1\)"):
+        fold_threshold(model, 1.0)
+
+
+def test_calibrate_cli_writes_the_shifted_head_and_its_threshold(tmp_path, heldout: ds.Dataset,
+                                                                capsys) -> None:
+    from active_vision.calibrate import main as calibrate_main
+    from active_vision.models import HEAD_HEATMAP, weights_meta
+
+    data = heldout.save(tmp_path / "tiny.npz")
+    out = tmp_path / "calibrated.pt"
+    assert calibrate_main(["--weights", str(DEFAULT_WEIGHTS), "--data", str(data), "--out",
+                           str(out), "--threads", "1", "--no-export",
+                           "--log-level", "WARNING"]) == 0
+    assert "chosen threshold" in capsys.readouterr().out
+    meta = weights_meta(out)
+    t = meta["heat_threshold"]
+    shift = meta["heat_logit_shift"] - weights_meta(DEFAULT_WEIGHTS).get("heat_logit_shift", 0.0)
+    assert shift == pytest.approx(-math.log(t / (1 - t)) if t != 0.5 else 0.0, abs=1e-6)
+    old = load_model(DEFAULT_WEIGHTS, fuse=False).head.bias[HEAD_HEATMAP].detach()
+    new = load_model(out, fuse=False).head.bias[HEAD_HEATMAP].detach()
+    assert float(new - old) == pytest.approx(shift, abs=5e-3)  # fp16 storage
+    assert not any(k.startswith("heldout_") for k in meta)  # figures of the old head: gone
