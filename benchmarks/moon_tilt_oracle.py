@@ -129,6 +129,8 @@ def main() -> int:
     p.add_argument("--val-frames", type=int, default=1200)
     p.add_argument("--epochs", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--full-res", type=int, default=0,
+                   help="channels of the network's full-resolution stage (0: none, as shipped)")
     p.add_argument("--cache", type=Path, default=Path("runs/moon_tilt_oracle"))
     a = p.parse_args()
     a.cache.mkdir(parents=True, exist_ok=True)
@@ -146,7 +148,7 @@ def main() -> int:
     gravity = a.mode == "gravity"
     n, batch, lr = len(rgb), 32, 4e-3
     steps = math.ceil(n / batch)
-    model = GravityNet(AVNetConfig())
+    model = GravityNet(AVNetConfig(full_res=a.full_res))
     model.train()
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=a.epochs * steps,
