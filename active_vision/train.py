@@ -13,10 +13,10 @@ while driving, random pedestrian appearance, half of them in inspect) is rendere
 ``--threads`` torch threads (default 2): the default 15 epochs take about 40 min on a
 2-core machine (150-165 s an epoch). The
 training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
-``--resume`` continues an interrupted run. After training, the heatmap head is calibrated
-on the validation split (:mod:`active_vision.calibrate`: the detection threshold that
-serves recall best within the false-positive budget becomes the head's 0.5;
-``--no-calibrate`` skips it). Writes ``active_vision/weights/avnet.pt`` (or ``--out``)
+``--resume`` continues an interrupted run. With ``--calibrate`` the heatmap head is then
+calibrated on the validation split (:mod:`active_vision.calibrate`: the detection
+threshold that serves recall best within the false-positive budget becomes the head's
+0.5). Writes ``active_vision/weights/avnet.pt`` (or ``--out``)
 with the held-out figures (driving split) of the result stored in its ``meta``.
 
 Losses:
@@ -160,9 +160,10 @@ class TrainConfig:
     """Start from these AVNet weights (same widths) instead of random ones: a fine-tune."""
     evaluate: bool = True
     """Evaluate on the held-out split after training and store the figures in the file."""
-    calibrate: bool = True
+    calibrate: bool = False
     """Fold the heatmap threshold chosen on the validation split into the head
-    (:mod:`active_vision.calibrate`) before the held-out evaluation."""
+    (:mod:`active_vision.calibrate`) before the held-out evaluation. Off by default: the
+    shipped network is uncalibrated (see that module for why)."""
     checkpoint: Path | None = None
     """Write the training state here after every epoch (default: ``out`` + ``.ckpt``);
     with ``resume`` a run picks up from it after an interruption."""
@@ -440,8 +441,9 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     p.add_argument("--init", type=Path, default=None,
                    help="start from these weights (a fine-tune) instead of random ones")
     p.add_argument("--no-evaluate", action="store_true", help="skip the held-out evaluation")
-    p.add_argument("--no-calibrate", action="store_true",
-                   help="leave the heatmap uncalibrated (no threshold chosen on validation)")
+    p.add_argument("--calibrate", action="store_true",
+                   help="fold the detection threshold chosen on the validation split into the "
+                   "heatmap head (active_vision.calibrate)")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="training state file, written every epoch (default: OUT.ckpt)")
     p.add_argument("--resume", action="store_true",
@@ -474,7 +476,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                        small_figure_boost=not a.no_small_figure_boost,
                        paste_prob=a.paste_prob, edge_paste_share=a.edge_paste_share,
                        init=a.init, depth_world_weights=weights,
-                       evaluate=not a.no_evaluate, calibrate=not a.no_calibrate,
+                       evaluate=not a.no_evaluate, calibrate=a.calibrate,
                        checkpoint=a.checkpoint, resume=a.resume)
 
 

@@ -344,6 +344,7 @@ def test_evaluate_refuses_an_unknown_split() -> None:
 
 @pytest.mark.parametrize("argv, message", [
     (["--paste-prob", "1.5"], "--paste-prob 1.5"),
+    (["--edge-paste-share", "-0.1"], "--edge-paste-share -0.1"),
     (["--depth-world-weight", "moon"], "WORLD=WEIGHT"),
     (["--depth-world-weight", "moon=-1"], "cannot be negative"),
     (["--init", "/nonexistent/avnet.pt"], "no such weights file"),
@@ -361,6 +362,10 @@ def test_train_cli_reads_world_depth_weights() -> None:
 
     cfg = _parse(["--depth-world-weight", "moon=3", "--depth-world-weight", "maze=0.5"])
     assert cfg.depth_world_weights == {"moon": 3.0, "maze": 0.5}
+    # the shipped recipe: no edge pastes, no calibration; both are options
+    assert cfg.edge_paste_share == 0.0 and not cfg.calibrate
+    cfg = _parse(["--edge-paste-share", "0.5", "--calibrate"])
+    assert cfg.edge_paste_share == 0.5 and cfg.calibrate
 
 
 def test_depth_bands_say_where_the_depth_goes_wrong() -> None:
