@@ -2,10 +2,11 @@
 
     python -m active_vision.calibrate --weights runs/x/avnet.pt [--out FILE]
 
-Everything that reads the heatmap reads it at 0.5 (the evaluation's ``THRESHOLD``, the
-reward's pedestrian term, the predictor's inputs). A network's best operating point is
-often elsewhere: the network of 2026-11-26 met every heatmap target on the validation
-split at 0.3 and missed inspect's recall at 0.5. Calibration sweeps the detection threshold
+The evaluation counts a pixel as a pedestrian at 0.5 (``THRESHOLD``), and the fused envs'
+reward and the predictor read the heatmap's values as they are, so a network's operating
+point is wherever its 0.5 lies. A network's best operating point is often elsewhere: the
+network of 2026-11-26 met every heatmap target on the validation split at 0.3 and missed
+inspect's recall at 0.5. Calibration sweeps the detection threshold
 on the **validation** split (never the held-out one, which reports) and picks the threshold
 ``t`` with the highest worst-world recall among those whose worst-world false-positive
 frames stay within ``FP_BUDGET`` and whose worst-world IoU meets its target (ties: the higher
