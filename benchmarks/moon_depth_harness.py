@@ -17,8 +17,8 @@ telling the network the tilt would help, before any wire change is made for it:
 3. print the validation moon delta1 (0.3-10 m) after every epoch, overall and by bands of
    16 image rows.
 
-    MUJOCO_GL=egl PYTHONPATH=. python benchmarks/moon_tilt_oracle.py --mode row &
-    MUJOCO_GL=egl PYTHONPATH=. python benchmarks/moon_tilt_oracle.py --mode gravity
+    MUJOCO_GL=egl PYTHONPATH=. python benchmarks/moon_depth_harness.py --mode row &
+    MUJOCO_GL=egl PYTHONPATH=. python benchmarks/moon_depth_harness.py --mode gravity
 
 The frames are rendered once into ``--cache`` (the first run renders; start the second
 after it has). Results: benchmarks/RESULTS.md, "Does the camera's tilt limit the moon's depth".
@@ -131,7 +131,7 @@ def main() -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--full-res", type=int, default=0,
                    help="channels of the network's full-resolution stage (0: none, as shipped)")
-    p.add_argument("--cache", type=Path, default=Path("runs/moon_tilt_oracle"))
+    p.add_argument("--cache", type=Path, default=Path("runs/moon_depth_harness"))
     a = p.parse_args()
     a.cache.mkdir(parents=True, exist_ok=True)
     paths = {}
