@@ -1,27 +1,30 @@
-"""Would the camera's tilt help the moon's depth? An oracle experiment, not a benchmark of speed.
+"""What limits the moon's depth? A harness that tries one change at a time (quality, not speed).
 
 The moon's monocular depth misses its target (delta1 0.74 against 0.85), and the network
-fits its own training frames no better than held-out ones. One suspect is the rover's tilt:
-on a height field the camera pitches and rolls, and nothing in a frame says by how much,
-while the depth of the ground at an image row depends on it. This script asks whether
-telling the network the tilt would help, before any wire change is made for it:
+fits its own training frames no better than held-out ones. A 40-minute training on all
+worlds is too slow to test each suspect, so this script trains a network of the shipped
+shape on moon driving frames only and compares runs that differ in one thing:
 
 1. render moon driving frames (training seed ``TRAIN_SEED``, validation seed
    ``VALIDATION_SEED``, the dataset's own driving episodes) and record with each frame the
    world's up vector in camera coordinates (from the simulator, exact);
-2. train two networks of the shipped shape on the same frames, batches and augmentation,
-   one thread each, that differ only in their fourth input channel:
-   - ``row``: the row coordinate, as shipped;
-   - ``gravity``: the sine of each pixel's ray elevation above the true horizon, from the
-     up vector (the row coordinate made tilt-aware; it follows the horizontal flip);
+2. train one network (8,000 frames, 10 epochs, one thread) whose fourth input channel is
+   - ``--mode row``: the row coordinate, as shipped;
+   - ``--mode gravity``: the sine of each pixel's ray elevation above the true horizon,
+     from the up vector (the row coordinate made tilt-aware; it follows the horizontal
+     flip): what an IMU in the camera segment's trailer would give;
+   and ``--full-res N`` adds the network's full-resolution stage;
 3. print the validation moon delta1 (0.3-10 m) after every epoch, overall and by bands of
    16 image rows.
 
-    MUJOCO_GL=egl PYTHONPATH=. python benchmarks/moon_depth_harness.py --mode row &
+    MUJOCO_GL=egl PYTHONPATH=. python benchmarks/moon_depth_harness.py --mode row
     MUJOCO_GL=egl PYTHONPATH=. python benchmarks/moon_depth_harness.py --mode gravity
 
-The frames are rendered once into ``--cache`` (the first run renders; start the second
-after it has). Results: benchmarks/RESULTS.md, "Does the camera's tilt limit the moon's depth".
+The frames are rendered once into ``--cache`` (the first run renders; start a second one
+after it has). To try a change to the world (its texture, shading or terrain), run the
+script with ``PYTHONPATH`` set to a copy of the tree whose ``rover_env/worlds/moon.py`` has
+the change and a ``--cache`` of its own. Results: benchmarks/RESULTS.md, "What limits the
+moon's depth".
 """
 
 from __future__ import annotations
