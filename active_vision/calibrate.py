@@ -34,6 +34,7 @@ import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -97,6 +98,16 @@ def calibrate(model: AVNet, data: Dataset, *, thresholds: Sequence[float] = CALI
     return t, shift, format_sweep(sweep)
 
 
+def calibrated_meta(meta: dict[str, Any], threshold: float, shift: float) -> dict[str, Any]:
+    """A weights file's ``meta`` after a calibration: ``heat_threshold`` set,
+    ``heat_logit_shift`` summed over calibrations, and the held-out figures (``heldout_*``,
+    measured with the old head) dropped."""
+    out = {k: v for k, v in meta.items() if not k.startswith("heldout_")}
+    out["heat_threshold"] = threshold
+    out["heat_logit_shift"] = float(meta.get("heat_logit_shift", 0.0)) + shift
+    return out
+
+
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m active_vision.calibrate",
                                 description="Fold the heatmap threshold chosen on the "
@@ -133,10 +144,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     t, shift, table = calibrate(model, data, threads=a.threads)
     print(table)
     print(f"chosen threshold {t:.2f}: logit shift {shift:+.4f}")
-    meta = {k: v for k, v in meta.items() if not k.startswith("heldout_")}  # now stale
-    meta["heat_threshold"] = t
-    meta["heat_logit_shift"] = float(meta.get("heat_logit_shift", 0.0)) + shift
-    out = save_weights(model, a.out or a.weights, meta)
+    out = save_weights(model, a.out or a.weights, calibrated_meta(meta, t, shift))
     print(f"wrote {out}")
     if a.no_export:
         return 0

@@ -485,17 +485,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     model, facts = train(cfg)
     meta: dict[str, float | str] = {**facts}
     path = _save(model, cfg.out, meta)  # first without figures: evaluation may fail
+    from active_vision.evaluate import evaluate, format_metrics, heldout
+
     if cfg.calibrate:
-        from active_vision.calibrate import calibrate
-        from active_vision.evaluate import heldout
+        from active_vision.calibrate import calibrate, calibrated_meta
 
         t, shift, table = calibrate(model, heldout(cfg.data_dir, split="validation"),
                                     threads=cfg.threads)
         print(table)
-        meta.update({"heat_threshold": t, "heat_logit_shift": shift})
+        meta = calibrated_meta(meta, t, shift)
         path = _save(model, cfg.out, meta)
     if cfg.evaluate:
-        from active_vision.evaluate import evaluate, format_metrics, heldout
 
         m = evaluate(model, heldout(cfg.data_dir), threads=cfg.threads)
         print(format_metrics(m))
