@@ -134,6 +134,10 @@ def main() -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--full-res", type=int, default=0,
                    help="channels of the network's full-resolution stage (0: none, as shipped)")
+    p.add_argument("--widths", type=lambda v: tuple(int(c) for c in v.split(",")),
+                   default=AVNetConfig().widths,
+                   help="channels at 1/2, 1/4, 1/8, 1/16 resolution, comma-separated "
+                        "(default: the shipped 16,32,64,96)")
     p.add_argument("--cache", type=Path, default=Path("runs/moon_depth_harness"))
     a = p.parse_args()
     a.cache.mkdir(parents=True, exist_ok=True)
@@ -151,7 +155,7 @@ def main() -> int:
     gravity = a.mode == "gravity"
     n, batch, lr = len(rgb), 32, 4e-3
     steps = math.ceil(n / batch)
-    model = GravityNet(AVNetConfig(full_res=a.full_res))
+    model = GravityNet(AVNetConfig(widths=a.widths, full_res=a.full_res))
     model.train()
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-4)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=a.epochs * steps,
