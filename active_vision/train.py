@@ -64,6 +64,7 @@ from active_vision.dataset import (
     DatasetConfig,
     build,
 )
+from active_vision.evaluate import MIN_BLOB_PX, MIN_PEDESTRIAN_PX
 from active_vision.models import (
     DEFAULT_WEIGHTS,
     HEAD_DEPTH,
@@ -80,6 +81,11 @@ logger = logging.getLogger(__name__)
 
 HARD_NEGATIVES = 32
 HARD_NEGATIVE_WEIGHT = 0.2
+HARD_POSITIVES = 2 * MIN_BLOB_PX
+"""Pixels of each pedestrian whose logits the hard-positive term pushes above 0: twice the
+smallest blob the evaluation counts as a detection."""
+HARD_POSITIVE_WEIGHT = 0.0
+"""Weight of the hard-positive term (:func:`hard_positive_loss`; ``--hard-positive-weight``)."""
 POSITIVE_WEIGHT = 3.0
 """Weight of pedestrian pixels in the heatmap's cross-entropy: a pedestrian of 30-60 px
 among 9,216 background pixels otherwise costs too little to miss (recall on driving frames
@@ -145,6 +151,8 @@ class TrainConfig:
     """Network widths."""
     full_res: int = AVNetConfig.full_res
     """Channels of the network's full-resolution stage (0: none)."""
+    hard_positive_weight: float = HARD_POSITIVE_WEIGHT
+    """Weight of the hard-positive term in the heatmap loss (0: off)."""
     small_figure_boost: bool = True
     """Weight small figures' pixels up (``SMALL_FIGURE_PX``) in the heatmap loss."""
     paste_prob: float = PASTE_PROB
@@ -281,12 +289,39 @@ def figure_weights(mask: torch.Tensor, small_boost: bool = True) -> torch.Tensor
     return torch.from_numpy(w).unsqueeze(1)
 
 
+def hard_positive_loss(heat_logit: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """Mean over the pedestrians of ``mask`` ``(N, 1, H, W)`` of ``softplus(-logit)`` over each
+    one's ``HARD_POSITIVES`` highest heatmap logits.
+
+    A pedestrian here is what the evaluation's recall counts: an 8-connected mask component
+    of at least ``MIN_PEDESTRIAN_PX`` pixels. The cross-entropy is a mean over pixels, so a
+    sliver of a figure beside a panel or at the frame's edge can stay just under 0.5 at a
+    small cost; this term is zero only when every such figure has a core that the evaluation
+    would count as a detection. It is the counterpart of the hard negatives. Zero (with a
+    gradient) for a batch without pedestrians."""
+    m = mask[:, 0].detach().numpy() > 0.5
+    flat = heat_logit[:, 0].flatten(1)
+    terms = []
+    for i in np.flatnonzero(m.reshape(len(m), -1).any(axis=1)):
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(m[i].astype(np.uint8),
+                                                               connectivity=8)
+        labels = labels.reshape(-1)
+        for k in range(1, n):
+            if stats[k, cv2.CC_STAT_AREA] < MIN_PEDESTRIAN_PX:
+                continue
+            px = torch.from_numpy(np.flatnonzero(labels == k))
+            terms.append(F.softplus(-flat[i, px].topk(HARD_POSITIVES).values).mean())
+    return torch.stack(terms).mean() if terms else flat.sum() * 0.0
+
+
 def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
-           heat_weight: torch.Tensor, depth_weight: torch.Tensor | None = None
+           heat_weight: torch.Tensor, depth_weight: torch.Tensor | None = None,
+           hard_positive_weight: float = HARD_POSITIVE_WEIGHT
            ) -> tuple[torch.Tensor, torch.Tensor]:
     """(heatmap loss, depth loss) for logits ``(N, 2, H, W)``, mask and metres ``(N,1,H,W)``,
-    with per-pixel cross-entropy weights ``heat_weight`` (:func:`figure_weights`) and
-    optional per-frame depth-loss weights ``depth_weight`` ``(N,)``."""
+    with per-pixel cross-entropy weights ``heat_weight`` (:func:`figure_weights`),
+    optional per-frame depth-loss weights ``depth_weight`` ``(N,)`` and the weight of the
+    hard-positive term (:func:`hard_positive_loss`)."""
     heat_logit = logits[:, HEAD_HEATMAP:HEAD_HEATMAP + 1]
     bce = F.binary_cross_entropy_with_logits(heat_logit, mask, weight=heat_weight)
     prob = torch.sigmoid(heat_logit)
@@ -297,6 +332,8 @@ def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
     bg_logits = heat_logit.masked_fill(near, float("-inf")).flatten(1)
     hard = F.softplus(bg_logits.topk(HARD_NEGATIVES, dim=1).values).mean()
     heat = bce + 0.5 * dice + HARD_NEGATIVE_WEIGHT * hard
+    if hard_positive_weight > 0.0:
+        heat = heat + hard_positive_weight * hard_positive_loss(heat_logit, mask)
     log_d = logits[:, HEAD_DEPTH:HEAD_DEPTH + 1]
     near = depth_m < DEPTH_MAX_M
     far_log = math.log(DEPTH_MAX_M)
@@ -369,7 +406,7 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
             x, m, d = _augment(x, mask[idx], depth_m[idx], gen, cfg.paste_prob,
                                cfg.edge_paste_share)
             heat, dep = losses(model(x), m, d, figure_weights(m, cfg.small_figure_boost),
-                               frame_depth_weight[idx])
+                               frame_depth_weight[idx], cfg.hard_positive_weight)
             loss = heat + dep
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -429,6 +466,9 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                    help="channels of the full-resolution stage (0: none, the v2 layout)")
     p.add_argument("--no-small-figure-boost", action="store_true",
                    help="weigh every pedestrian pixel alike in the heatmap loss")
+    p.add_argument("--hard-positive-weight", type=float, default=d.hard_positive_weight,
+                   help="weight of the hard-positive term: each pedestrian's highest heatmap "
+                   "logits pushed above 0 (0: off)")
     p.add_argument("--paste-prob", type=float, default=d.paste_prob,
                    help="share of frames that receive another frame's pedestrians (0: off)")
     p.add_argument("--edge-paste-share", type=float, default=d.edge_paste_share,
@@ -452,6 +492,8 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     a = p.parse_args(argv)
     if not 0.0 <= a.paste_prob <= 1.0:
         p.error(f"--paste-prob {a.paste_prob}: give a share in [0, 1]")
+    if a.hard_positive_weight < 0:
+        p.error(f"--hard-positive-weight {a.hard_positive_weight}: a weight cannot be negative")
     if not 0.0 <= a.edge_paste_share <= 1.0:
         p.error(f"--edge-paste-share {a.edge_paste_share}: give a share in [0, 1]")
     weights = dict(DEPTH_WORLD_WEIGHTS)
@@ -474,6 +516,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                        max_minutes=a.max_minutes, out=a.out,
                        widths=_widths(a.widths, p), full_res=a.full_res,
                        small_figure_boost=not a.no_small_figure_boost,
+                       hard_positive_weight=a.hard_positive_weight,
                        paste_prob=a.paste_prob, edge_paste_share=a.edge_paste_share,
                        init=a.init, depth_world_weights=weights,
                        evaluate=not a.no_evaluate, calibrate=a.calibrate,

@@ -302,6 +302,38 @@ def test_a_worlds_depth_weight_scales_its_frames_depth_loss() -> None:
     assert torch.allclose(tilted, (3 * first + second) / 2)
 
 
+def test_hard_positives_push_each_counted_figures_strongest_pixels_up() -> None:
+    from active_vision.evaluate import MIN_PEDESTRIAN_PX
+    from active_vision.train import HARD_POSITIVES, hard_positive_loss, losses
+
+    mask = torch.zeros(3, 1, 32, 32)
+    mask[0, 0, 4:20, 4:8] = 1  # a 64-px figure: counted by the evaluation's recall
+    mask[1, 0, 0:4, 0:5] = 1  # a 20-px sliver: under MIN_PEDESTRIAN_PX, not counted
+    assert mask[1].sum() < MIN_PEDESTRIAN_PX <= mask[0].sum()
+    logits = torch.full((3, 2, 32, 32), -4.0)
+    logits[0, 0, 4:20, 4:8] = torch.linspace(-3.0, 1.0, 64).view(16, 4)
+    logits.requires_grad_(True)
+    loss = hard_positive_loss(logits[:, :1], mask)
+    loss.backward()
+    grad = logits.grad[:, 0]
+    # only the figure's HARD_POSITIVES highest logits move, and upwards
+    assert int((grad[0] != 0).sum()) == HARD_POSITIVES
+    assert float(grad[0].max()) <= 0.0
+    assert float(grad[1:].abs().sum()) == 0.0
+    top = torch.linspace(-3.0, 1.0, 64)[-HARD_POSITIVES:]
+    assert torch.isclose(loss, torch.nn.functional.softplus(-top).mean())
+    # a figure whose core is confident costs almost nothing; no figure costs nothing
+    sure = logits.detach().clone()
+    sure[0, 0, 4:20, 4:8] = 8.0
+    assert float(hard_positive_loss(sure[:, :1], mask)) < 1e-3
+    assert float(hard_positive_loss(sure[:, :1], torch.zeros_like(mask))) == 0.0
+    # in losses() it is off by default and adds weight * term when on
+    w, depth = torch.ones_like(mask), torch.full_like(mask, 2.0)
+    off, _ = losses(logits.detach(), mask, depth, w)
+    on, _ = losses(logits.detach(), mask, depth, w, hard_positive_weight=0.5)
+    assert torch.isclose(on - off, 0.5 * loss.detach())
+
+
 def test_training_can_start_from_weights_of_the_same_shape(tmp_path, heldout) -> None:
     data = heldout.save(tmp_path / "tiny.npz")
     start = AVNet(AVNetConfig(widths=(4, 8, 8, 8)))
@@ -345,6 +377,7 @@ def test_evaluate_refuses_an_unknown_split() -> None:
 @pytest.mark.parametrize("argv, message", [
     (["--paste-prob", "1.5"], "--paste-prob 1.5"),
     (["--edge-paste-share", "-0.1"], "--edge-paste-share -0.1"),
+    (["--hard-positive-weight", "-0.2"], "--hard-positive-weight -0.2"),
     (["--depth-world-weight", "moon"], "WORLD=WEIGHT"),
     (["--depth-world-weight", "moon=-1"], "cannot be negative"),
     (["--init", "/nonexistent/avnet.pt"], "no such weights file"),
