@@ -459,6 +459,45 @@ def test_calibration_picks_the_best_worst_world_recall_within_the_budgets() -> N
     assert choose_threshold(nothing) == THRESHOLD  # none qualifies: left as it is
 
 
+def test_train_cli_calibrates_on_validation_then_reports_on_heldout(
+        tmp_path, heldout: ds.Dataset, monkeypatch, capsys) -> None:
+    import active_vision.calibrate as cal
+    import active_vision.evaluate as ev
+    from active_vision.models import HEAD_HEATMAP, load_model, weights_meta
+    from active_vision.train import main as train_main
+
+    data = heldout.save(tmp_path / "tiny.npz")
+    splits: list[str] = []
+
+    def tiny_split(data_dir, frames=0, worlds=(), split="heldout"):  # noqa: ANN001, ANN202
+        splits.append(split)
+        return heldout
+
+    monkeypatch.setattr(ev, "heldout", tiny_split)
+    monkeypatch.setattr(cal, "choose_threshold", lambda sweep: 0.3)
+    argv = ["--data", str(data), "--epochs", "1", "--batch", "16", "--threads", "1",
+            "--widths", "4,8,8,8", "--hard-positive-weight", "0.2", "--log-level", "WARNING"]
+    assert train_main([*argv, "--out", str(tmp_path / "plain.pt")]) == 0
+    assert splits == ["heldout"]
+    assert train_main([*argv, "--out", str(tmp_path / "cal.pt"), "--calibrate"]) == 0
+    assert splits == ["heldout", "validation", "heldout"]  # chosen on validation only
+    assert "detection threshold sweep" in capsys.readouterr().out
+    meta = weights_meta(tmp_path / "cal.pt")
+    assert meta["heat_threshold"] == 0.3
+    assert meta["heat_logit_shift"] == pytest.approx(-math.log(0.3 / 0.7))
+    assert "heldout_recall" in meta  # measured after the fold, with the calibrated head
+    plain = load_model(tmp_path / "plain.pt", fuse=False).state_dict()
+    calibrated = load_model(tmp_path / "cal.pt", fuse=False).state_dict()
+    for k, v in plain.items():  # the same training (seeded); only the heatmap bias moved
+        if k == "head.bias":
+            assert calibrated[k][HEAD_HEATMAP] == pytest.approx(
+                float(v[HEAD_HEATMAP]) + meta["heat_logit_shift"], abs=2e-3)
+            assert calibrated[k][1 - HEAD_HEATMAP] == v[1 - HEAD_HEATMAP]
+        else:
+            assert torch.equal(calibrated[k], v), k
+    assert list(tmp_path.glob("cal-*.onnx")), "the ONNX export is written beside the weights"
+
+
 def test_folding_a_threshold_moves_the_heatmaps_operating_point_only() -> None:
     from active_vision.calibrate import fold_threshold
     from active_vision.models import HEAD_DEPTH, HEAD_HEATMAP
