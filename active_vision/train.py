@@ -85,7 +85,11 @@ HARD_POSITIVES = 2 * MIN_BLOB_PX
 """Pixels of each pedestrian whose logits the hard-positive term pushes above 0: twice the
 smallest blob the evaluation counts as a detection."""
 HARD_POSITIVE_WEIGHT = 0.0
-"""Weight of the hard-positive term (:func:`hard_positive_loss`; ``--hard-positive-weight``)."""
+"""Weight of the hard-positive term (:func:`hard_positive_loss`; ``--hard-positive-weight``).
+Off: a run of the shipped recipe with 0.2 did not raise inspect's recall on the validation
+split at 0.5 (0.939 against 0.941) and gave false detections (0.46 % of inspect's empty
+frames against 0); it moves the network's operating point (recall 0.955 at 0.4) rather than
+what it can see (benchmarks/RESULTS.md, 2026-11-26)."""
 POSITIVE_WEIGHT = 3.0
 """Weight of pedestrian pixels in the heatmap's cross-entropy: a pedestrian of 30-60 px
 among 9,216 background pixels otherwise costs too little to miss (recall on driving frames
