@@ -300,9 +300,10 @@ def hard_positive_loss(heat_logit: torch.Tensor, mask: torch.Tensor) -> torch.Te
     A pedestrian here is what the evaluation's recall counts: an 8-connected mask component
     of at least ``MIN_PEDESTRIAN_PX`` pixels. The cross-entropy is a mean over pixels, so a
     sliver of a figure beside a panel or at the frame's edge can stay just under 0.5 at a
-    small cost; this term is zero only when every such figure has a core that the evaluation
-    would count as a detection. It is the counterpart of the hard negatives. Zero (with a
-    gradient) for a batch without pedestrians."""
+    small cost; this term stays small only when every such figure has a core of
+    ``HARD_POSITIVES`` confident pixels, which the evaluation would count as a detection. It
+    is the counterpart of the hard negatives. Zero (with a gradient) for a batch without
+    pedestrians."""
     m = mask[:, 0].detach().numpy() > 0.5
     flat = heat_logit[:, 0].flatten(1)
     terms = []
@@ -439,13 +440,15 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
     return model, facts
 
 
-def _widths(text: str, p: argparse.ArgumentParser) -> tuple[int, int, int, int]:
+def parse_widths(text: str) -> tuple[int, int, int, int]:
+    """The network's four widths from ``"16,32,64,96"`` (an argparse ``type``)."""
     try:
         w = tuple(int(v) for v in text.split(","))
     except ValueError:
         w = ()
     if len(w) != 4 or min(w) < 1:
-        p.error(f"--widths {text!r}: give four positive integers, e.g. 16,32,64,96")
+        raise argparse.ArgumentTypeError(f"{text!r}: give four positive integers, "
+                                         "e.g. 16,32,64,96")
     return w  # type: ignore[return-value]
 
 
@@ -464,7 +467,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--max-minutes", type=float, default=d.max_minutes)
     p.add_argument("--out", type=Path, default=d.out)
-    p.add_argument("--widths", default=",".join(map(str, d.widths)),
+    p.add_argument("--widths", type=parse_widths, default=d.widths,
                    help="the network's four widths, comma-separated")
     p.add_argument("--full-res", type=int, default=d.full_res,
                    help="channels of the full-resolution stage (0: none, the v2 layout)")
@@ -518,7 +521,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                        worlds=tuple(w for w in a.worlds.split(",") if w), epochs=a.epochs,
                        batch=a.batch, lr=a.lr, threads=a.threads, seed=a.seed,
                        max_minutes=a.max_minutes, out=a.out,
-                       widths=_widths(a.widths, p), full_res=a.full_res,
+                       widths=a.widths, full_res=a.full_res,
                        small_figure_boost=not a.no_small_figure_boost,
                        hard_positive_weight=a.hard_positive_weight,
                        paste_prob=a.paste_prob, edge_paste_share=a.edge_paste_share,

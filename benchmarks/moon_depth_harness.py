@@ -40,7 +40,7 @@ import torch
 from active_vision.dataset import TRAIN_SEED, VALIDATION_SEED, DatasetConfig, FrameRenderer
 from active_vision.driving import DriveRecorder
 from active_vision.models import HEAD_DEPTH, AVNet, AVNetConfig
-from active_vision.train import _augment, figure_weights, losses
+from active_vision.train import _augment, figure_weights, losses, parse_widths
 from rover_env.rover import CAMERA_FOVY, CAMERA_NAME
 
 SIZE = 96
@@ -134,8 +134,7 @@ def main() -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--full-res", type=int, default=0,
                    help="channels of the network's full-resolution stage (0: none, as shipped)")
-    p.add_argument("--widths", type=lambda v: tuple(int(c) for c in v.split(",")),
-                   default=AVNetConfig().widths,
+    p.add_argument("--widths", type=parse_widths, default=AVNetConfig().widths,
                    help="channels at 1/2, 1/4, 1/8, 1/16 resolution, comma-separated "
                         "(default: the shipped 16,32,64,96)")
     p.add_argument("--cache", type=Path, default=Path("runs/moon_depth_harness"))

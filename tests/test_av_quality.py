@@ -378,6 +378,7 @@ def test_evaluate_refuses_an_unknown_split() -> None:
     (["--paste-prob", "1.5"], "--paste-prob 1.5"),
     (["--edge-paste-share", "-0.1"], "--edge-paste-share -0.1"),
     (["--hard-positive-weight", "-0.2"], "--hard-positive-weight -0.2"),
+    (["--widths", "16,32"], "'16,32': give four positive integers"),
     (["--depth-world-weight", "moon"], "WORLD=WEIGHT"),
     (["--depth-world-weight", "moon=-1"], "cannot be negative"),
     (["--init", "/nonexistent/avnet.pt"], "no such weights file"),
