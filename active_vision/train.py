@@ -28,7 +28,8 @@ Losses:
   term over the batch (keeps small pedestrians from drowning in background pixels), plus a
   hard-negative term: the ``HARD_NEGATIVES`` highest background logits of each frame pushed
   towards 0 (false detections are a few confident pixels that the mean cross-entropy
-  barely sees);
+  barely sees), and, with ``--hard-positive-weight`` (off by default), its counterpart:
+  each counted pedestrian's ``HARD_POSITIVES`` highest logits pushed above 0;
 - depth: the head predicts log metric depth; L1 on ``log d`` for pixels nearer than the far
   limit (for small errors that is AbsRel, and it is symmetric in the depth ratio that
   delta1 tests), and a hinge ``max(0, log DEPTH_MAX_M - log_d)`` for far/sky pixels, which
@@ -48,7 +49,7 @@ import logging
 import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -271,6 +272,16 @@ def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
     return x, mask, depth
 
 
+def figure_components(mask: torch.Tensor) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """For each frame of a float mask ``(N, 1, H, W)`` with pedestrian pixels: its index, its
+    8-connected component labels ``(H, W)`` (0: background) and each label's pixel count."""
+    m = mask[:, 0].detach().numpy() > 0.5
+    for i in np.flatnonzero(m.reshape(len(m), -1).any(axis=1)):
+        _, labels, stats, _ = cv2.connectedComponentsWithStats(m[i].astype(np.uint8),
+                                                               connectivity=8)
+        yield int(i), labels, stats[:, cv2.CC_STAT_AREA]
+
+
 def figure_weights(mask: torch.Tensor, small_boost: bool = True) -> torch.Tensor:
     """Per-pixel heatmap weights ``(N, 1, H, W)`` for a float mask ``(N, 1, H, W)``: 1 on the
     background, ``POSITIVE_WEIGHT`` on pedestrian pixels, and with ``small_boost`` times
@@ -278,14 +289,9 @@ def figure_weights(mask: torch.Tensor, small_boost: bool = True) -> torch.Tensor
     component) of fewer than ``SMALL_FIGURE_PX`` pixels."""
     if not small_boost:
         return 1.0 + (POSITIVE_WEIGHT - 1.0) * mask
-    m = mask[:, 0].numpy() > 0.5
-    w = np.ones(m.shape, np.float32)
-    for i in range(m.shape[0]):
-        if not m[i].any():
-            continue
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(m[i].astype(np.uint8),
-                                                               connectivity=8)
-        area = stats[:, cv2.CC_STAT_AREA].astype(np.float32)
+    w = np.ones((mask.shape[0], *mask.shape[2:]), np.float32)
+    for i, labels, area in figure_components(mask):
+        area = area.astype(np.float32)
         boost = np.clip(np.sqrt(SMALL_FIGURE_PX / np.maximum(area, 1.0)), 1.0,
                         SMALL_FIGURE_MAX_BOOST)
         boost[0] = 1.0 / POSITIVE_WEIGHT  # label 0: the background
@@ -304,16 +310,11 @@ def hard_positive_loss(heat_logit: torch.Tensor, mask: torch.Tensor) -> torch.Te
     ``HARD_POSITIVES`` confident pixels, which the evaluation would count as a detection. It
     is the counterpart of the hard negatives. Zero (with a gradient) for a batch without
     pedestrians."""
-    m = mask[:, 0].detach().numpy() > 0.5
     flat = heat_logit[:, 0].flatten(1)
     terms = []
-    for i in np.flatnonzero(m.reshape(len(m), -1).any(axis=1)):
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(m[i].astype(np.uint8),
-                                                               connectivity=8)
+    for i, labels, area in figure_components(mask):
         labels = labels.reshape(-1)
-        for k in range(1, n):
-            if stats[k, cv2.CC_STAT_AREA] < MIN_PEDESTRIAN_PX:
-                continue
+        for k in np.flatnonzero(area[1:] >= MIN_PEDESTRIAN_PX) + 1:  # label 0: background
             px = torch.from_numpy(np.flatnonzero(labels == k))
             terms.append(F.softplus(-flat[i, px].topk(HARD_POSITIVES).values).mean())
     return torch.stack(terms).mean() if terms else flat.sum() * 0.0

@@ -13,7 +13,8 @@ shape on moon driving frames only and compares runs that differ in one thing:
    - ``--mode gravity``: the sine of each pixel's ray elevation above the true horizon,
      from the up vector (the row coordinate made tilt-aware; it follows the horizontal
      flip): what an IMU in the camera segment's trailer would give;
-   and ``--full-res N`` adds the network's full-resolution stage;
+   ``--full-res N`` adds the network's full-resolution stage and ``--widths`` sets its
+   four widths;
 3. print the validation moon delta1 (0.3-10 m) after every epoch, overall and by bands of
    16 image rows.
 
