@@ -69,9 +69,10 @@ VALIDATION_SEED = 2_000_003
 trained networks (options, epochs, seeds) without looking at the figures reported."""
 SPLIT_SEEDS = {"heldout": HELDOUT_SEED, "validation": VALIDATION_SEED}
 """The evaluation splits by name: the figures reported, and the one to choose on."""
-DATASET_VERSION = 5
+DATASET_VERSION = 6
 """Part of the cache file name: bump it when rendering changes, so stale files are not reused
-(5: the moon's ground texture, 2026-11-25)."""
+(5: the moon's ground texture, 2026-11-25; 6: the moon's gentler metre-scale roughness,
+2026-11-26)."""
 KIND_EMPTY, KIND_WALKING, KIND_PLACED, KIND_DRIVING = 0, 1, 2, 3
 _GROUND_CHECK_M = 3.0
 _GROUND_MIN_M = 0.12

@@ -63,7 +63,7 @@ from shm_protocol import CHANNEL_HEATMAP
 
 logger = logging.getLogger(__name__)
 
-PRED_DATA_VERSION = 2  # 2: the moon's ground texture (dataset.DATASET_VERSION 5)
+PRED_DATA_VERSION = 3  # 2: the moon's ground texture (DATASET_VERSION 5); 3: its roughness (6)
 THRESHOLD = 0.5
 HELDOUT_EPISODES = 180
 """Held-out (and validation) episodes: 60 per world, 24 targets each at most. With 20 per

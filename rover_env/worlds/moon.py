@@ -29,6 +29,12 @@ _RADIUS = (17.0, 22.0)  # hfield covers x in [-22, 12], y in [-22, 22]
 _CELL = 1.0  # m between height samples: coarse, cheap to collide and ray-cast
 _BASE = 0.5
 _FLAT_HALF = 5.0  # |x|, |y| below this stay gentle
+_ROUGHNESS = 0.05
+"""Standard deviation (m) of each 1 m cell's random height beyond the spawn square. Lunar
+regolith slopes a few degrees at a 1 m baseline; 0.05 m gives about 4 degrees between
+neighbouring cells (0.25 m, used until 2026-11-26, gave about 19 degrees: facets each tilted
+differently, which no camera at 96 pixels can read depth from; benchmarks/RESULTS.md, "What
+limits the moon's depth"). The hills and crater rims keep their 35-40 degree slopes."""
 _ROCK_RGBA = "0.42 0.41 0.39 1"
 # Hills (x, y, height m, sigma m) and craters (x, y, rim radius m, rim height m).
 _HILLS = (
@@ -52,7 +58,7 @@ def _terrain(x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> np.ndarr
         r = np.hypot(x - cx, y - cy)
         rough += rim * np.exp(-((r - radius) ** 2) / (2 * 0.6**2))
         rough -= 1.2 * rim * np.exp(-(r**2) / (2 * (0.5 * radius) ** 2))
-    rough += 0.25 * rng.standard_normal(x.shape)  # boulder-field roughness
+    rough += _ROUGHNESS * rng.standard_normal(x.shape)  # metre-scale regolith roughness
     # Keep the spawn square gentle: roughness fades in beyond _FLAT_HALF.
     d = np.maximum(np.abs(x), np.abs(y)) - _FLAT_HALF
     fade = np.clip(d / 3.0, 0.0, 1.0)
