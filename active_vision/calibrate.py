@@ -19,8 +19,9 @@ before its held-out evaluation; this command calibrates an existing weights file
 writes its ONNX export beside the result). The shift is stored in the weights' ``meta`` as
 ``heat_logit_shift`` (summed over calibrations) with the chosen ``heat_threshold``.
 
-The shipped network is **not** calibrated. Calibrated (threshold 0.3, chosen here), its
-held-out inspect recall rose from 0.932 to 0.944, still short of 0.95, and the predictive
+The shipped network is **not** calibrated. The one shipped before it (until 2026-11-26
+09:00), calibrated (threshold 0.3, chosen here), had its held-out inspect recall rise from
+0.932 to 0.944, still short of 0.95, and the predictive
 heatmap retrained on it beat detection in inspect by 0.0997 instead of 0.109: a lower
 threshold makes the detection baseline a better guess of where people will be, and the
 target of +0.10 was lost (benchmarks/RESULTS.md, 2026-11-26).
