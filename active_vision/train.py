@@ -9,9 +9,12 @@ needs both heads from one file), so it is trained on the sum of the two losses.
 
 Without ``--data`` the training split (``dataset.TRAIN_SEED``, 40,000 frames, 70 % recorded
 while driving, random pedestrian appearance, half of them in inspect) is rendered into
-``--data-dir`` on first use (about two minutes) and reused afterwards. CPU only,
-``--threads`` torch threads (default 2): the default 15 epochs take about 40 min on a
-2-core machine (150-165 s an epoch). The
+``--data-dir`` on first use (about two minutes) and reused afterwards. On the CPU by
+default, ``--threads`` torch threads (default 2): the default 15 epochs take about 40 min on
+a 2-core machine (130-165 s an epoch). ``--device cuda`` trains on a GPU with the same
+batches (the random draws stay on the CPU generator); the step is bound by the augmentation's
+per-frame work, so an H200 beside 15 CPU cores took about 25 s an epoch with two runs sharing
+it. The
 training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
 ``--resume`` continues an interrupted run. With ``--calibrate`` the heatmap head is then
 calibrated on the validation split (:mod:`active_vision.calibrate`: the detection
@@ -149,6 +152,10 @@ class TrainConfig:
     """Peak learning rate (one-cycle schedule)."""
     threads: int = 2
     """torch threads."""
+    device: str = "cpu"
+    """torch device to train on (``cpu``, ``cuda``, ``cuda:1``). The random draws (batch order,
+    augmentation) are made on the CPU generator either way, so a run on a GPU sees the same
+    batches as on the CPU; its weights differ by the float order of the kernels."""
     seed: int = 0
     """torch seed (initial weights, batch order, augmentation)."""
     max_minutes: float = 90.0
@@ -257,19 +264,19 @@ def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
              gen: torch.Generator, paste_prob: float = 0.0,
              edge_share: float = EDGE_PASTE_SHARE
              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    n = x.shape[0]
+    n, dev = x.shape[0], x.device
     if paste_prob > 0.0:
         x, mask, depth = paste_figures(x, mask, depth, gen, paste_prob, edge_share)
-    flip = torch.rand(n, generator=gen) < 0.5
+    flip = (torch.rand(n, generator=gen) < 0.5).to(dev)
     x = torch.where(flip.view(n, 1, 1, 1), x.flip(-1), x)
     mask = torch.where(flip.view(n, 1, 1, 1), mask.flip(-1), mask)
     depth = torch.where(flip.view(n, 1, 1, 1), depth.flip(-1), depth)
-    bright = (torch.rand(n, 1, 1, 1, generator=gen) - 0.5) * 0.3
-    contrast = 0.7 + 0.6 * torch.rand(n, 1, 1, 1, generator=gen)
-    gain = 0.9 + 0.2 * torch.rand(n, 3, 1, 1, generator=gen)
+    bright = ((torch.rand(n, 1, 1, 1, generator=gen) - 0.5) * 0.3).to(dev)
+    contrast = (0.7 + 0.6 * torch.rand(n, 1, 1, 1, generator=gen)).to(dev)
+    gain = (0.9 + 0.2 * torch.rand(n, 3, 1, 1, generator=gen)).to(dev)
     mean = x.mean(dim=(1, 2, 3), keepdim=True)
     x = (x - mean) * contrast + mean + bright
-    x = x * gain + 0.02 * torch.randn(x.shape, generator=gen)
+    x = x * gain + 0.02 * torch.randn(x.shape, generator=gen).to(dev)
     # the daemon sees uint8 frames: quantise like them
     x = torch.round(x.clamp(0.0, 1.0) * 255.0) / 255.0
     return x, mask, depth
@@ -278,7 +285,7 @@ def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
 def figure_components(mask: torch.Tensor) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """For each frame of a float mask ``(N, 1, H, W)`` with pedestrian pixels: its index, its
     8-connected component labels ``(H, W)`` (0: background) and each label's pixel count."""
-    m = mask[:, 0].detach().numpy() > 0.5
+    m = mask[:, 0].detach().cpu().numpy() > 0.5
     for i in np.flatnonzero(m.reshape(len(m), -1).any(axis=1)):
         _, labels, stats, _ = cv2.connectedComponentsWithStats(m[i].astype(np.uint8),
                                                                connectivity=8)
@@ -299,7 +306,7 @@ def figure_weights(mask: torch.Tensor, small_boost: bool = True) -> torch.Tensor
                         SMALL_FIGURE_MAX_BOOST)
         boost[0] = 1.0 / POSITIVE_WEIGHT  # label 0: the background
         w[i] = POSITIVE_WEIGHT * boost[labels]
-    return torch.from_numpy(w).unsqueeze(1)
+    return torch.from_numpy(w).unsqueeze(1).to(mask.device)
 
 
 def hard_positive_loss(heat_logit: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
@@ -318,7 +325,7 @@ def hard_positive_loss(heat_logit: torch.Tensor, mask: torch.Tensor) -> torch.Te
     for i, labels, area in figure_components(mask):
         labels = labels.reshape(-1)
         for k in np.flatnonzero(area[1:] >= MIN_PEDESTRIAN_PX) + 1:  # label 0: background
-            px = torch.from_numpy(np.flatnonzero(labels == k))
+            px = torch.from_numpy(np.flatnonzero(labels == k)).to(flat.device)
             terms.append(F.softplus(-flat[i, px].topk(HARD_POSITIVES).values).mean())
     return torch.stack(terms).mean() if terms else flat.sum() * 0.0
 
@@ -364,14 +371,15 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
         path = cfg.data or build(cfg.data_dir, DatasetConfig(frames=cfg.frames, seed=TRAIN_SEED,
                                                             worlds=cfg.worlds))
         data = Dataset.load(path)
-    rgb = torch.from_numpy(data.rgb).permute(0, 3, 1, 2).contiguous()  # uint8 N,3,H,W
-    mask = torch.from_numpy(data.mask).unsqueeze(1).float()
+    dev = torch.device(cfg.device)
+    rgb = torch.from_numpy(data.rgb).permute(0, 3, 1, 2).contiguous().to(dev)  # uint8 N,3,H,W
+    mask = torch.from_numpy(data.mask).unsqueeze(1).float().to(dev)
     depth_m = torch.from_numpy(np.nan_to_num(data.depth, nan=1e3, posinf=1e3)).unsqueeze(1)
-    depth_m = depth_m.clamp(min=1e-3)
+    depth_m = depth_m.clamp(min=1e-3).to(dev)
     n = rgb.shape[0]
     frame_depth_weight = torch.tensor(
         [cfg.depth_world_weights.get(w, 1.0) for w in data.worlds], dtype=torch.float32
-    )[torch.from_numpy(data.world)]
+    )[torch.from_numpy(data.world)].to(dev)
     model = AVNet(AVNetConfig(widths=tuple(cfg.widths), full_res=cfg.full_res))
     if cfg.init is not None:
         start = load_model(cfg.init, fuse=False)
@@ -381,7 +389,7 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
                              f"{model.config.full_res}: pass the same --widths/--full-res")
         model.load_state_dict(start.state_dict())
         logger.info("starting from %s", cfg.init)
-    model.train()
+    model.to(dev).train()
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=1e-4)
     steps_per_epoch = math.ceil(n / cfg.batch)
     total_steps = cfg.epochs * steps_per_epoch
@@ -437,7 +445,7 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
             logger.warning("stopping after %d epochs: over --max-minutes %.1f", epoch + 1,
                            cfg.max_minutes)
             break
-    model.eval()
+    model.to("cpu").eval()
     facts = {"epochs": float(epoch + 1), "seconds": time.perf_counter() - t0,
              "frames": float(n), "heat_loss": hist["heat"], "depth_loss": hist["depth"],
              "dataset_seed": float(data.seed)}
@@ -468,6 +476,8 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     p.add_argument("--batch", type=int, default=d.batch)
     p.add_argument("--lr", type=float, default=d.lr)
     p.add_argument("--threads", type=int, default=d.threads)
+    p.add_argument("--device", default=d.device,
+                   help="torch device to train on: cpu (default), cuda, cuda:N")
     p.add_argument("--seed", type=int, default=d.seed)
     p.add_argument("--max-minutes", type=float, default=d.max_minutes)
     p.add_argument("--out", type=Path, default=d.out)
@@ -518,12 +528,19 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
             p.error(f"--depth-world-weight {item!r}: a weight cannot be negative")
     if a.init is not None and not a.init.is_file():
         p.error(f"--init {a.init}: no such weights file")
+    try:
+        device = torch.device(a.device)
+    except RuntimeError:
+        p.error(f"--device {a.device!r}: give cpu, cuda or cuda:N")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        p.error(f"--device {a.device}: this torch sees no CUDA GPU; train with --device cpu")
     if a.full_res < 0:
         p.error(f"--full-res {a.full_res}: give 0 (no full-resolution stage) or a channel count")
     logging.basicConfig(level=a.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     return TrainConfig(data=a.data, data_dir=a.data_dir, frames=a.frames,
                        worlds=tuple(w for w in a.worlds.split(",") if w), epochs=a.epochs,
-                       batch=a.batch, lr=a.lr, threads=a.threads, seed=a.seed,
+                       batch=a.batch, lr=a.lr, threads=a.threads, device=a.device,
+                       seed=a.seed,
                        max_minutes=a.max_minutes, out=a.out,
                        widths=a.widths, full_res=a.full_res,
                        small_figure_boost=not a.no_small_figure_boost,

@@ -382,6 +382,9 @@ def test_evaluate_refuses_an_unknown_split() -> None:
     (["--depth-world-weight", "moon"], "WORLD=WEIGHT"),
     (["--depth-world-weight", "moon=-1"], "cannot be negative"),
     (["--init", "/nonexistent/avnet.pt"], "no such weights file"),
+    (["--device", "tpu9"], "--device 'tpu9': give cpu, cuda or cuda:N"),
+    pytest.param(["--device", "cuda"], "sees no CUDA GPU; train with --device cpu",
+                 marks=pytest.mark.skipif(torch.cuda.is_available(), reason="has a GPU")),
 ])
 def test_train_cli_names_a_bad_option(argv, message, capsys) -> None:
     from active_vision.train import _parse
