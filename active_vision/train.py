@@ -13,7 +13,7 @@ while driving, random pedestrian appearance, half of them in inspect) is rendere
 default, ``--threads`` torch threads (default 2): the default 15 epochs take about 40 min on
 a 2-core machine (130-165 s an epoch). ``--device cuda`` trains on a GPU with the same
 batches (the random draws stay on the CPU generator); the step is bound by the augmentation's
-per-frame work, so an H200 beside 15 CPU cores took about 25 s an epoch with two runs sharing
+per-frame work, so an H200 with 16 CPU cores took about 25 s an epoch with two runs sharing
 it. The
 training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
 ``--resume`` continues an interrupted run. With ``--calibrate`` the heatmap head is then
@@ -110,8 +110,9 @@ DEPTH_WORLD_WEIGHTS: dict[str, float] = {}
 the moon's old rough ground, weighting its frames 3 times moved its delta1 by less than
 run-to-run noise in a fine-tune. On the gentler ground of 2026-11-26, fine-tunes with the
 moon weighted 2 and then 4 times gained +0.010 and +0.016 on validation, and the shipped
-weights were made so (``--depth-world-weight moon=4``); a training from scratch with it has
-not been run, so the default stays (benchmarks/RESULTS.md)."""
+weights were made so (``--depth-world-weight moon=4``). Four trainings from scratch with it
+(seeds 0-3) read the moon's delta1 at 0.879-0.889 on validation. None was run without it,
+so its share in that is not known, and the default stays (benchmarks/RESULTS.md)."""
 PASTE_PROB = 0.5
 """Share of training frames that receive another frame's pedestrians (:func:`paste_figures`)."""
 PASTE_MAX_SHIFT = 40
