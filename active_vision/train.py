@@ -11,7 +11,8 @@ Without ``--data`` the training split (``dataset.TRAIN_SEED``, 40,000 frames, 70
 while driving, random pedestrian appearance, half of them in inspect) is rendered into
 ``--data-dir`` on first use (about two minutes) and reused afterwards. On the CPU by
 default, ``--threads`` torch threads (default 2): the default 15 epochs take about 40 min on
-a 2-core machine (130-165 s an epoch). ``--device cuda`` trains on a GPU with the same
+a 2-core machine (150-165 s an epoch; two runs side by side on one thread each took 125-150 s
+an epoch each on 2026-11-26). ``--device cuda`` trains on a GPU with the same
 batches (the random draws stay on the CPU generator); the step is bound by the augmentation's
 per-frame work, so an H200 with 16 CPU cores took about 25 s an epoch with two runs sharing
 it. The
@@ -532,6 +533,8 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     try:
         device = torch.device(a.device)
     except RuntimeError:
+        device = None
+    if device is None or device.type not in ("cpu", "cuda"):
         p.error(f"--device {a.device!r}: give cpu, cuda or cuda:N")
     if device.type == "cuda" and not torch.cuda.is_available():
         p.error(f"--device {a.device}: this torch sees no CUDA GPU; train with --device cpu")

@@ -383,6 +383,7 @@ def test_evaluate_refuses_an_unknown_split() -> None:
     (["--depth-world-weight", "moon=-1"], "cannot be negative"),
     (["--init", "/nonexistent/avnet.pt"], "no such weights file"),
     (["--device", "tpu9"], "--device 'tpu9': give cpu, cuda or cuda:N"),
+    (["--device", "meta"], "--device 'meta': give cpu, cuda or cuda:N"),
     pytest.param(["--device", "cuda"], "sees no CUDA GPU; train with --device cpu",
                  marks=pytest.mark.skipif(torch.cuda.is_available(), reason="has a GPU")),
 ])
