@@ -334,6 +334,20 @@ def test_hard_positives_push_each_counted_figures_strongest_pixels_up() -> None:
     assert torch.isclose(on - off, 0.5 * loss.detach())
 
 
+def test_training_is_reproducible_from_its_seed_and_the_seed_matters(heldout) -> None:
+    """What lets one command remake the shipped weights: the same options give the same
+    weights bit for bit (one thread, the CPU), and another seed gives other weights."""
+
+    def weights(seed: int) -> dict[str, torch.Tensor]:
+        cfg = TrainConfig(epochs=1, batch=16, threads=1, seed=seed, evaluate=False,
+                          widths=(4, 8, 8, 8), device="cpu")
+        return train(cfg, data=heldout)[0].state_dict()
+
+    a, b, c = weights(3), weights(3), weights(4)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
 def test_training_can_start_from_weights_of_the_same_shape(tmp_path, heldout) -> None:
     data = heldout.save(tmp_path / "tiny.npz")
     start = AVNet(AVNetConfig(widths=(4, 8, 8, 8)))
