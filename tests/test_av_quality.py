@@ -334,13 +334,14 @@ def test_hard_positives_push_each_counted_figures_strongest_pixels_up() -> None:
     assert torch.isclose(on - off, 0.5 * loss.detach())
 
 
-def test_training_is_reproducible_from_its_seed_and_the_seed_matters(heldout) -> None:
+def test_training_is_reproducible_from_its_seed_and_the_seed_matters(tmp_path,
+                                                                    heldout) -> None:
     """What lets one command remake the shipped weights: the same options give the same
     weights bit for bit (one thread, the CPU), and another seed gives other weights."""
 
     def weights(seed: int) -> dict[str, torch.Tensor]:
         cfg = TrainConfig(epochs=1, batch=16, threads=1, seed=seed, evaluate=False,
-                          widths=(4, 8, 8, 8), device="cpu")
+                          widths=(4, 8, 8, 8), device="cpu", out=tmp_path / f"s{seed}.pt")
         return train(cfg, data=heldout)[0].state_dict()
 
     a, b, c = weights(3), weights(3), weights(4)
