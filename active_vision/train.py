@@ -124,6 +124,9 @@ quarters of them cut off (:func:`paste_figures`; ``--edge-paste-share``). Half o
 missed figures are at the frame's side edges, and a shift of at most ``PASTE_MAX_SHIFT``
 columns cuts few; but a run with 0.5 (and small figures weighted more) did not raise
 inspect's recall on the validation split (benchmarks/RESULTS.md, 2026-11-26), so it is off."""
+DISTILL_WEIGHT = 0.5
+"""Share of the heatmap loss given to the teachers' mean heatmap in a distillation
+(``--teacher``; :func:`losses`), the rest to the mask."""
 TRAIN_WORLDS: tuple[str, ...] = ("inspect", "moon", "maze", "inspect")
 """The training split's world cycle: inspect twice, as the world with the most pedestrians
 missed (its panel rows hide and shade them; recall 0.84 there against 0.96-0.98 elsewhere
@@ -181,6 +184,11 @@ class TrainConfig:
     depth_world_weights: dict[str, float] = field(
         default_factory=lambda: dict(DEPTH_WORLD_WEIGHTS))
     """Depth-loss weight of each world's frames (a world not named: 1)."""
+    teachers: tuple[Path, ...] = ()
+    """Distillation: AVNet weights files whose mean heatmap on each training frame is a soft
+    heatmap target beside the mask (:func:`teacher_heatmaps`); none: no distillation."""
+    distill_weight: float = DISTILL_WEIGHT
+    """Share of the heatmap loss that goes to the teachers' target (with ``teachers``)."""
     init: Path | None = None
     """Start from these AVNet weights (same widths) instead of random ones: a fine-tune."""
     evaluate: bool = True
@@ -210,8 +218,8 @@ def _shift_columns(t: torch.Tensor, shift: int) -> torch.Tensor:
 
 def paste_figures(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
                   gen: torch.Generator, prob: float = PASTE_PROB,
-                  edge_share: float = EDGE_PASTE_SHARE
-                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                  edge_share: float = EDGE_PASTE_SHARE, soft: torch.Tensor | None = None
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
     """Copy-paste augmentation: with probability ``prob`` a frame receives the pedestrians
     of another frame of the batch, moved sideways by up to ``PASTE_MAX_SHIFT`` columns, or
     (``edge_share`` of the pastes) moved so that the middle of their columns lands within a
@@ -221,7 +229,9 @@ def paste_figures(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
     frame shows there (its true depth), so nearer panels and walls still hide it, and the
     mask and the depth take the figure's values: the image, the mask and the depth stay
     consistent. Rows are kept, so a figure stands on the same image row (about the same
-    ground distance) as in its own frame. Returns new tensors; the inputs are unchanged.
+    ground distance) as in its own frame. A ``soft`` heatmap target (the teachers' of a
+    distillation, ``(N, 1, H, W)``) is pasted like the mask. Returns new tensors (``soft``:
+    None without one); the inputs are unchanged.
 
     Why: on driving frames the network missed figures standing in front of inspect's
     structures (a grey figure before a pink wall, a dark one before a green box) while it
@@ -238,6 +248,7 @@ def paste_figures(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
         right = torch.rand(n, generator=gen) < 0.5
         offset = torch.rand(n, generator=gen) - 0.5  # where the middle lands, in widths / 2
     x, mask, depth = x.clone(), mask.clone(), depth.clone()
+    soft = None if soft is None else soft.clone()
     width = x.shape[-1]
     columns = mask.amax(dim=(1, 2)) > 0.5  # (N, W): columns with a pedestrian pixel
     has_figure = columns.any(dim=1)
@@ -259,20 +270,27 @@ def paste_figures(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
         x[i] = torch.where(put, _shift_columns(x[j], s), x[i])
         mask[i] = torch.where(put, torch.ones_like(mask[i]), mask[i])
         depth[i] = torch.where(put, d_depth, depth[i])
-    return x, mask, depth
+        if soft is not None:
+            soft[i] = torch.where(put, _shift_columns(soft[j], s), soft[i])
+    return x, mask, depth, soft
 
 
 def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
              gen: torch.Generator, paste_prob: float = 0.0,
-             edge_share: float = EDGE_PASTE_SHARE
-             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+             edge_share: float = EDGE_PASTE_SHARE, soft: torch.Tensor | None = None
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor | None]:
+    """The training augmentation of a batch; ``soft`` (a distillation's heatmap target, or
+    None) follows the geometry (pastes, flips) like the mask. Draws the same random numbers
+    with or without ``soft``."""
     n, dev = x.shape[0], x.device
     if paste_prob > 0.0:
-        x, mask, depth = paste_figures(x, mask, depth, gen, paste_prob, edge_share)
+        x, mask, depth, soft = paste_figures(x, mask, depth, gen, paste_prob, edge_share, soft)
     flip = (torch.rand(n, generator=gen) < 0.5).to(dev)
     x = torch.where(flip.view(n, 1, 1, 1), x.flip(-1), x)
     mask = torch.where(flip.view(n, 1, 1, 1), mask.flip(-1), mask)
     depth = torch.where(flip.view(n, 1, 1, 1), depth.flip(-1), depth)
+    if soft is not None:
+        soft = torch.where(flip.view(n, 1, 1, 1), soft.flip(-1), soft)
     bright = ((torch.rand(n, 1, 1, 1, generator=gen) - 0.5) * 0.3).to(dev)
     contrast = (0.7 + 0.6 * torch.rand(n, 1, 1, 1, generator=gen)).to(dev)
     gain = (0.9 + 0.2 * torch.rand(n, 3, 1, 1, generator=gen)).to(dev)
@@ -281,7 +299,7 @@ def _augment(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
     x = x * gain + 0.02 * torch.randn(x.shape, generator=gen).to(dev)
     # the daemon sees uint8 frames: quantise like them
     x = torch.round(x.clamp(0.0, 1.0) * 255.0) / 255.0
-    return x, mask, depth
+    return x, mask, depth, soft
 
 
 def figure_components(mask: torch.Tensor) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
@@ -334,12 +352,16 @@ def hard_positive_loss(heat_logit: torch.Tensor, mask: torch.Tensor) -> torch.Te
 
 def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
            heat_weight: torch.Tensor, depth_weight: torch.Tensor | None = None,
-           hard_positive_weight: float = HARD_POSITIVE_WEIGHT
+           hard_positive_weight: float = HARD_POSITIVE_WEIGHT,
+           soft: torch.Tensor | None = None, distill_weight: float = 0.0
            ) -> tuple[torch.Tensor, torch.Tensor]:
     """(heatmap loss, depth loss) for logits ``(N, 2, H, W)``, mask and metres ``(N,1,H,W)``,
     with per-pixel cross-entropy weights ``heat_weight`` (:func:`figure_weights`),
     optional per-frame depth-loss weights ``depth_weight`` ``(N,)`` and the weight of the
-    hard-positive term (:func:`hard_positive_loss`)."""
+    hard-positive term (:func:`hard_positive_loss`). With a ``soft`` target (the teachers'
+    mean heatmap, ``(N, 1, H, W)`` in [0, 1]) the heatmap loss is ``(1 - distill_weight)``
+    times the loss against the mask plus ``distill_weight`` times the cross-entropy against
+    ``soft``, pixels weighted alike."""
     heat_logit = logits[:, HEAD_HEATMAP:HEAD_HEATMAP + 1]
     bce = F.binary_cross_entropy_with_logits(heat_logit, mask, weight=heat_weight)
     prob = torch.sigmoid(heat_logit)
@@ -352,6 +374,9 @@ def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
     heat = bce + 0.5 * dice + HARD_NEGATIVE_WEIGHT * hard
     if hard_positive_weight > 0.0:
         heat = heat + hard_positive_weight * hard_positive_loss(heat_logit, mask)
+    if soft is not None and distill_weight > 0.0:
+        to_teachers = F.binary_cross_entropy_with_logits(heat_logit, soft, weight=heat_weight)
+        heat = (1.0 - distill_weight) * heat + distill_weight * to_teachers
     log_d = logits[:, HEAD_DEPTH:HEAD_DEPTH + 1]
     near = depth_m < DEPTH_MAX_M
     far_log = math.log(DEPTH_MAX_M)
@@ -362,6 +387,23 @@ def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
     if depth_weight is not None:
         per_px = per_px * depth_weight.view(-1, 1, 1, 1)
     return heat, per_px.mean()
+
+
+@torch.no_grad()
+def teacher_heatmaps(teachers: Sequence[Path], rgb: torch.Tensor, batch: int = 256
+                     ) -> torch.Tensor:
+    """The mean heatmap (sigmoid) of the ``teachers`` (AVNet weights files, any widths) on
+    uint8 frames ``rgb`` ``(N, 3, H, W)``, as uint8 ``(N, 1, H, W)`` (255: 1.0): the soft
+    target of a distillation. The teachers see the frames unaugmented; the target then
+    follows the batch's geometric augmentation (:func:`_augment`)."""
+    out = torch.zeros((rgb.shape[0], 1, *rgb.shape[2:]), dtype=torch.float32)
+    for path in teachers:
+        net = load_model(path, fuse=True).eval()
+        for s in range(0, rgb.shape[0], batch):
+            x = rgb[s:s + batch].cpu().float() / 255.0
+            out[s:s + batch] += torch.sigmoid(net(x)[:, HEAD_HEATMAP:HEAD_HEATMAP + 1])
+        logger.info("teacher %s: heatmaps of %d frames", path, rgb.shape[0])
+    return torch.round(out / len(teachers) * 255.0).to(torch.uint8)
 
 
 def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[str, float]]:
@@ -379,6 +421,7 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
     depth_m = torch.from_numpy(np.nan_to_num(data.depth, nan=1e3, posinf=1e3)).unsqueeze(1)
     depth_m = depth_m.clamp(min=1e-3).to(dev)
     n = rgb.shape[0]
+    soft_all = (teacher_heatmaps(cfg.teachers, rgb).to(dev) if cfg.teachers else None)
     frame_depth_weight = torch.tensor(
         [cfg.depth_world_weights.get(w, 1.0) for w in data.worlds], dtype=torch.float32
     )[torch.from_numpy(data.world)].to(dev)
@@ -402,10 +445,13 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
     first = 0
     if cfg.resume and ckpt.is_file():
         state = torch.load(ckpt, map_location="cpu", weights_only=False)
-        if state.get("frames") != n or state.get("epochs") != cfg.epochs:
-            raise ValueError(f"checkpoint {ckpt} is for {state.get('frames')} frames and "
-                             f"{state.get('epochs')} epochs, this run has {n} and {cfg.epochs}: "
-                             "run with the same options, or without --resume")
+        teachers = [str(t) for t in cfg.teachers]
+        if (state.get("frames") != n or state.get("epochs") != cfg.epochs
+                or state.get("teachers", []) != teachers):
+            raise ValueError(f"checkpoint {ckpt} is for {state.get('frames')} frames, "
+                             f"{state.get('epochs')} epochs and teachers "
+                             f"{state.get('teachers', [])}, this run has {n}, {cfg.epochs} and "
+                             f"{teachers}: run with the same options, or without --resume")
         model.load_state_dict(state["model"])
         opt.load_state_dict(state["opt"])
         sched.load_state_dict(state["sched"])
@@ -422,10 +468,12 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
         for b in range(steps_per_epoch):
             idx = order[b * cfg.batch:(b + 1) * cfg.batch]
             x = rgb[idx].float() / 255.0
-            x, m, d = _augment(x, mask[idx], depth_m[idx], gen, cfg.paste_prob,
-                               cfg.edge_paste_share)
+            soft = None if soft_all is None else soft_all[idx].float() / 255.0
+            x, m, d, soft = _augment(x, mask[idx], depth_m[idx], gen, cfg.paste_prob,
+                                     cfg.edge_paste_share, soft)
             heat, dep = losses(model(x), m, d, figure_weights(m, cfg.small_figure_boost),
-                               frame_depth_weight[idx], cfg.hard_positive_weight)
+                               frame_depth_weight[idx], cfg.hard_positive_weight,
+                               soft, cfg.distill_weight)
             loss = heat + dep
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -438,7 +486,8 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
         ckpt.parent.mkdir(parents=True, exist_ok=True)
         torch.save({"model": model.state_dict(), "opt": opt.state_dict(),
                     "sched": sched.state_dict(), "gen": gen.get_state(), "epoch": epoch + 1,
-                    "frames": n, "epochs": cfg.epochs}, str(ckpt) + ".tmp")
+                    "frames": n, "epochs": cfg.epochs,
+                    "teachers": [str(t) for t in cfg.teachers]}, str(ckpt) + ".tmp")
         Path(str(ckpt) + ".tmp").replace(ckpt)
         elapsed = time.perf_counter() - t0
         logger.info("epoch %d/%d  heatmap loss %.4f  depth loss %.4f  (%.0f s)", epoch + 1,
@@ -501,6 +550,11 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                    help="depth-loss weight of a world's frames, repeatable (default: "
                    + ",".join(f"{k}={v:g}" for k, v in DEPTH_WORLD_WEIGHTS.items())
                    + "; WORLD=1 to weigh it like the others)")
+    p.add_argument("--teacher", type=Path, action="append", default=None, metavar="WEIGHTS",
+                   help="distil: a network whose heatmaps (averaged over every --teacher) "
+                   "are a soft target beside the mask; repeatable")
+    p.add_argument("--distill-weight", type=float, default=d.distill_weight,
+                   help="share of the heatmap loss given to the teachers' target")
     p.add_argument("--init", type=Path, default=None,
                    help="start from these weights (a fine-tune) instead of random ones")
     p.add_argument("--no-evaluate", action="store_true", help="skip the held-out evaluation")
@@ -530,6 +584,11 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
             p.error(f"--depth-world-weight {item!r}: a weight cannot be negative")
     if a.init is not None and not a.init.is_file():
         p.error(f"--init {a.init}: no such weights file")
+    for t in a.teacher or ():
+        if not t.is_file():
+            p.error(f"--teacher {t}: no such weights file")
+    if not 0.0 <= a.distill_weight <= 1.0:
+        p.error(f"--distill-weight {a.distill_weight}: give a share in [0, 1]")
     try:
         device = torch.device(a.device)
     except RuntimeError:
@@ -551,6 +610,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
                        hard_positive_weight=a.hard_positive_weight,
                        paste_prob=a.paste_prob, edge_paste_share=a.edge_paste_share,
                        init=a.init, depth_world_weights=weights,
+                       teachers=tuple(a.teacher or ()), distill_weight=a.distill_weight,
                        evaluate=not a.no_evaluate, calibrate=a.calibrate,
                        checkpoint=a.checkpoint, resume=a.resume)
 
@@ -559,6 +619,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     cfg = _parse(argv)
     model, facts = train(cfg)
     meta: dict[str, float | str] = {**facts}
+    if cfg.teachers:
+        meta["teachers"] = ",".join(t.name if t.parent.name in ("", ".") else
+                                    f"{t.parent.name}/{t.name}" for t in cfg.teachers)
+        meta["distill_weight"] = cfg.distill_weight
     path = _save(model, cfg.out, meta)  # first without figures: evaluation may fail
     from active_vision.evaluate import evaluate, format_metrics, heldout
 

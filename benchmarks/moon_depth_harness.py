@@ -169,7 +169,7 @@ def main() -> int:
             peek = torch.Generator()
             peek.set_state(gen.get_state())
             flip = torch.rand(len(idx), generator=peek) < 0.5  # _augment's first draw
-            x, m, d = _augment(rgb[idx].float() / 255.0, mask[idx], depth[idx], gen)
+            x, m, d, _ = _augment(rgb[idx].float() / 255.0, mask[idx], depth[idx], gen)
             if gravity:
                 e = ray_elevation(up[idx])
                 model.elevation = torch.where(flip.view(-1, 1, 1, 1), e.flip(-1), e)

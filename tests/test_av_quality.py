@@ -233,7 +233,7 @@ def test_pasted_figures_are_hidden_by_what_is_nearer() -> None:
     # a generator whose draws give frame 1 frame 0's figure: find one by seed
     for seed in range(200):
         gen = torch.Generator().manual_seed(seed)
-        px, pm, pd = paste_figures(x, mask, depth, gen, prob=1.0)
+        px, pm, pd, _ = paste_figures(x, mask, depth, gen, prob=1.0)
         if pm[1].sum() > 0:
             break
     else:
@@ -248,7 +248,7 @@ def test_pasted_figures_are_hidden_by_what_is_nearer() -> None:
     # frame 1 had no figure to give, so frame 0 is as it was
     assert torch.equal(pm[0], mask[0]) and torch.equal(px[0], x[0])
     # prob 0: nothing changes
-    px, pm, pd = paste_figures(x, mask, depth, torch.Generator().manual_seed(0), prob=0.0)
+    px, pm, pd, _ = paste_figures(x, mask, depth, torch.Generator().manual_seed(0), prob=0.0)
     assert torch.equal(px, x) and torch.equal(pm, mask) and torch.equal(pd, depth)
 
 
@@ -267,7 +267,7 @@ def test_edge_pastes_cut_figures_at_the_frame_side() -> None:
     kept, sides = [], set()
     for seed in range(100):
         gen = torch.Generator().manual_seed(seed)
-        _, pm, pd = paste_figures(x, mask, depth, gen, prob=1.0, edge_share=1.0)
+        _, pm, pd, _ = paste_figures(x, mask, depth, gen, prob=1.0, edge_share=1.0)
         for i in range(1, 4):
             cols = torch.nonzero(pm[i, 0].sum(dim=0)).flatten()
             if len(cols) == 0:
@@ -279,7 +279,7 @@ def test_edge_pastes_cut_figures_at_the_frame_side() -> None:
     assert kept and sides == {"left", "right"}
     assert min(kept) >= 0.25 and max(kept) <= 0.75
     for seed in range(30):
-        _, pm, _ = paste_figures(x, mask, depth, torch.Generator().manual_seed(seed),
+        _, pm, _, _ = paste_figures(x, mask, depth, torch.Generator().manual_seed(seed),
                                  prob=1.0, edge_share=0.0)
         for i in range(1, 4):
             assert pm[i].sum() in (0, 400)  # whole figures only
@@ -365,6 +365,67 @@ def test_training_can_start_from_weights_of_the_same_shape(tmp_path, heldout) ->
                           widths=(4, 8, 8, 16), init=path, out=tmp_path / "x.pt"))
 
 
+def test_distillation_target_is_the_teachers_mean_and_follows_the_augmentation(tmp_path
+                                                                               ) -> None:
+    from active_vision.train import _augment, losses, teacher_heatmaps
+
+    torch.manual_seed(0)
+    nets = [AVNet(AVNetConfig(widths=(4, 8, 8, 8))).eval() for _ in range(2)]
+    paths = [save_weights(n, tmp_path / f"t{i}.pt") for i, n in enumerate(nets)]
+    rgb = torch.randint(0, 256, (5, 3, 32, 32), dtype=torch.uint8)
+    soft = teacher_heatmaps(paths, rgb, batch=2)
+    assert soft.shape == (5, 1, 32, 32) and soft.dtype == torch.uint8
+    with torch.no_grad():
+        probs = [torch.sigmoid(load_model(p)(rgb.float() / 255.0)[:, :1]) for p in paths]
+    assert torch.allclose(soft.float() / 255.0, (probs[0] + probs[1]) / 2, atol=1 / 255)
+    assert not torch.allclose(probs[0], probs[1], atol=1 / 255)  # the mean, not one teacher
+
+    # a target equal to the mask stays equal to it through pastes and flips, and carrying
+    # it draws no random numbers: the batch is the one a run without teachers sees
+    x = torch.rand(8, 3, 32, 32)
+    mask = torch.zeros(8, 1, 32, 32)
+    mask[::2, 0, 10:26, 4:10] = 1.0
+    depth = torch.where(mask > 0, 2.0, 5.0)
+    plain = _augment(x, mask, depth, torch.Generator().manual_seed(1), paste_prob=1.0)
+    carried = _augment(x, mask, depth, torch.Generator().manual_seed(1), paste_prob=1.0,
+                       soft=mask.clone())
+    assert plain[3] is None
+    for a, b in zip(plain[:3], carried[:3], strict=True):
+        assert torch.equal(a, b)
+    assert torch.equal(carried[3], carried[1])
+    assert not torch.equal(carried[1], mask)  # the batch was pasted and flipped
+
+    # the loss: without teachers' weight as before; all of it on a target that says
+    # "pedestrian" everywhere pushes every logit up
+    logits = torch.zeros(2, 2, 8, 8, requires_grad=True)
+    m, d, w = torch.zeros(2, 1, 8, 8), torch.full((2, 1, 8, 8), 2.0), torch.ones(2, 1, 8, 8)
+    base, _ = losses(logits, m, d, w)
+    same, _ = losses(logits, m, d, w, soft=torch.ones_like(m), distill_weight=0.0)
+    assert torch.equal(base, same)
+    heat, _ = losses(logits, m, d, w, soft=torch.ones_like(m), distill_weight=1.0)
+    heat.backward()
+    assert float(logits.grad[:, 0].max()) < 0.0
+
+
+def test_a_distilled_run_records_its_teachers_and_resumes_only_with_them(tmp_path,
+                                                                          heldout) -> None:
+    from active_vision.models import weights_meta
+    from active_vision.train import main as train_main
+
+    data = heldout.save(tmp_path / "tiny.npz")
+    teacher = save_weights(AVNet(AVNetConfig(widths=(4, 8, 8, 8))), tmp_path / "teacher.pt")
+    out = tmp_path / "student.pt"
+    args = ["--data", str(data), "--epochs", "1", "--batch", "16", "--threads", "1",
+            "--widths", "4,8,8,8", "--no-evaluate", "--out", str(out)]
+    assert train_main(args + ["--teacher", str(teacher)]) == 0
+    meta = weights_meta(out)
+    assert meta["teachers"] == f"{tmp_path.name}/teacher.pt" and meta["distill_weight"] == 0.5
+    cfg = TrainConfig(data=data, epochs=1, batch=16, threads=1, evaluate=False,
+                      widths=(4, 8, 8, 8), out=out, resume=True)
+    with pytest.raises(ValueError, match="teachers"):
+        train(cfg)  # the checkpoint was made with a teacher
+
+
 def test_episode_intervals_span_what_one_episode_can_move() -> None:
     """The bootstrap draws whole episodes: identical episodes give a point; one episode that
     misses every pedestrian among good ones widens recall's interval down towards it."""
@@ -397,6 +458,8 @@ def test_evaluate_refuses_an_unknown_split() -> None:
     (["--depth-world-weight", "moon"], "WORLD=WEIGHT"),
     (["--depth-world-weight", "moon=-1"], "cannot be negative"),
     (["--init", "/nonexistent/avnet.pt"], "no such weights file"),
+    (["--teacher", "/nonexistent/teacher.pt"], "--teacher /nonexistent/teacher.pt: no such"),
+    (["--distill-weight", "1.5"], "--distill-weight 1.5: give a share in [0, 1]"),
     (["--device", "tpu9"], "--device 'tpu9': give cpu, cuda or cuda:N"),
     (["--device", "meta"], "--device 'meta': give cpu, cuda or cuda:N"),
     pytest.param(["--device", "cuda"], "sees no CUDA GPU; train with --device cpu",
