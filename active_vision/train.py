@@ -10,12 +10,12 @@ needs both heads from one file), so it is trained on the sum of the two losses.
 Without ``--data`` the training split (``dataset.TRAIN_SEED``, 40,000 frames, 70 % recorded
 while driving, random pedestrian appearance, half of them in inspect) is rendered into
 ``--data-dir`` on first use (about two minutes) and reused afterwards. On the CPU by
-default, ``--threads`` torch threads (default 2): the default 15 epochs take about 40 min on
-a 2-core machine (150-165 s an epoch; two runs side by side on one thread each took 125-150 s
-an epoch each on 2026-11-26). ``--device cuda`` trains on a GPU with the same
-batches (the random draws stay on the CPU generator); the step is bound by the augmentation's
-per-frame work, so an H200 with 16 CPU cores took about 25 s an epoch with two runs sharing
-it. The
+default, ``--threads`` torch threads (default 2): the default network (24/48/96/128) for the
+default 15 epochs took 65 min on a 2-core machine with two runs side by side on one thread
+each (255-265 s an epoch, 2026-11-26; the 16/32/64/96 network before it: 125-150 s).
+``--device cuda`` trains on a GPU with the same batches (the random draws stay on the CPU
+generator); the step is bound by the augmentation's per-frame work, so an H200 with 16 CPU
+cores took about 25 s an epoch for the 16/32/64/96 network with two runs sharing it. The
 training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
 ``--resume`` continues an interrupted run. With ``--calibrate`` the heatmap head is then
 calibrated on the validation split (:mod:`active_vision.calibrate`: the detection
@@ -195,8 +195,9 @@ class TrainConfig:
     """Evaluate on the held-out split after training and store the figures in the file."""
     calibrate: bool = False
     """Fold the heatmap threshold chosen on the validation split into the head
-    (:mod:`active_vision.calibrate`) before the held-out evaluation. Off by default: the
-    shipped network is uncalibrated (see that module for why)."""
+    (:mod:`active_vision.calibrate`) before the held-out evaluation. Off by default (it needs
+    the validation split and changes channel 1 for whatever reads it); the shipped network
+    was made with it (see that module for what it costs)."""
     checkpoint: Path | None = None
     """Write the training state here after every epoch (default: ``out`` + ``.ckpt``);
     with ``resume`` a run picks up from it after an interruption."""
@@ -504,14 +505,14 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
 
 
 def parse_widths(text: str) -> tuple[int, int, int, int]:
-    """The network's four widths from ``"16,32,64,96"`` (an argparse ``type``)."""
+    """The network's four widths from ``"24,48,96,128"`` (an argparse ``type``)."""
     try:
         w = tuple(int(v) for v in text.split(","))
     except ValueError:
         w = ()
     if len(w) != 4 or min(w) < 1:
         raise argparse.ArgumentTypeError(f"{text!r}: give four positive integers, "
-                                         "e.g. 16,32,64,96")
+                                         "e.g. 24,48,96,128")
     return w  # type: ignore[return-value]
 
 
