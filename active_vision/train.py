@@ -391,18 +391,24 @@ def losses(logits: torch.Tensor, mask: torch.Tensor, depth_m: torch.Tensor,
 
 
 @torch.no_grad()
+def network_heatmaps(weights: Path, rgb: torch.Tensor, batch: int = 256) -> torch.Tensor:
+    """The heatmap (sigmoid) of the AVNet in ``weights`` (any widths) on uint8 frames ``rgb``
+    ``(N, 3, H, W)``: float32 ``(N, 1, H, W)`` on the CPU."""
+    net = load_model(weights, fuse=True).eval()
+    return torch.cat([torch.sigmoid(net(rgb[s:s + batch].cpu().float() / 255.0)
+                                    [:, HEAD_HEATMAP:HEAD_HEATMAP + 1])
+                      for s in range(0, rgb.shape[0], batch)])
+
+
 def teacher_heatmaps(teachers: Sequence[Path], rgb: torch.Tensor, batch: int = 256
                      ) -> torch.Tensor:
-    """The mean heatmap (sigmoid) of the ``teachers`` (AVNet weights files, any widths) on
-    uint8 frames ``rgb`` ``(N, 3, H, W)``, as uint8 ``(N, 1, H, W)`` (255: 1.0): the soft
-    target of a distillation. The teachers see the frames unaugmented; the target then
-    follows the batch's geometric augmentation (:func:`_augment`)."""
+    """The mean heatmap (:func:`network_heatmaps`) of the ``teachers`` on uint8 frames ``rgb``
+    ``(N, 3, H, W)``, as uint8 ``(N, 1, H, W)`` (255: 1.0): the soft target of a
+    distillation. The teachers see the frames unaugmented; the target then follows the
+    batch's geometric augmentation (:func:`_augment`)."""
     out = torch.zeros((rgb.shape[0], 1, *rgb.shape[2:]), dtype=torch.float32)
     for path in teachers:
-        net = load_model(path, fuse=True).eval()
-        for s in range(0, rgb.shape[0], batch):
-            x = rgb[s:s + batch].cpu().float() / 255.0
-            out[s:s + batch] += torch.sigmoid(net(x)[:, HEAD_HEATMAP:HEAD_HEATMAP + 1])
+        out += network_heatmaps(path, rgb, batch)
         logger.info("teacher %s: heatmaps of %d frames", path, rgb.shape[0])
     return torch.round(out / len(teachers) * 255.0).to(torch.uint8)
 
@@ -422,7 +428,6 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
     depth_m = torch.from_numpy(np.nan_to_num(data.depth, nan=1e3, posinf=1e3)).unsqueeze(1)
     depth_m = depth_m.clamp(min=1e-3).to(dev)
     n = rgb.shape[0]
-    soft_all = (teacher_heatmaps(cfg.teachers, rgb).to(dev) if cfg.teachers else None)
     frame_depth_weight = torch.tensor(
         [cfg.depth_world_weights.get(w, 1.0) for w in data.worlds], dtype=torch.float32
     )[torch.from_numpy(data.world)].to(dev)
@@ -444,9 +449,9 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
     gen = torch.Generator().manual_seed(cfg.seed)
     ckpt = cfg.checkpoint or Path(str(cfg.out) + ".ckpt")
     first = 0
+    teachers = [str(t) for t in cfg.teachers]
     if cfg.resume and ckpt.is_file():
         state = torch.load(ckpt, map_location="cpu", weights_only=False)
-        teachers = [str(t) for t in cfg.teachers]
         if (state.get("frames") != n or state.get("epochs") != cfg.epochs
                 or state.get("teachers", []) != teachers):
             raise ValueError(f"checkpoint {ckpt} is for {state.get('frames')} frames, "
@@ -459,6 +464,8 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
         gen.set_state(state["gen"])
         first = int(state["epoch"])
         logger.info("resuming from %s after epoch %d", ckpt, first)
+    # after the checkpoint check: a resume with other teachers fails before minutes of work
+    soft_all = teacher_heatmaps(cfg.teachers, rgb).to(dev) if cfg.teachers else None
     t0 = time.perf_counter()
     step = 0
     hist = {"heat": 0.0, "depth": 0.0}
@@ -488,7 +495,7 @@ def train(cfg: TrainConfig, data: Dataset | None = None) -> tuple[AVNet, dict[st
         torch.save({"model": model.state_dict(), "opt": opt.state_dict(),
                     "sched": sched.state_dict(), "gen": gen.get_state(), "epoch": epoch + 1,
                     "frames": n, "epochs": cfg.epochs,
-                    "teachers": [str(t) for t in cfg.teachers]}, str(ckpt) + ".tmp")
+                    "teachers": teachers}, str(ckpt) + ".tmp")
         Path(str(ckpt) + ".tmp").replace(ckpt)
         elapsed = time.perf_counter() - t0
         logger.info("epoch %d/%d  heatmap loss %.4f  depth loss %.4f  (%.0f s)", epoch + 1,

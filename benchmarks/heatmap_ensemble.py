@@ -30,18 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from active_vision.dataset import Dataset  # noqa: E402
 from active_vision.evaluate import _Counts, _figures, frame_counts, heldout  # noqa: E402
-from active_vision.models import HEAD_HEATMAP, load_model  # noqa: E402
-
-
-@torch.no_grad()
-def heatmaps(weights: Path, data: Dataset, batch: int = 64) -> np.ndarray:
-    """The network's heatmap (sigmoid) on every frame of ``data``, ``(N, H, W)`` float32."""
-    net = load_model(weights, fuse=True).eval()
-    out = []
-    for s in range(0, len(data), batch):
-        x = torch.from_numpy(data.rgb[s:s + batch]).permute(0, 3, 1, 2).float() / 255.0
-        out.append(torch.sigmoid(net(x)[:, HEAD_HEATMAP]).numpy())
-    return np.concatenate(out)
+from active_vision.train import network_heatmaps  # noqa: E402
 
 
 def figures(heat: np.ndarray, data: Dataset, threshold: float) -> dict[str, dict[str, float]]:
@@ -74,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
     thresholds = [float(t) for t in a.thresholds.split(",")]
     torch.set_num_threads(a.threads)
     data = heldout(split=a.split)
-    heat = {n: heatmaps(w, data) for n, w in nets.items()}
+    rgb = torch.from_numpy(data.rgb).permute(0, 3, 1, 2)
+    heat = {n: network_heatmaps(w, rgb, batch=64)[:, 0].numpy() for n, w in nets.items()}
     print(f"{a.split} split, {len(data)} frames; recall / false-positive frames / IoU")
     print(f"{'heatmap':<24} {'thr':>5}  " + "  ".join(f"{w:>26}" for w in data.worlds))
     for row in rows:
