@@ -35,7 +35,7 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 # (student, curve, metrics, table, video) land in runs/demo/.
 DEMO_STEPS ?= 24000
 demo: setup
-	$(PY) launch/run_pair.py --name roverav_demo --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --out runs/demo
+	$(PY) launch/run_pair.py --name roverav_demo --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.imitation.demo --timesteps $(DEMO_STEPS) --out runs/demo
 
 test: setup
 	$(PY) -m pytest -q

@@ -13,7 +13,7 @@ memory by the ``av-daemon`` (:mod:`active_vision.daemon`).
 - :class:`SlotHistory`: the daemon's per-slot K-frame history, cut at episode starts.
 - :class:`Predictor`, :class:`PredictNet`, :func:`load_predictor`: ``--heatmap predict``
   (occupancy over the next 1.5 s from the last K frames).
-- ``python -m active_vision.dataset | train | predict_train | evaluate``: data, training,
+- ``python -m active_vision.training.dataset | train | predict_train | evaluate``: data, training,
   quality figures.
 
 The torch-backed names load on first use, so ``from active_vision import spawn_daemon``

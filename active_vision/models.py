@@ -59,7 +59,7 @@ logger = logging.getLogger(__name__)
 
 WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "avnet.pt"
-REGENERATE_COMMAND = "python -m active_vision.train"
+REGENERATE_COMMAND = "python -m active_vision.training.train"
 WEIGHTS_FORMAT = "roverav.avnet"
 WEIGHTS_VERSION = 3  # 3: optional full-resolution stage (config "full_res")
 READABLE_VERSIONS = (2, 3)  # 2: four encoder levels + global context, log-depth head

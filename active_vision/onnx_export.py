@@ -18,7 +18,7 @@ example inputs, and marks dimension 0 of every input and output as a dynamic bat
 initializers that ONNX Runtime's CPU convolution rejects. Exporting needs the ``onnx`` and
 ``onnxscript`` packages (the ``onnx`` extra: ``pip install 'roverav[onnx]'``).
 
-``python -m active_vision.train`` writes the export beside the weights it trains; re-make
+``python -m active_vision.training.train`` writes the export beside the weights it trains; re-make
 the shipped file by hand with::
 
     python -m active_vision.onnx_export            # writes next to the shipped weights

@@ -39,7 +39,7 @@ HORIZON_S = 1.5
 DEFAULT_PREDICT_WEIGHTS = WEIGHTS_DIR / "predict.pt"
 PREDICT_FORMAT = "roverav.predictnet"
 PREDICT_VERSION = 1
-REGENERATE_PREDICT = "python -m active_vision.predict_train"
+REGENERATE_PREDICT = "python -m active_vision.training.predict_train"
 HEATMAP_MODES = ("detect", "predict")
 
 

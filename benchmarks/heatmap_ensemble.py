@@ -7,7 +7,7 @@
 Each ``--net NAME=WEIGHTS`` is run once over the split (the validation split by default:
 choices are made there, not on held-out frames). Each ``--mean A+B+...`` averages the named
 networks' heatmaps (probabilities) pixel by pixel; every ``--net`` alone is a row too. The
-figures are :mod:`active_vision.evaluate`'s (recall of pedestrians of at least 30 px,
+figures are :mod:`active_vision.training.evaluate`'s (recall of pedestrians of at least 30 px,
 false-positive frames, heatmap IoU), per world, at each threshold: whether an ensemble would
 find more people at the same false detections, and at which operating point. What it answers
 is what distilling several networks into one (``train --teacher``) could at best reach; the
@@ -28,9 +28,9 @@ import torch  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from active_vision.dataset import Dataset  # noqa: E402
-from active_vision.evaluate import _Counts, _figures, frame_counts, heldout  # noqa: E402
-from active_vision.train import network_heatmaps  # noqa: E402
+from active_vision.training.dataset import Dataset  # noqa: E402
+from active_vision.training.evaluate import _Counts, _figures, frame_counts, heldout  # noqa: E402
+from active_vision.training.train import network_heatmaps  # noqa: E402
 
 
 def figures(heat: np.ndarray, data: Dataset, threshold: float) -> dict[str, dict[str, float]]:

@@ -5,7 +5,7 @@
     python benchmarks/learning.py --curves --world maze --budget 160000 --points 8 --episodes 30
 
 ``--curves`` trains, in one run and with the same env-step budget on RoverEnv, the zoo's
-recipe (DAgger from the planner expert, ``rover_train.distill``) and rover-train's PPO
+recipe (DAgger from the planner expert, ``rover_train.imitation.distill``) and rover-train's PPO
 defaults, evaluating both after every ``budget / points`` steps on the same evaluation
 episodes (the zoo's seeds and 600-step rule). DAgger also gets the recipe's 30,000
 expert-labelled states drawn without driving (not env steps; their time is in its wall
@@ -109,13 +109,13 @@ def _zoo_eval(env: object, act: object, episodes: int) -> dict:
 def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[dict]:
     """One student of the zoo's LIDAR entry for ``world`` made as its command makes its first
     member (seed 0, its teacher's manners, its features), evaluated after each round."""
-    from rover_train.distill import (
+    from rover_train.imitation.dagger import (
         DAggerConfig,
         feature_spec,
         make_training_env,
         run_dagger,
-        teacher_manners_for,
     )
+    from rover_train.imitation.distill import teacher_manners_for
     from rover_train.zoo import ENTRIES, StudentAgent, StudentNet
 
     entry = ENTRIES[f"lidar-{world}"]

@@ -38,10 +38,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from active_vision.dataset import TRAIN_SEED, VALIDATION_SEED, DatasetConfig, FrameRenderer
-from active_vision.driving import DriveRecorder
 from active_vision.models import HEAD_DEPTH, AVNet, AVNetConfig
-from active_vision.train import _augment, figure_weights, losses, parse_widths
+from active_vision.training.dataset import TRAIN_SEED, VALIDATION_SEED, DatasetConfig, FrameRenderer
+from active_vision.training.driving import DriveRecorder
+from active_vision.training.train import _augment, figure_weights, losses, parse_widths
 from rover_env.rover import CAMERA_FOVY, CAMERA_NAME
 
 SIZE = 96

@@ -1,5 +1,6 @@
 """What a fused entry's stage 1 pays for its fused image: RoverEnv steps alone against
-RoverEnv steps plus :class:`rover_train.distill.FusedView` (render the forward camera, run the
+RoverEnv steps plus :class:`rover_train.imitation.dagger.FusedView` (render the forward
+camera, run the
 daemon's perception in-process) and the depth scan read off it, in one run.
 
     MUJOCO_GL=egl python benchmarks/stage1_view_cost.py --steps 300 --repeats 3
@@ -15,7 +16,7 @@ import numpy as np
 import torch
 
 from rover_env.constants import FUSED_SIZE
-from rover_train.distill import SCAN_BANDS, FusedView, make_training_env
+from rover_train.imitation.dagger import SCAN_BANDS, FusedView, make_training_env
 from rover_train.zoo.agent import depth_scan
 from shm_protocol import CHANNEL_DEPTH
 

@@ -27,8 +27,9 @@ from rover_env.gaze_discrete_env import DiscreteRoverEnvFusedGaze  # noqa: E402
 from rover_env.gaze_env import RoverEnvFusedGaze  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
 from rover_env.pedestrians import Appearance  # noqa: E402
+from rover_env.rendering import CameraFrame  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
-from rover_env.simulation import CameraFrame, Contacts, Lighting, RoverSim  # noqa: E402
+from rover_env.simulation import Contacts, Lighting, RoverSim  # noqa: E402
 from rover_env.worlds import WORLD_NAMES, WorldSpec, make_world  # noqa: E402
 
 _ENVS = {

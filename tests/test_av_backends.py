@@ -16,7 +16,6 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
-from active_vision import dataset as ds  # noqa: E402
 from active_vision.backends import BackendError, OnnxNetwork  # noqa: E402
 from active_vision.models import DEFAULT_WEIGHTS, AVNet, AVNetConfig, save_weights  # noqa: E402
 from active_vision.onnx_export import (  # noqa: E402
@@ -25,6 +24,7 @@ from active_vision.onnx_export import (  # noqa: E402
     write_export_beside,
 )
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
+from active_vision.training import dataset as ds  # noqa: E402
 from shm_protocol import CHANNEL_HEATMAP  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]

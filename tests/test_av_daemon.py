@@ -254,7 +254,7 @@ def test_missing_weights_fail_before_ready(tmp_path) -> None:
     d = Daemon(name, "--weights", str(tmp_path / "missing.pt"))
     status, err = d.stop()
     assert status == 1 and "ready" not in d.ready_line
-    assert "python -m active_vision.train" in err
+    assert "python -m active_vision.training.train" in err
     assert _segments(name) == []
 
 

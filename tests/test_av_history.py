@@ -159,8 +159,8 @@ def test_preview_shows_the_prediction_beside_the_detection() -> None:
 
 
 def test_predictive_ground_truth_and_baselines_on_driving_sequences() -> None:
-    from active_vision import predict_train as pt
     from active_vision.predict import Predictor
+    from active_vision.training import predict_train as pt
 
     data = pt.render_sequences(seed=99, episodes=3)
     assert len(data.target_row) > 10
@@ -199,7 +199,7 @@ def test_margin_interval_is_over_whole_episodes() -> None:
     """The predict - detect interval resamples episodes: identical episodes give the point
     margin itself; episodes that disagree give an interval around the pooled margin, and
     more of them (the same mix) a narrower one."""
-    from active_vision.predict_train import margin_interval
+    from active_vision.training.predict_train import margin_interval
 
     # per episode: (predictor, detection, now) x (intersection, union)
     good = np.array([[60, 100], [30, 100], [50, 100]])  # margin +0.30
@@ -231,8 +231,8 @@ def test_shipped_predictor_loads_and_outputs_probabilities() -> None:
 def test_predictors_are_chosen_on_their_own_validation_episodes(tmp_path: Path) -> None:
     """``--split validation`` renders and scores episodes of their own seed, never the
     training or held-out ones, and an unknown split is refused by name."""
-    from active_vision import predict_train as pt
-    from active_vision.dataset import HELDOUT_SEED, TRAIN_SEED, VALIDATION_SEED
+    from active_vision.training import predict_train as pt
+    from active_vision.training.dataset import HELDOUT_SEED, TRAIN_SEED, VALIDATION_SEED
 
     assert len({VALIDATION_SEED, HELDOUT_SEED, TRAIN_SEED}) == 3
     m = pt.evaluate_heldout(data_dir=tmp_path, episodes=3, threads=1, split="validation")

@@ -13,9 +13,6 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
-from active_vision import dataset as ds  # noqa: E402
-from active_vision.evaluate import Metrics, evaluate  # noqa: E402
-from active_vision.evaluate import main as evaluate_main  # noqa: E402
 from active_vision.models import (  # noqa: E402
     DEFAULT_WEIGHTS,
     AVNet,
@@ -23,7 +20,10 @@ from active_vision.models import (  # noqa: E402
     load_model,
     save_weights,
 )
-from active_vision.train import TrainConfig, train  # noqa: E402
+from active_vision.training import dataset as ds  # noqa: E402
+from active_vision.training.evaluate import Metrics, evaluate  # noqa: E402
+from active_vision.training.evaluate import main as evaluate_main  # noqa: E402
+from active_vision.training.train import TrainConfig, train  # noqa: E402
 
 TEST_SEED = 424_242  # neither the training nor the evaluation split
 # Well below the targets (IoU 0.6, recall 0.95, FP 2 %, AbsRel 0.15, delta1 0.85) so the
@@ -136,7 +136,7 @@ def test_train_and_evaluate_clis_run_end_to_end(tmp_path, heldout: ds.Dataset, c
 def test_evaluate_json_is_strict_with_nothing_to_measure() -> None:
     """A figure with nothing to measure (NaN), in a dict or in an interval's list, is null:
     the --json line parses as strict JSON."""
-    from active_vision.evaluate import _json_safe
+    from active_vision.training.evaluate import _json_safe
 
     out = {"iou": float("nan"), "margin_interval": [float("nan"), 0.2],
            "per_world": {"maze": {"margin_interval": (float("nan"), float("nan"))}}}
@@ -146,7 +146,7 @@ def test_evaluate_json_is_strict_with_nothing_to_measure() -> None:
 
 
 def test_evaluate_reports_near_pixels_apart() -> None:
-    from active_vision.evaluate import NEAR_DEPTH_M, _figures, frame_counts
+    from active_vision.training.evaluate import NEAR_DEPTH_M, _figures, frame_counts
     from shm_protocol import depth_to_channel
 
     gt = np.full((4, 4), 2.0, np.float32)
@@ -168,7 +168,7 @@ def test_a_lower_threshold_finds_a_faint_figure_and_the_sweep_reports_it(
     missed at 0.5 and found at 0.2. ``threshold_sweep`` at 0.5 gives the evaluation's own
     heatmap figures, and a lower threshold never finds fewer figures; ``--sweep`` refuses a
     threshold outside (0, 1)."""
-    from active_vision.evaluate import _figures, frame_counts, threshold_sweep
+    from active_vision.training.evaluate import _figures, frame_counts, threshold_sweep
 
     mask = np.zeros((16, 16), bool)
     mask[4:12, 5:10] = True  # 40 px: a pedestrian for recall
@@ -189,7 +189,7 @@ def test_a_lower_threshold_finds_a_faint_figure_and_the_sweep_reports_it(
 
 
 def test_small_figures_weigh_more_in_the_heatmap_loss() -> None:
-    from active_vision.train import (
+    from active_vision.training.train import (
         POSITIVE_WEIGHT,
         SMALL_FIGURE_MAX_BOOST,
         SMALL_FIGURE_PX,
@@ -217,7 +217,7 @@ def test_pasted_figures_are_hidden_by_what_is_nearer() -> None:
     """Copy-paste moves a figure sideways into another frame: its pixels, mask and depth
     where it is nearer than the frame, nothing where the frame is nearer (a wall in front),
     and the inputs untouched."""
-    from active_vision.train import paste_figures
+    from active_vision.training.train import paste_figures
 
     x = torch.zeros(2, 3, 8, 12)
     mask = torch.zeros(2, 1, 8, 12)
@@ -256,7 +256,7 @@ def test_edge_pastes_cut_figures_at_the_frame_side() -> None:
     """With ``edge_share=1`` every paste lands at the left or right edge with a quarter to
     three quarters of the figure cut off; with ``edge_share=0`` a paste keeps the whole
     figure (a 10-column figure in the middle, shifts of at most PASTE_MAX_SHIFT)."""
-    from active_vision.train import paste_figures
+    from active_vision.training.train import paste_figures
 
     x = torch.zeros(4, 3, 96, 96)
     mask = torch.zeros(4, 1, 96, 96)
@@ -286,7 +286,7 @@ def test_edge_pastes_cut_figures_at_the_frame_side() -> None:
 
 
 def test_a_worlds_depth_weight_scales_its_frames_depth_loss() -> None:
-    from active_vision.train import losses
+    from active_vision.training.train import losses
 
     torch.manual_seed(0)
     logits = torch.randn(2, 2, 16, 16)
@@ -303,8 +303,8 @@ def test_a_worlds_depth_weight_scales_its_frames_depth_loss() -> None:
 
 
 def test_hard_positives_push_each_counted_figures_strongest_pixels_up() -> None:
-    from active_vision.evaluate import MIN_PEDESTRIAN_PX
-    from active_vision.train import HARD_POSITIVES, hard_positive_loss, losses
+    from active_vision.training.evaluate import MIN_PEDESTRIAN_PX
+    from active_vision.training.train import HARD_POSITIVES, hard_positive_loss, losses
 
     mask = torch.zeros(3, 1, 32, 32)
     mask[0, 0, 4:20, 4:8] = 1  # a 64-px figure: counted by the evaluation's recall
@@ -367,7 +367,7 @@ def test_training_can_start_from_weights_of_the_same_shape(tmp_path, heldout) ->
 
 def test_distillation_target_is_the_teachers_mean_and_follows_the_augmentation(tmp_path
                                                                                ) -> None:
-    from active_vision.train import _augment, losses, teacher_heatmaps
+    from active_vision.training.train import _augment, losses, teacher_heatmaps
 
     torch.manual_seed(0)
     nets = [AVNet(AVNetConfig(widths=(4, 8, 8, 8))).eval() for _ in range(2)]
@@ -410,7 +410,7 @@ def test_distillation_target_is_the_teachers_mean_and_follows_the_augmentation(t
 def test_a_distilled_run_records_its_teachers_and_resumes_only_with_them(tmp_path,
                                                                           heldout) -> None:
     from active_vision.models import weights_meta
-    from active_vision.train import main as train_main
+    from active_vision.training.train import main as train_main
 
     data = heldout.save(tmp_path / "tiny.npz")
     teacher = save_weights(AVNet(AVNetConfig(widths=(4, 8, 8, 8))), tmp_path / "teacher.pt")
@@ -429,7 +429,7 @@ def test_a_distilled_run_records_its_teachers_and_resumes_only_with_them(tmp_pat
 def test_episode_intervals_span_what_one_episode_can_move() -> None:
     """The bootstrap draws whole episodes: identical episodes give a point; one episode that
     misses every pedestrian among good ones widens recall's interval down towards it."""
-    from active_vision.evaluate import _Counts, episode_intervals
+    from active_vision.training.evaluate import _Counts, episode_intervals
 
     good = _Counts(inter=90, union=100, peds=10, peds_hit=10, empty_frames=5, fp_frames=0,
                    frames=24, depth_px=1000, abs_rel_sum=100.0, delta1_hits=900)
@@ -444,7 +444,7 @@ def test_episode_intervals_span_what_one_episode_can_move() -> None:
 
 
 def test_evaluate_refuses_an_unknown_split() -> None:
-    from active_vision.evaluate import heldout
+    from active_vision.training.evaluate import heldout
 
     with pytest.raises(ValueError, match="heldout, validation"):
         heldout(split="test")
@@ -466,7 +466,7 @@ def test_evaluate_refuses_an_unknown_split() -> None:
                  marks=pytest.mark.skipif(torch.cuda.is_available(), reason="has a GPU")),
 ])
 def test_train_cli_names_a_bad_option(argv, message, capsys) -> None:
-    from active_vision.train import _parse
+    from active_vision.training.train import _parse
 
     with pytest.raises(SystemExit):
         _parse(argv)
@@ -474,7 +474,7 @@ def test_train_cli_names_a_bad_option(argv, message, capsys) -> None:
 
 
 def test_train_cli_reads_world_depth_weights() -> None:
-    from active_vision.train import _parse
+    from active_vision.training.train import _parse
 
     cfg = _parse(["--depth-world-weight", "moon=3", "--depth-world-weight", "maze=0.5"])
     assert cfg.depth_world_weights == {"moon": 3.0, "maze": 0.5}
@@ -490,7 +490,7 @@ def test_depth_bands_say_where_the_depth_goes_wrong() -> None:
     (0.5 m) reads delta1 1 and 0 in those bands, with log ratios log 1.1 and log 2; pixels
     beyond 10 m count nowhere, and the shares weight the bands back to the world's own
     delta1 as the evaluation computes it."""
-    from active_vision.evaluate import ROW_BAND, _figures, depth_band_figures, frame_counts
+    from active_vision.training.evaluate import ROW_BAND, _figures, depth_band_figures, frame_counts
     from shm_protocol import CHANNEL_DEPTH, depth_to_channel
 
     size = 2 * ROW_BAND
@@ -523,8 +523,8 @@ def _sweep_row(iou: float, recall: float, fp: float) -> dict[str, float]:
 
 
 def test_calibration_picks_the_best_worst_world_recall_within_the_budgets() -> None:
-    from active_vision.calibrate import FP_BUDGET, choose_threshold
-    from active_vision.evaluate import THRESHOLD
+    from active_vision.training.calibrate import FP_BUDGET, choose_threshold
+    from active_vision.training.evaluate import THRESHOLD
 
     sweep = {
         0.2: {"a": _sweep_row(0.8, 0.99, FP_BUDGET + 0.001), "b": _sweep_row(0.8, 0.99, 0.0)},
@@ -544,10 +544,10 @@ def test_calibration_picks_the_best_worst_world_recall_within_the_budgets() -> N
 
 def test_train_cli_calibrates_on_validation_then_reports_on_heldout(
         tmp_path, heldout: ds.Dataset, monkeypatch, capsys) -> None:
-    import active_vision.calibrate as cal
-    import active_vision.evaluate as ev
+    import active_vision.training.calibrate as cal
+    import active_vision.training.evaluate as ev
     from active_vision.models import HEAD_HEATMAP, load_model, weights_meta
-    from active_vision.train import main as train_main
+    from active_vision.training.train import main as train_main
 
     data = heldout.save(tmp_path / "tiny.npz")
     splits: list[str] = []
@@ -582,8 +582,8 @@ def test_train_cli_calibrates_on_validation_then_reports_on_heldout(
 
 
 def test_folding_a_threshold_moves_the_heatmaps_operating_point_only() -> None:
-    from active_vision.calibrate import fold_threshold
     from active_vision.models import HEAD_DEPTH, HEAD_HEATMAP
+    from active_vision.training.calibrate import fold_threshold
 
     torch.manual_seed(0)
     model = AVNet(AVNetConfig(widths=(4, 8, 8, 8))).eval()
@@ -604,8 +604,8 @@ def test_folding_a_threshold_moves_the_heatmaps_operating_point_only() -> None:
 
 def test_calibrate_cli_writes_the_shifted_head_and_its_threshold(tmp_path, heldout: ds.Dataset,
                                                                 capsys) -> None:
-    from active_vision.calibrate import main as calibrate_main
     from active_vision.models import HEAD_HEATMAP, weights_meta
+    from active_vision.training.calibrate import main as calibrate_main
 
     data = heldout.save(tmp_path / "tiny.npz")
     out = tmp_path / "calibrated.pt"

@@ -1,4 +1,5 @@
-"""The main job (`make demo` runs ``rover_train.demo`` under rover-pair): a short run against a
+"""The main job (`make demo` runs ``rover_train.imitation.demo`` under rover-pair): a short
+run against a
 real daemon writes its outputs, prints the same random row twice, and its table describes
 the student file it leaves behind."""
 
@@ -12,9 +13,10 @@ from pathlib import Path
 import pytest
 from helpers.daemon import Daemon
 
-from rover_train import demo, zoo
+from rover_train import zoo
 from rover_train.evaluate import summarise
-from rover_train.zoo_eval import evaluate_agent
+from rover_train.imitation import demo
+from rover_train.imitation.zoo_eval import evaluate_agent
 from shm_protocol.names import NAME_ENV_VAR
 
 EPISODES = 2

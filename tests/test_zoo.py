@@ -12,7 +12,7 @@ from helpers.daemon import Daemon
 
 from rover_env.constants import FUSED_SIZE
 from rover_train import zoo
-from rover_train.distill import (
+from rover_train.imitation.dagger import (
     DAggerConfig,
     Dataset,
     FusedView,
@@ -24,9 +24,10 @@ from rover_train.distill import (
     sample_weight,
     stage2_config,
     teacher_config,
-    teacher_manners_for,
 )
-from rover_train.expert import ExpertConfig, PlannerExpert, in_camera_view
+from rover_train.imitation.distill import teacher_manners_for
+from rover_train.imitation.expert import ExpertConfig, PlannerExpert, in_camera_view
+from rover_train.imitation.zoo_eval import RandomAgent, evaluate_agent
 from rover_train.progress import StatusLine
 from rover_train.zoo.agent import (
     CAMERA_HEIGHT,
@@ -43,7 +44,6 @@ from rover_train.zoo.agent import (
     state_features,
     unmapped_scan,
 )
-from rover_train.zoo_eval import RandomAgent, evaluate_agent
 
 REQUIRED = ("fused-inspect", "fused-maze", "lidar-inspect", "lidar-maze")
 
@@ -53,7 +53,7 @@ def test_the_zoo_ships_the_four_entries_in_a_few_megabytes() -> None:
     total = sum(zoo.ENTRIES[n].path.stat().st_size for n in zoo.names())
     assert total < 6 * 2**20
     for name in zoo.names():
-        assert "rover_train.distill" in zoo.command(name) and name in zoo.command(name)
+        assert "rover_train.imitation.distill" in zoo.command(name) and name in zoo.command(name)
         # the file holds as many students as its command makes
         agent = zoo.load(name)
         net = agent.net
@@ -511,7 +511,7 @@ def test_fit_follows_the_heavier_of_two_conflicting_labels() -> None:
 
 
 def test_stage1_only_is_refused_for_a_lidar_entry(capsys) -> None:
-    from rover_train.distill import main
+    from rover_train.imitation.distill import main
 
     with pytest.raises(SystemExit):
         main(["lidar-inspect", "--stage1-only"])
@@ -535,17 +535,17 @@ def test_dagger_fits_on_fit_threads_and_collects_on_the_callers_threads(monkeypa
     collection, and the caller after the run, keep the caller's count."""
     import torch
 
-    from rover_train import distill
+    from rover_train.imitation import dagger
     from rover_train.threads import available_cores
 
     seen: list[int] = []
-    real_fit = distill.fit
+    real_fit = dagger.fit
 
     def counting_fit(*args, **kwargs):  # type: ignore[no-untyped-def]
         seen.append(torch.get_num_threads())
         return real_fit(*args, **kwargs)
 
-    monkeypatch.setattr(distill, "fit", counting_fit)
+    monkeypatch.setattr(dagger, "fit", counting_fit)
     before = torch.get_num_threads()
     torch.set_num_threads(1)
     env = make_training_env("lidar", "inspect")
@@ -558,10 +558,10 @@ def test_dagger_fits_on_fit_threads_and_collects_on_the_callers_threads(monkeypa
     finally:
         env.close()
         torch.set_num_threads(before)
-    assert distill.fit_threads(0) == available_cores()
-    assert distill.fit_threads(64) == available_cores()
+    assert dagger.fit_threads(0) == available_cores()
+    assert dagger.fit_threads(64) == available_cores()
     with pytest.raises(ValueError, match="fit_threads"):
-        distill.fit_threads(-1)
+        dagger.fit_threads(-1)
 
 
 def _tiny_students(n: int) -> list[zoo.StudentAgent]:
@@ -641,7 +641,7 @@ def test_fit_refits_every_member_of_an_ensemble() -> None:
 def test_members_make_an_ensemble_from_whole_runs_and_resume_keeps_the_finished_ones(
     tmp_path, monkeypatch
 ) -> None:
-    from rover_train import distill
+    from rover_train.imitation import distill
 
     seeds: list[int] = []
     real = distill._distill_one
@@ -668,7 +668,7 @@ def test_members_make_an_ensemble_from_whole_runs_and_resume_keeps_the_finished_
 
 
 def test_members_flags_are_checked_before_any_work(capsys) -> None:
-    from rover_train.distill import main
+    from rover_train.imitation.distill import main
 
     for argv, needle in (
         (["lidar-inspect", "--members", "0"], "--members must be >= 1"),
@@ -681,7 +681,7 @@ def test_members_flags_are_checked_before_any_work(capsys) -> None:
 
 
 def test_a_fused_students_stage1_is_saved_and_resume_skips_it(tmp_path, monkeypatch) -> None:
-    from rover_train import distill
+    from rover_train.imitation import distill
 
     rounds: list[str] = []
     real = distill.run_dagger
@@ -704,17 +704,17 @@ def test_a_fused_students_stage1_is_saved_and_resume_skips_it(tmp_path, monkeypa
 
 def test_training_fused_envs_wait_out_a_starved_daemon() -> None:
     """Real daemon, real env: the training env carries the long frame timeout."""
-    from rover_train import distill
+    from rover_train.imitation import dagger
 
     d = Daemon(f"test_zoo_{uuid.uuid4().hex[:8]}").start()
     try:
-        env = distill.make_training_env("fused", "maze", shm_name=d.name)
+        env = dagger.make_training_env("fused", "maze", shm_name=d.name)
         try:
-            assert env.unwrapped.frame_timeout == distill.TRAINING_FRAME_TIMEOUT > 2.0
+            assert env.unwrapped.frame_timeout == dagger.TRAINING_FRAME_TIMEOUT > 2.0
             env.reset(seed=1)
         finally:
             env.close()
-        env = distill.make_training_env("fused", "maze", shm_name=d.name, frame_timeout=5.0)
+        env = dagger.make_training_env("fused", "maze", shm_name=d.name, frame_timeout=5.0)
         try:
             assert env.unwrapped.frame_timeout == 5.0
         finally:
@@ -723,4 +723,4 @@ def test_training_fused_envs_wait_out_a_starved_daemon() -> None:
         d.stop()
         d.remove_leftovers()
     with pytest.raises(ValueError, match="frame_timeout is for the fused"):
-        distill.make_training_env("lidar", "maze", frame_timeout=5.0)
+        dagger.make_training_env("lidar", "maze", frame_timeout=5.0)

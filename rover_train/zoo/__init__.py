@@ -9,7 +9,8 @@
     obs, reward, terminated, truncated, info = env.step(agent.act(obs))
 
 Each entry is a student distilled from the privileged planner expert
-(:mod:`rover_train.expert`) by DAgger (:mod:`rover_train.distill`); ``command(name)`` is
+(:mod:`rover_train.imitation.expert`) by DAgger
+(:mod:`rover_train.imitation.distill`); ``command(name)`` is
 the one command that reproduces its file. Fused entries need the daemon for their env.
 """
 

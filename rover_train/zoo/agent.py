@@ -27,7 +27,7 @@ and its weights. Its features:
   its change over ``LIDAR_LAG`` steps too; with ``pedestrian_scan``, a second scan of the
   pixels the heatmap marks as a pedestrian. Stage 1 of a fused entry (RoverEnv, no daemon)
   reads the same scan off the same fused image computed in-process
-  (:class:`rover_train.distill.FusedView`), so the state network learns walls and
+  (:class:`rover_train.imitation.dagger.FusedView`), so the state network learns walls and
   pedestrians ahead from its 190,000 samples instead of the image branch learning them
   from 48,000;
 - ``fused_image`` (fused students): the three channels average-pooled to 48x48 through a

@@ -25,7 +25,7 @@ class EntrySpec:
     :param env_kwargs: constructor keywords of the env it was trained for.
     :param command: the one command that reproduces its file.
     :param members: students in the file: more than 1 is an ensemble of that many DAgger
-        runs (``rover_train.distill --members``, whose default this is).
+        runs (``rover_train.imitation.distill --members``, whose default this is).
     :param unmapped_scan: its LIDAR students see which returns the world's map does not
         explain (``rover_train.zoo.agent.unmapped_scan``; ``distill --unmapped-scan``, whose
         default this is).
@@ -46,9 +46,10 @@ class EntrySpec:
 def _entry(kind: str, world: str) -> EntrySpec:
     name = f"{kind}-{world}"
     if kind == "lidar":
-        command = f"python -m rover_train.distill {name}"
+        command = f"python -m rover_train.imitation.distill {name}"
     else:
-        command = f"rover-pair --name distill_{world} -- python -m rover_train.distill {name}"
+        command = (f"rover-pair --name distill_{world} -- "
+                   f"python -m rover_train.imitation.distill {name}")
     return EntrySpec(kind=kind, world=world, env_kwargs={"world_n": world}, command=command,
                      members=MEMBERS.get(name, 1),
                      unmapped_scan=name in UNMAPPED_SCAN)  # fmt: skip

@@ -1,13 +1,14 @@
 """Quality of the perception network on the held-out split.
 
-``python -m active_vision.evaluate [--weights PATH] [--data FILE] [--json]`` runs the shipped
+``python -m active_vision.training.evaluate [--weights PATH] [--data FILE] [--json]``
+runs the shipped
 (or given) network through :class:`~active_vision.perception.Perception` - exactly what the
 daemon runs - on held-out frames (rendered with ``dataset.HELDOUT_SEED`` when no file is
 given) and prints the figures overall and per world. With ``--json`` the last line is one
 JSON object with the keys ``iou``, ``recall``, ``false_positive_rate``, ``abs_rel``,
 ``delta1`` (plus counts, ``abs_rel_near``, ``worst`` and ``per_world``). With
 ``--heatmap predict`` it also evaluates the predictive heatmap on held-out driving
-sequences (:mod:`active_vision.predict_train`) and adds ``predict_iou``,
+sequences (:mod:`active_vision.training.predict_train`) and adds ``predict_iou``,
 ``detect_baseline_iou`` and ``oracle_now_iou``, overall and in each ``per_world`` entry,
 and ``margin_interval``: the 90 % interval of predict - detect over bootstrap draws of whole
 episodes. ``--sweep 0.5,0.3,0.1`` also prints the heatmap figures (IoU, recall,
@@ -59,20 +60,20 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from active_vision.dataset import (
-    DEFAULT_DATA_DIR,
-    SPLIT_SEEDS,
-    WORLDS,
-    Dataset,
-    DatasetConfig,
-    build,
-)
 from active_vision.models import MIN_DEPTH_M, AVNet, load_model
 from active_vision.perception import (
     CHANNEL_DEPTH,
     CHANNEL_HEATMAP,
     Perception,
     PerceptionConfig,
+)
+from active_vision.training.dataset import (
+    DEFAULT_DATA_DIR,
+    SPLIT_SEEDS,
+    WORLDS,
+    Dataset,
+    DatasetConfig,
+    build,
 )
 from shm_protocol import DEPTH_MAX_M, channel_to_depth
 
@@ -432,7 +433,7 @@ def _thresholds(text: str) -> list[float]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m active_vision.evaluate",
+    p = argparse.ArgumentParser(prog="python -m active_vision.training.evaluate",
                                 description="Heatmap and depth quality on the held-out split.")
     p.add_argument("--weights", type=Path, default=None, help="default: the shipped weights")
     p.add_argument("--data", type=Path, default=None,
@@ -474,7 +475,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                               "per_world": {w: dict(f) for w, f in m.per_world.items()},
                               "intervals": m.intervals}
     if args.heatmap == "predict":
-        from active_vision.predict_train import evaluate_heldout, figure_rows
+        from active_vision.training.predict_train import evaluate_heldout, figure_rows
 
         pm = evaluate_heldout(args.predict_weights, args.weights, args.data_dir,
                               threads=args.threads)

@@ -1,6 +1,6 @@
 """Training and held-out frames for the perception network, rendered from our own worlds.
 
-``python -m active_vision.dataset --out DIR --frames N --seed S`` renders N camera frames
+``python -m active_vision.training.dataset --out DIR --frames N --seed S`` renders N camera frames
 through :class:`rover_env.simulation.RoverSim` and writes
 ``DIR/av_<worlds>_s<S>_n<N>_<size>px_d<drive %>_v<version>.npz``
 (compressed) with:
@@ -21,7 +21,7 @@ key                   shape / dtype        meaning
 
 A file is a pure function of ``(seed, frames, worlds, size, drive_fraction, appearance)``.
 The first ``round(frames * drive_fraction)`` frames (70 % by default) are **driving**
-frames: short episodes recorded while the rover drives (:mod:`active_vision.driving`:
+frames: short episodes recorded while the rover drives (:mod:`active_vision.training.driving`:
 random smooth driving, approaching a pedestrian, driving into walls and rocks, watching a
 distant pedestrian; every 3rd control step kept), episode e in world ``e % W`` from
 ``np.random.default_rng([seed, 1, e])``. These are the frames the agent sees. The rest are
@@ -106,7 +106,7 @@ class DatasetConfig:
     max_distance: float = 9.0
     """Farthest pedestrian distance from the camera (m)."""
     drive_fraction: float = 0.7
-    """Share of the frames recorded while driving (:mod:`active_vision.driving`); the rest
+    """Share of the frames recorded while driving (:mod:`active_vision.training.driving`); the rest
     are posed views."""
     appearance: str = "random"
     """Pedestrian appearance (``RoverSim(pedestrian_appearance=...)``)."""
@@ -358,7 +358,7 @@ def render_dataset(config: DatasetConfig, progress_every: int = 500) -> Dataset:
     ``round(frames * drive_fraction)`` driving frames (episode e in world ``e % W``, from
     ``np.random.default_rng([seed, 1, e])``), then posed frames (frame i in world ``i % W``,
     from ``np.random.default_rng([seed, i])``)."""
-    from active_vision.driving import DriveRecorder
+    from active_vision.training.driving import DriveRecorder
 
     n, s = config.frames, config.size
     if not 0.0 <= config.drive_fraction <= 1.0:
@@ -425,7 +425,7 @@ def build(out_dir: Path, config: DatasetConfig, *, reuse: bool = True) -> Path:
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m active_vision.dataset", description=__doc__
+    p = argparse.ArgumentParser(prog="python -m active_vision.training.dataset", description=__doc__
                                 .split("\n")[0])
     p.add_argument("--out", type=Path, default=DEFAULT_DATA_DIR, help="output directory")
     p.add_argument("--frames", type=int, default=DatasetConfig.frames)

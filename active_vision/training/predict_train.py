@@ -1,9 +1,9 @@
 """Data, training and evaluation of the predictive heatmap (:mod:`active_vision.predict`).
 
-    python -m active_vision.predict_train [--episodes 900] [--epochs 10] [--threads 2]
-    python -m active_vision.predict_train --evaluate-only [--split validation] [--json]
+    python -m active_vision.training.predict_train [--episodes 900] [--epochs 10] [--threads 2]
+    python -m active_vision.training.predict_train --evaluate-only [--split validation] [--json]
 
-Data: driving episodes (:meth:`active_vision.driving.DriveRecorder.record_sequence`, the
+Data: driving episodes (:meth:`active_vision.training.driving.DriveRecorder.record_sequence`, the
 same drivers, lighting and random pedestrian appearance as the detection data) with every
 control step's camera frame (0.05 s apart, the env's cadence, so the window is what the
 daemon sees) and, every 3rd step from step 4 on, the future-occupancy mask (1.5 s, rover
@@ -43,14 +43,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from active_vision.dataset import (
-    DEFAULT_DATA_DIR,
-    SPLIT_SEEDS,
-    TRAIN_SEED,
-    WORLDS,
-    DatasetConfig,
-    FrameRenderer,
-)
 from active_vision.predict import (
     DEFAULT_PREDICT_WEIGHTS,
     HORIZON_S,
@@ -58,6 +50,14 @@ from active_vision.predict import (
     PredictNet,
     Predictor,
     save_predictor,
+)
+from active_vision.training.dataset import (
+    DEFAULT_DATA_DIR,
+    SPLIT_SEEDS,
+    TRAIN_SEED,
+    WORLDS,
+    DatasetConfig,
+    FrameRenderer,
 )
 from shm_protocol import CHANNEL_HEATMAP
 
@@ -116,7 +116,7 @@ def render_sequences(seed: int, episodes: int, worlds: Sequence[str] = WORLDS,
                      size: int = 96) -> SequenceData:
     """Record ``episodes`` episodes (episode e in world ``e % W``, generator
     ``default_rng([seed, 2, e])``)."""
-    from active_vision.driving import DriveRecorder
+    from active_vision.training.driving import DriveRecorder
 
     cfg = DatasetConfig(size=size, worlds=tuple(worlds))
     recorders: dict[str, DriveRecorder] = {}
@@ -361,7 +361,7 @@ def evaluate_heldout(predict_weights: Path | None = None, weights: Path | None =
 
 def main(argv: Sequence[str] | None = None) -> int:
     d = PredictTrainConfig()
-    p = argparse.ArgumentParser(prog="python -m active_vision.predict_train",
+    p = argparse.ArgumentParser(prog="python -m active_vision.training.predict_train",
                                 description="Train/evaluate the predictive heatmap.")
     p.add_argument("--episodes", type=int, default=d.episodes)
     p.add_argument("--epochs", type=int, default=d.epochs)

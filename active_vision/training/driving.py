@@ -8,7 +8,7 @@ metric depth and pedestrian mask. Each episode draws everything from its own gen
 
 - the pedestrians' paths and, with ``appearance="random"``, their clothes, height, girth
   and gait phase (``RoverSim.reset``);
-- the lighting (as the posed frames: :func:`active_vision.dataset.random_lighting`);
+- the lighting (as the posed frames: :func:`active_vision.training.dataset.random_lighting`);
 - the start: the world's spawn, or a free pose near the pedestrian area;
 - the driver, one of :data:`DRIVERS`:
 
@@ -93,7 +93,7 @@ def _wrap(a: float) -> float:
 class DriveRecorder:
     """Records driving episodes in one world (see the module docstring).
 
-    :param renderer: the world's :class:`active_vision.dataset.FrameRenderer` (its sim and
+    :param renderer: the world's :class:`active_vision.training.dataset.FrameRenderer` (its sim and
         pose helpers are shared).
     """
 
@@ -152,7 +152,7 @@ class DriveRecorder:
         return driver, self._steps(rng, driver, target)
 
     def _steps(self, rng: np.random.Generator, driver: str, target: int) -> Iterator[int]:
-        from active_vision.dataset import random_lighting
+        from active_vision.training.dataset import random_lighting
 
         cfg, sim, r = self.config, self.sim, self.r
         sim.set_lighting(random_lighting(sim, rng))

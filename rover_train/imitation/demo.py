@@ -2,10 +2,10 @@
 
 Run under the supervisor so the daemon is there (``make demo`` does this):
 
-    rover-pair -- python -m rover_train.demo --timesteps 24000
+    rover-pair -- python -m rover_train.imitation.demo --timesteps 24000
 
 It starts from the shipped zoo entry ``fused-<world>`` (a student distilled from the
-privileged planner expert, see ``rover_train.distill``), fine-tunes it for ``--timesteps``
+privileged planner expert, see ``rover_train.imitation.distill``), fine-tunes it for ``--timesteps``
 env steps of DAgger on RoverEnvFused with the daemon's fused images, then evaluates it and
 a seeded random policy on the same evaluation episodes (reset seeds from 100000, never used
 in training; each ends at the first goal, a termination or ``--max-steps``).
@@ -28,16 +28,16 @@ from pathlib import Path
 from typing import Any
 
 from rover_train import zoo
-from rover_train.distill import (
+from rover_train.evaluate import format_table, summarise, write_video
+from rover_train.imitation.dagger import (
     DAggerConfig,
     make_training_env,
     run_dagger,
     stage2_config,
-    teacher_sees_for,
 )
-from rover_train.evaluate import format_table, summarise, write_video
+from rover_train.imitation.distill import teacher_sees_for
+from rover_train.imitation.zoo_eval import RandomAgent, evaluate_agent
 from rover_train.progress import StatusLine
-from rover_train.zoo_eval import RandomAgent, evaluate_agent
 from shm_protocol import default_name
 
 
@@ -101,7 +101,9 @@ def quiet_logs() -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     quiet_logs()
-    p = argparse.ArgumentParser(prog="rover_train.demo", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(
+        prog="rover_train.imitation.demo", description=__doc__.split("\n")[0]
+    )
     p.add_argument("--world", choices=["inspect", "maze"], default="maze")
     p.add_argument(
         "--timesteps", type=int, default=24000, help="fine-tuning env steps (0: evaluate only)"

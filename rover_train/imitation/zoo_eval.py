@@ -1,8 +1,8 @@
 """Evaluate zoo entries (or the planner expert) the way the zoo's targets are defined.
 
-    python -m rover_train.zoo_eval lidar-maze --episodes 100
-    python -m rover_train.zoo_eval lidar-maze --expert          # the teacher on the same episodes
-    rover-pair --name zoo_eval -- python -m rover_train.zoo_eval fused-maze --episodes 100
+    python -m rover_train.imitation.zoo_eval lidar-maze --episodes 100
+    python -m rover_train.imitation.zoo_eval lidar-maze --expert  # the teacher on the same episodes
+    rover-pair --name zoo_eval -- python -m rover_train.imitation.zoo_eval fused-maze --episodes 100
 
 Episode i is ``reset(seed=EVAL_SEED_BASE + i)`` (no training episode uses these seeds), then
 steps until the first goal (``info["is_success"]``), a termination, a truncation or 600
@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 
 from rover_train import zoo
-from rover_train.distill import teacher_manners_for
 from rover_train.evaluate import EpisodeResult, format_table, run_episode, summarise
-from rover_train.expert import MANNERS, ExpertConfig, PlannerExpert
+from rover_train.imitation.distill import teacher_manners_for
+from rover_train.imitation.expert import MANNERS, ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
 
 
@@ -103,7 +103,9 @@ class RandomAgent:
 
 def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s")
-    p = argparse.ArgumentParser(prog="rover_train.zoo_eval", description=__doc__.split("\n")[0])
+    p = argparse.ArgumentParser(
+        prog="rover_train.imitation.zoo_eval", description=__doc__.split("\n")[0]
+    )
     p.add_argument("entry", choices=sorted(zoo.ENTRIES))
     p.add_argument("--episodes", type=int, default=100)
     p.add_argument("--seed", type=int, default=zoo.EVAL_SEED_BASE)

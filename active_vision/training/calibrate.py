@@ -1,6 +1,6 @@
 """Calibrate the heatmap head: move its operating point to the threshold chosen on validation.
 
-    python -m active_vision.calibrate --weights runs/x/avnet.pt [--out FILE]
+    python -m active_vision.training.calibrate --weights runs/x/avnet.pt [--out FILE]
 
 The evaluation counts a pixel as a pedestrian at 0.5 (``THRESHOLD``), and the fused envs'
 reward and the predictor read the heatmap's values as they are, so a network's operating
@@ -14,7 +14,7 @@ threshold). It then folds ``-logit(t)`` into the heatmap head's bias, so that th
 network's 0.5 is the old network's ``t`` for every pixel: ``sigmoid(z - logit(t)) >= 0.5``
 exactly where ``sigmoid(z) >= t``. The depth head is untouched.
 
-``python -m active_vision.train --calibrate`` calibrates the network it trains this way
+``python -m active_vision.training.train --calibrate`` calibrates the network it trains this way
 before its held-out evaluation; this command calibrates an existing weights file (and
 writes its ONNX export beside the result). The shift is stored in the weights' ``meta`` as
 ``heat_logit_shift`` (summed over calibrations) with the chosen ``heat_threshold``.
@@ -45,9 +45,15 @@ from typing import Any
 
 import torch
 
-from active_vision.dataset import DEFAULT_DATA_DIR, Dataset
-from active_vision.evaluate import TARGETS, THRESHOLD, format_sweep, heldout, threshold_sweep
 from active_vision.models import HEAD_HEATMAP, AVNet, load_model
+from active_vision.training.dataset import DEFAULT_DATA_DIR, Dataset
+from active_vision.training.evaluate import (
+    TARGETS,
+    THRESHOLD,
+    format_sweep,
+    heldout,
+    threshold_sweep,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -116,7 +122,7 @@ def calibrated_meta(meta: dict[str, Any], threshold: float, shift: float) -> dic
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m active_vision.calibrate",
+    p = argparse.ArgumentParser(prog="python -m active_vision.training.calibrate",
                                 description="Fold the heatmap threshold chosen on the "
                                 "validation split into a weights file.")
     p.add_argument("--weights", type=Path, required=True, help="the weights to calibrate")

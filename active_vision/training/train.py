@@ -1,7 +1,8 @@
 """Train the perception network on frames rendered from our worlds.
 
-    python -m active_vision.train [--data FILE] [--frames N] [--epochs E] [--threads 2]
-    python -m active_vision.train --init active_vision/weights/avnet.pt --epochs 2 --lr 1e-3
+    python -m active_vision.training.train [--data FILE] [--frames N] [--epochs E] [--threads 2]
+    python -m active_vision.training.train --init active_vision/weights/avnet.pt \
+        --epochs 2 --lr 1e-3
     (the second: a fine-tune of the shipped weights)
 
 One network (:class:`~active_vision.models.AVNet`) serves both fused channels (the daemon
@@ -18,7 +19,7 @@ generator); the step is bound by the augmentation's per-frame work, so an H200 w
 cores took about 25 s an epoch for the 16/32/64/96 network with two runs sharing it. The
 training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
 ``--resume`` continues an interrupted run. With ``--calibrate`` the heatmap head is then
-calibrated on the validation split (:mod:`active_vision.calibrate`: the detection
+calibrated on the validation split (:mod:`active_vision.training.calibrate`: the detection
 threshold that serves recall best within the false-positive budget becomes the head's
 0.5). Writes ``active_vision/weights/avnet.pt`` (or ``--out``)
 with the held-out figures (driving split) of the result stored in its ``meta``.
@@ -62,14 +63,6 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from active_vision.dataset import (
-    DEFAULT_DATA_DIR,
-    TRAIN_SEED,
-    Dataset,
-    DatasetConfig,
-    build,
-)
-from active_vision.evaluate import MIN_BLOB_PX, MIN_PEDESTRIAN_PX
 from active_vision.models import (
     DEFAULT_WEIGHTS,
     HEAD_DEPTH,
@@ -80,6 +73,14 @@ from active_vision.models import (
     load_model,
 )
 from active_vision.models import save_weights as _save
+from active_vision.training.dataset import (
+    DEFAULT_DATA_DIR,
+    TRAIN_SEED,
+    Dataset,
+    DatasetConfig,
+    build,
+)
+from active_vision.training.evaluate import MIN_BLOB_PX, MIN_PEDESTRIAN_PX
 from shm_protocol import DEPTH_MAX_M
 
 logger = logging.getLogger(__name__)
@@ -195,7 +196,8 @@ class TrainConfig:
     """Evaluate on the held-out split after training and store the figures in the file."""
     calibrate: bool = False
     """Fold the heatmap threshold chosen on the validation split into the head
-    (:mod:`active_vision.calibrate`) before the held-out evaluation. Off by default (it needs
+    (:mod:`active_vision.training.calibrate`) before the held-out evaluation. Off by default
+    (it needs
     the validation split and changes channel 1 for whatever reads it); the shipped network
     was made with it (see that module for what it costs)."""
     checkpoint: Path | None = None
@@ -525,7 +527,7 @@ def parse_widths(text: str) -> tuple[int, int, int, int]:
 
 def _parse(argv: Sequence[str] | None) -> TrainConfig:
     d = TrainConfig()
-    p = argparse.ArgumentParser(prog="python -m active_vision.train",
+    p = argparse.ArgumentParser(prog="python -m active_vision.training.train",
                                 description=__doc__.split("\n")[0])
     p.add_argument("--data", type=Path, default=None, help="training .npz (default: render)")
     p.add_argument("--data-dir", type=Path, default=d.data_dir)
@@ -568,7 +570,7 @@ def _parse(argv: Sequence[str] | None) -> TrainConfig:
     p.add_argument("--no-evaluate", action="store_true", help="skip the held-out evaluation")
     p.add_argument("--calibrate", action="store_true",
                    help="fold the detection threshold chosen on the validation split into the "
-                   "heatmap head (active_vision.calibrate)")
+                   "heatmap head (active_vision.training.calibrate)")
     p.add_argument("--checkpoint", type=Path, default=None,
                    help="training state file, written every epoch (default: OUT.ckpt)")
     p.add_argument("--resume", action="store_true",
@@ -632,10 +634,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                                     f"{t.parent.name}/{t.name}" for t in cfg.teachers)
         meta["distill_weight"] = cfg.distill_weight
     path = _save(model, cfg.out, meta)  # first without figures: evaluation may fail
-    from active_vision.evaluate import evaluate, format_metrics, heldout
+    from active_vision.training.evaluate import evaluate, format_metrics, heldout
 
     if cfg.calibrate:
-        from active_vision.calibrate import calibrate, calibrated_meta
+        from active_vision.training.calibrate import calibrate, calibrated_meta
 
         t, shift, table = calibrate(model, heldout(cfg.data_dir, split="validation"),
                                     threads=cfg.threads)
