@@ -226,7 +226,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for slot, (label, (kind, model)) in enumerate(agents.items()):
             act = load_agent(model)
             tally = Tally()
-            env = make_env(kind, world=args.world, slot=slot, shm_name=name,
+            env = make_env(kind, world=args.world, slot=slot, name=name,
                            pedestrian_mode="crossing", length=args.max_steps)  # fmt: skip
             try:
                 for i in range(args.episodes):
@@ -245,7 +245,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.gif is not None:
             k, count = best
             act = load_agent(args.gaze)
-            env = make_env("fused-gaze", world=args.world, slot=1, shm_name=name,
+            env = make_env("fused-gaze", world=args.world, slot=1, name=name,
                            pedestrian_mode="crossing", length=args.max_steps,
                            render_mode="rgb_array")  # fmt: skip
             frames: list[np.ndarray] = []

@@ -39,7 +39,7 @@ from rover_train.train import TrainArgs, train  # noqa: E402
 def evaluate_policy(
     kind: str, world: str, model: Path | None, episodes: int, max_steps: int, shm: str
 ) -> dict:
-    env = make_env(kind, world=world, shm_name=shm)
+    env = make_env(kind, world=world, name=shm)
     try:
         act = evaluate.load_policy(
             model, None if model else "random", env, "ppo" if model else None
@@ -78,8 +78,8 @@ def run(
             t0 = time.perf_counter()
             args = TrainArgs(
                 env=kind, world=world, timesteps=steps, seed=seed, logdir=Path(tmp),
-                checkpoint_every=0, progress=False, shm_name=shm, length=1000,
-                n_envs=4 if kind == "lidar" else 1,
+                checkpoint_every=0, progress=False, name=shm, length=1000,
+                slots=4 if kind == "lidar" else 1,
             )  # fmt: skip
             train(args)
             wall = time.perf_counter() - t0

@@ -103,7 +103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="diagnose the planner expert itself (its phantom count is 0)")
     p.add_argument("--episodes", type=int, default=40)
     p.add_argument("--seed", type=int, default=DIAGNOSTIC_SEED_BASE)
-    p.add_argument("--name", dest="daemon_name",
+    p.add_argument("--name",
                    help="daemon name for fused entries (default: $ROVERAV_SHM_NAME)")
     args = p.parse_args(argv)
     if args.episodes < 1:
@@ -112,7 +112,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     spec = zoo.ENTRIES[args.entry]
-    env = entry_env(args.entry, args.daemon_name)
+    env = entry_env(args.entry, args.name)
     expert = PlannerExpert(spec.world)
     if args.expert:
         agent = ExpertAgent(env, spec.world)

@@ -12,7 +12,14 @@ and hidden old spellings come from the field's metadata::
         slots: int = field(default=1, metadata={"aliases": ("--n-envs",)})
         \"\"\"Parallel envs.\"\"\"
 
-An alias is accepted and not shown in ``--help`` (kept for one release after a rename).
+An alias is accepted and not shown in ``--help``, with a deprecation message on stderr
+(kept for one release after a rename).
+
+Artefact recipes are frozen dataclasses of the same kind, stored in the artefact
+(:func:`recipe_dict` / :func:`recipe_from_dict`); a maker's command line is the recipe's fields
+plus its run options (:func:`build_parser` takes several classes), ``--recipe FILE`` starts
+from the recipe stored in an artefact (:func:`recipe_defaults`) and ``--log-level`` is
+always there.
 """
 
 from __future__ import annotations
@@ -21,11 +28,13 @@ import argparse
 import ast
 import dataclasses
 import inspect
+import logging
 import os
+import sys
 import textwrap
 import types
 import typing
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -74,43 +83,102 @@ def _base_type(tp: Any) -> tuple[Any, bool]:
     return tp, False
 
 
-def build_parser(cls: type, prog: str, description: str, epilog: str | None = None
-                 ) -> argparse.ArgumentParser:  # fmt: skip
-    """An ``ArgumentParser`` with one option per field of dataclass ``cls``."""
+class _DeprecatedAlias(argparse.Action):
+    """An old spelling of an option: stores like the new one and says it is going."""
+
+    def __init__(self, option_strings: list[str], dest: str, new: str = "",
+                 inner: argparse.Action | None = None, **kwargs: Any) -> None:  # fmt: skip
+        self.new = new
+        self.inner = inner
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:  # fmt: skip
+        print(f"{parser.prog}: {option_string} is deprecated and goes in the next release; "
+              f"use {self.new}", file=sys.stderr)  # fmt: skip
+        assert self.inner is not None
+        self.inner(parser, namespace, values, self.new)
+
+
+def add_deprecated_alias(parser: argparse.ArgumentParser, alias: str,
+                         action: argparse.Action) -> None:  # fmt: skip
+    """Accept ``alias`` as an old spelling of the option of ``action`` (hidden from
+    ``--help``; using it prints a deprecation message)."""
+    parser.add_argument(alias, dest=action.dest, action=_DeprecatedAlias,
+                        new=action.option_strings[0], inner=action, help=argparse.SUPPRESS,
+                        default=argparse.SUPPRESS, type=action.type, nargs=action.nargs)
+
+
+def _field_default(f: dataclasses.Field[Any], defaults: Any) -> Any:
+    if defaults is not None:
+        return getattr(defaults, f.name)
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
+
+
+def build_parser(cls: type | Sequence[type], prog: str, description: str,
+                 epilog: str | None = None, *,
+                 defaults: Mapping[type, Any] | None = None,
+                 positional: Sequence[str] = ()) -> argparse.ArgumentParser:  # fmt: skip
+    """An ``ArgumentParser`` with one option per field of each dataclass in ``cls``, and
+    ``--log-level`` unless a class has a ``log_level`` field.
+
+    :param defaults: an instance per class whose values replace the fields' defaults (a
+        recipe read from an artefact).
+    :param positional: field names taken as positional arguments instead of options.
+    """
+    classes = [cls] if isinstance(cls, type) else list(cls)
     parser = argparse.ArgumentParser(
         prog=prog, description=description, epilog=epilog,
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )  # fmt: skip
-    docs = field_docs(cls)
-    hints = typing.get_type_hints(cls)
-    for f in dataclasses.fields(cls):
-        if not f.init or f.metadata.get("cli") is False:
-            continue
-        tp, _optional = _base_type(hints[f.name])
-        flag = "--" + f.name.replace("_", "-")
-        default = (
-            f.default if f.default is not dataclasses.MISSING
-            else f.default_factory() if f.default_factory is not dataclasses.MISSING
-            else None
-        )  # fmt: skip
-        kwargs: dict[str, Any] = {"dest": f.name, "default": default,
-                                  "help": docs.get(f.name, f.metadata.get("help", ""))}
-        if "choices" in f.metadata:
-            kwargs["choices"] = tuple(f.metadata["choices"])
-        if "nargs" in f.metadata:  # e.g. an optional value: --ray [ADDRESS]
-            kwargs["nargs"] = f.metadata["nargs"]
-            kwargs["const"] = f.metadata.get("const")
-        if tp is bool:
-            kwargs["action"] = argparse.BooleanOptionalAction
-        else:
-            kwargs["type"] = f.metadata.get("parse", tp if tp in (int, float, str, Path) else str)
-            if "choices" not in kwargs:
-                kwargs["metavar"] = f.metadata.get("metavar", f.name.upper())
-        parser.add_argument(flag, **kwargs)
-        for alias in f.metadata.get("aliases", ()):
-            hidden = dict(kwargs, help=argparse.SUPPRESS, default=argparse.SUPPRESS)
-            hidden.pop("metavar", None)
-            parser.add_argument(alias, **hidden)
+    has_log_level = False
+    for c in classes:
+        docs = field_docs(c)
+        hints = typing.get_type_hints(c)
+        instance = (defaults or {}).get(c)
+        for f in dataclasses.fields(c):
+            if not f.init or f.metadata.get("cli") is False:
+                continue
+            has_log_level |= f.name == "log_level"
+            tp, _optional = _base_type(hints[f.name])
+            default = _field_default(f, instance)
+            kwargs: dict[str, Any] = {"default": default,
+                                      "help": docs.get(f.name, f.metadata.get("help", ""))}
+            if "choices" in f.metadata:
+                kwargs["choices"] = tuple(f.metadata["choices"])
+            if "nargs" in f.metadata:  # e.g. an optional value: --ray [ADDRESS]
+                kwargs["nargs"] = f.metadata["nargs"]
+                kwargs["const"] = f.metadata.get("const")
+            if tp is bool and f.name not in positional:
+                kwargs["action"] = argparse.BooleanOptionalAction
+            else:
+                kwargs["type"] = f.metadata.get(
+                    "parse", tp if tp in (int, float, str, Path) else str
+                )
+                if "choices" not in kwargs:
+                    kwargs["metavar"] = f.metadata.get("metavar", f.name.upper())
+            if f.name in positional:
+                kwargs.pop("default")
+                action = parser.add_argument(f.name, **kwargs)
+                continue
+            flag = "--" + f.name.replace("_", "-")
+            action = parser.add_argument(flag, dest=f.name, **kwargs)
+            for alias in f.metadata.get("aliases", ()):
+                hidden = {k: v for k, v in kwargs.items()
+                          if k in ("type", "choices", "nargs", "const")}  # fmt: skip
+                if kwargs.get("action") is argparse.BooleanOptionalAction:
+                    hidden["nargs"] = 0
+                parser.add_argument(alias, dest=f.name, action=_DeprecatedAlias, new=flag,
+                                    inner=action, help=argparse.SUPPRESS,
+                                    default=argparse.SUPPRESS, **hidden)  # fmt: skip
+    if not has_log_level:
+        parser.add_argument("--log-level", type=str.upper, choices=LOG_LEVELS,
+                            default=default_log_level(),
+                            help="logging level (default: $ROVERAV_LOG_LEVEL, else INFO)")
     return parser
 
 
@@ -118,8 +186,93 @@ def parse_into(cls: type[T], parser: argparse.ArgumentParser,
                argv: Sequence[str] | None = None) -> T:  # fmt: skip
     """Parse ``argv`` with ``parser`` (from :func:`build_parser`) into an instance of ``cls``."""
     ns = parser.parse_args(argv)
-    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    return instance_from(cls, ns)
+
+
+def instance_from(cls: type[T], ns: argparse.Namespace) -> T:
+    """The instance of dataclass ``cls`` made of the same-named attributes of ``ns``."""
+    names = {f.name for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
     return cls(**{k: v for k, v in vars(ns).items() if k in names})
+
+
+def recipe_dict(recipe: Any) -> dict[str, Any]:
+    """A recipe dataclass as plain data (lists for tuples, strings for paths; nested
+    dataclasses as dicts) that ``torch.load(weights_only=True)`` and JSON can hold."""
+
+    def conv(v: Any) -> Any:
+        if dataclasses.is_dataclass(v) and not isinstance(v, type):
+            return {f.name: conv(getattr(v, f.name)) for f in dataclasses.fields(v)}
+        if isinstance(v, Path):
+            return str(v)
+        if isinstance(v, tuple | list):
+            return [conv(x) for x in v]
+        if isinstance(v, dict):
+            return {str(k): conv(x) for k, x in v.items()}
+        return v
+
+    return typing.cast(dict[str, Any], conv(recipe))
+
+
+def _coerce(tp: Any, value: Any) -> Any:
+    if value is None:
+        return None
+    tp, _ = _base_type(tp)
+    origin = typing.get_origin(tp)
+    if dataclasses.is_dataclass(tp) and isinstance(value, dict):
+        return recipe_from_dict(typing.cast(type, tp), value)
+    if tp is Path:
+        return Path(value)
+    if origin is tuple:
+        args = typing.get_args(tp)
+        inner = args[0] if args else Any
+        return tuple(_coerce(inner, v) for v in value)
+    if origin is dict:
+        _, vt = typing.get_args(tp) or (Any, Any)
+        return {k: _coerce(vt, v) for k, v in value.items()}
+    if tp is float and isinstance(value, int):
+        return float(value)
+    return value
+
+
+def recipe_from_dict(cls: type[T], data: Mapping[str, Any]) -> T:
+    """The recipe ``cls`` from :func:`recipe_dict`'s output; raises ``ValueError`` naming
+    the fields it does not know (a recipe from a newer version)."""
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - set(fields))
+    if unknown:
+        raise ValueError(f"{cls.__name__} has no field(s) {unknown}: the recipe was written "
+                         "by another version of roverav")  # fmt: skip
+    hints = typing.get_type_hints(cls)
+    return cls(**{k: _coerce(hints[k], v) for k, v in data.items()})
+
+
+def recipe_defaults(argv: Sequence[str] | None,
+                    read: Callable[[Path], Any]) -> tuple[Any, list[str]]:  # fmt: skip
+    """``(recipe, rest of argv)``: the recipe stored in the artefact named by ``--recipe
+    FILE`` (``read(path)`` returns it), or ``(None, argv)`` without that option. Exits with
+    a usage error naming the file when it holds no readable recipe."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--recipe", type=Path, default=None)
+    ns, rest = pre.parse_known_args(list(sys.argv[1:] if argv is None else argv))
+    if ns.recipe is None:
+        return None, rest
+    try:
+        return read(ns.recipe), rest
+    except (OSError, ValueError, KeyError, RuntimeError) as exc:
+        print(f"--recipe {ns.recipe}: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+def add_recipe_option(parser: argparse.ArgumentParser, what: str) -> None:
+    """Document ``--recipe FILE`` (read before parsing by :func:`recipe_defaults`)."""
+    parser.add_argument("--recipe", type=Path, metavar="FILE",
+                        help=f"start from the recipe stored in {what} (the command that "
+                        "remakes it); options given beside it override its values")
+
+
+def setup_logging(level: str) -> None:
+    """Root logging at ``level`` for a command line (library code never calls this)."""
+    logging.basicConfig(level=level.upper(), format="%(levelname)s %(name)s: %(message)s")
 
 
 def plain(obj: Any) -> dict[str, Any]:
@@ -130,9 +283,16 @@ def plain(obj: Any) -> dict[str, Any]:
 __all__ = [
     "LOG_LEVELS",
     "LOG_LEVEL_ENV_VAR",
+    "add_deprecated_alias",
+    "add_recipe_option",
     "build_parser",
     "default_log_level",
     "field_docs",
+    "instance_from",
     "parse_into",
     "plain",
+    "recipe_defaults",
+    "recipe_dict",
+    "recipe_from_dict",
+    "setup_logging",
 ]

@@ -30,7 +30,7 @@ def env_kwargs(
     kind: str,
     world: str,
     slot: int = 0,
-    shm_name: str | None = None,
+    name: str | None = None,
     length: int | None = None,
     connect_timeout: float | None = None,
     render_mode: str | None = None,
@@ -53,7 +53,7 @@ def env_kwargs(
     if size is not None:
         kwargs["size"] = tuple(size)
     if kind in FUSED_KINDS:
-        kwargs["rl_obs_name"] = shm_name or default_name()
+        kwargs["rl_obs_name"] = name or default_name()
         kwargs["slot"] = slot
         if connect_timeout is not None:
             kwargs["connection_check_timeout"] = connect_timeout

@@ -35,7 +35,7 @@ import numpy as np
 
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
 from rover_env.worlds import WORLD_CHOICES
-from rover_train.cli import LOG_LEVELS, default_log_level
+from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
 from rover_train.envs import ENV_IDS, PEDESTRIAN_MODES, make_env
 from shm_protocol.names import default_name, default_slots
 
@@ -300,10 +300,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         "--max-steps", type=int, default=1000, help="steps before an episode is a timeout"
     )
-    p.add_argument("--name", default=default_name(),
-                   help="daemon segment base name (fused envs; default $ROVERAV_SHM_NAME or "
-                        "rl_observation)")
-    p.add_argument("--shm-name", dest="name", help=argparse.SUPPRESS)  # old spelling
+    name = p.add_argument("--name", default=default_name(),
+                          help="daemon segment base name (fused envs; default "
+                               "$ROVERAV_SHM_NAME or rl_observation)")
+    add_deprecated_alias(p, "--shm-name", name)
     p.add_argument("--slots", type=int, default=default_slots(),
                    help="envs to spread the episodes over, one per daemon slot (episode i on "
                         "slot i mod N; default $ROVERAV_SLOTS or 1)")
@@ -330,7 +330,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         try:
             for k in range(min(args.slots, args.episodes)):
                 envs.append(make_env(
-                    args.env, world=args.world, slot=args.slot + k, shm_name=args.name,
+                    args.env, world=args.world, slot=args.slot + k, name=args.name,
                     pedestrian_mode=args.pedestrian_mode,
                     render_mode="rgb_array" if args.video and k == 0 else None,
                 ))  # fmt: skip

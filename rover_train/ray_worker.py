@@ -117,7 +117,7 @@ class EnvWorker:
         try:
             for j in range(cfg.envs_per_worker):
                 thunk = env_factory(cfg.kind, monitor_dir=None, world=cfg.world, slot=j,
-                                    shm_name=self.name, length=cfg.length,
+                                    name=self.name, length=cfg.length,
                                     connect_timeout=cfg.connect_timeout)  # fmt: skip
                 self.envs.append(thunk())
         except BaseException:

@@ -137,15 +137,6 @@ class TrainArgs:
     exploration_fraction: float = 0.3
     """DQN: fraction of training over which epsilon anneals."""
 
-    # kept readable for code written against the old names
-    @property
-    def n_envs(self) -> int:
-        return self.slots
-
-    @property
-    def shm_name(self) -> str:
-        return self.name
-
 
 _ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
     "ppo": {"learning_rate": 3e-4, "batch_size": 256},
@@ -322,17 +313,17 @@ def check_daemon(args: TrainArgs) -> str | None:
     from shm_protocol import FrameReader, slot_name
     from shm_protocol.errors import ShmError
 
-    for i in range(args.n_envs):
-        name = slot_name(args.shm_name, i)
+    for i in range(args.slots):
+        name = slot_name(args.name, i)
         try:
             FrameReader(name, attach_timeout=args.connect_timeout).close()
         except ShmError as exc:
             return (
                 f"{exc}\n\nrover-train --env {args.env} needs the Active Vision daemon serving "
-                f"'{args.shm_name}' with at least {args.n_envs} slot(s). Either start it in "
-                f"another terminal:\n    av-daemon --name {args.shm_name} --slots {args.n_envs}\n"
-                f"or let rover-pair run both:\n    rover-pair --name {args.shm_name} "
-                f"--slots {args.n_envs} -- rover-train {' '.join(sys.argv[1:])}"
+                f"'{args.name}' with at least {args.slots} slot(s). Either start it in "
+                f"another terminal:\n    av-daemon --name {args.name} --slots {args.slots}\n"
+                f"or let rover-pair run both:\n    rover-pair --name {args.name} "
+                f"--slots {args.slots} -- rover-train {' '.join(sys.argv[1:])}"
             )
     return None
 
@@ -364,12 +355,12 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
             connect_timeout=args.connect_timeout,
             append_monitor=append_monitor,
         )
-        for i in range(args.n_envs)
+        for i in range(args.slots)
     ]
     # A LIDAR env steps in well under a millisecond: in-process beats subprocess round trips.
     # A fused env waits on the daemon each step: subprocesses overlap those waits.
     subproc = args.vec_env == "subproc" or (
-        args.vec_env == "auto" and args.n_envs > 1 and args.env in FUSED_KINDS
+        args.vec_env == "auto" and args.slots > 1 and args.env in FUSED_KINDS
     )
     if not subproc:
         return DummyVecEnv(thunks)

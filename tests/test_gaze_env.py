@@ -273,7 +273,7 @@ def test_ppo_trains_a_few_steps_on_two_daemon_slots(daemon: Daemon, kind: str) -
 
     venv = DummyVecEnv(
         [
-            env_factory(kind, world="maze", slot=i, shm_name=daemon.name, length=20,
+            env_factory(kind, world="maze", slot=i, name=daemon.name, length=20,
                         pedestrian_mode="crossing")
             for i in range(2)
         ]

@@ -201,7 +201,7 @@ def test_env_whose_first_reset_meets_a_stalled_daemon_recovers() -> None:
 
     name = f"test_resil_{uuid.uuid4().hex[:8]}"
     with spawn_daemon(name, 1, extra_args=["--threads", "1"]) as daemon:
-        env = env_factory("fused", world="inspect", shm_name=name, slot=0, connect_timeout=30.0)()
+        env = env_factory("fused", world="inspect", name=name, slot=0, connect_timeout=30.0)()
         try:
             os.kill(daemon.pid, signal.SIGSTOP)
             resume = threading.Timer(4.0, os.kill, (daemon.pid, signal.SIGCONT))

@@ -304,9 +304,9 @@ def test_rover_pair_bad_input() -> None:
         (["--n-steps", "1"], ["--n-steps", "at least 2"]),
         (["--batch-size", "0"], ["--batch-size", "must be > 0"]),
         (["--gamma", "1.5"], ["--gamma", "(0, 1]"]),
-        (["--env", "fused", "--shm-name", "a/b"], ["name", "must not contain '/'"]),
+        (["--env", "fused", "--name", "a/b"], ["name", "must not contain '/'"]),
     ],
-    ids=["resume", "world", "length", "n_steps", "batch_size", "gamma", "shm_name"],
+    ids=["resume", "world", "length", "n_steps", "batch_size", "gamma", "name"],
 )
 def test_rover_train_bad_input(args: list[str], words: list[str], tmp_path: Path) -> None:
     args = [a.replace("{tmp}", str(tmp_path)) for a in args]

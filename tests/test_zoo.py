@@ -708,13 +708,13 @@ def test_training_fused_envs_wait_out_a_starved_daemon() -> None:
 
     d = Daemon(f"test_zoo_{uuid.uuid4().hex[:8]}").start()
     try:
-        env = dagger.make_training_env("fused", "maze", shm_name=d.name)
+        env = dagger.make_training_env("fused", "maze", name=d.name)
         try:
             assert env.unwrapped.frame_timeout == dagger.TRAINING_FRAME_TIMEOUT > 2.0
             env.reset(seed=1)
         finally:
             env.close()
-        env = dagger.make_training_env("fused", "maze", shm_name=d.name, frame_timeout=5.0)
+        env = dagger.make_training_env("fused", "maze", name=d.name, frame_timeout=5.0)
         try:
             assert env.unwrapped.frame_timeout == 5.0
         finally:

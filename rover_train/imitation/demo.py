@@ -134,7 +134,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     history: list[dict[str, float]] = []
     if args.timesteps > 0:
-        env = make_training_env("fused", args.world, shm_name=shm)
+        env = make_training_env("fused", args.world, name=shm)
         try:
             rounds = max(1, args.rounds)
             cfg = stage2_config(

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from rover_train import zoo
+from rover_train.cli import add_deprecated_alias
 from rover_train.evaluate import EpisodeResult, format_table, run_episode, summarise
 from rover_train.imitation.distill import teacher_manners_for
 from rover_train.imitation.expert import MANNERS, ExpertConfig, PlannerExpert
@@ -32,7 +33,7 @@ from rover_train.progress import StatusLine
 
 def evaluate_agent(
     env: Any,
-    agent: Any,
+    agent: zoo.Agent,
     episodes: int,
     seed: int = zoo.EVAL_SEED_BASE,
     max_steps: int = zoo.EVAL_MAX_STEPS,
@@ -60,14 +61,14 @@ def evaluate_agent(
     return results
 
 
-def entry_env(name: str, daemon_name: str | None = None) -> Any:
-    """Zoo entry ``name``'s env; a fused one attaches to daemon ``daemon_name`` (default:
+def entry_env(entry: str, name: str | None = None) -> Any:
+    """Zoo entry ``entry``'s env; a fused one attaches to daemon ``name`` (default:
     ``$ROVERAV_SHM_NAME``, which rover-pair sets)."""
-    if zoo.ENTRIES[name].kind != "fused":
-        return zoo.make_env(name)
+    if zoo.ENTRIES[entry].kind != "fused":
+        return zoo.make_env(entry)
     from shm_protocol import default_name
 
-    return zoo.make_env(name, rl_obs_name=daemon_name or default_name())
+    return zoo.make_env(entry, rl_obs_name=name or default_name())
 
 
 class ExpertAgent:
@@ -119,11 +120,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     )  # fmt: skip
     p.add_argument("--random", action="store_true", help="evaluate a seeded random policy")
     p.add_argument("--file", help="a student file instead of the shipped entry")
-    p.add_argument(
-        "--name", dest="daemon_name", help="daemon name for fused entries (default: "
-        "$ROVERAV_SHM_NAME, set by rover-pair)"
+    name = p.add_argument(
+        "--name", help="daemon name for fused entries (default: $ROVERAV_SHM_NAME, set by "
+        "rover-pair)"
     )
-    p.add_argument("--rl-obs-name", dest="daemon_name", help=argparse.SUPPRESS)
+    add_deprecated_alias(p, "--rl-obs-name", name)
     p.add_argument("--json", action="store_true", help="print the summary as JSON last")
     p.add_argument(
         "--dump", help="write every episode's result to this JSON file (to merge split runs)"
@@ -133,12 +134,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     spec = zoo.ENTRIES[args.entry]
-    env = entry_env(args.entry, args.daemon_name)
+    env = entry_env(args.entry, args.name)
     try:
         if args.expert:
             manners = args.manners or teacher_manners_for(spec.kind)
             config = ExpertConfig.with_manners(manners)
-            agent: Any = ExpertAgent(env, spec.world, config)
+            agent: zoo.Agent = ExpertAgent(env, spec.world, config)
             who = f"planner expert ({manners})"
         elif args.random:
             agent = RandomAgent(env.action_space, args.seed)
