@@ -24,6 +24,7 @@ import os
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -109,16 +110,11 @@ def _zoo_eval(env: object, act: object, episodes: int) -> dict:
 def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[dict]:
     """One student of the zoo's LIDAR entry for ``world`` made as its command makes its first
     member (seed 0, its teacher's manners, its features), evaluated after each round."""
-    from rover_train.imitation.dagger import (
-        DAggerConfig,
-        feature_spec,
-        make_training_env,
-        run_dagger,
-    )
-    from rover_train.imitation.distill import teacher_manners_for
-    from rover_train.zoo import ENTRIES, StudentAgent, StudentNet
+    from rover_train.imitation.dagger import feature_spec, make_training_env, run_dagger
+    from rover_train.imitation.distill import RECIPES
+    from rover_train.zoo import StudentAgent, StudentNet
 
-    entry = ENTRIES[f"lidar-{world}"]
+    recipe = RECIPES[f"lidar-{world}"]
     env = make_training_env("lidar", world)
     eval_env = make_env("lidar", world=world)
     rows: list[dict] = []
@@ -127,18 +123,15 @@ def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[di
         import torch
 
         torch.manual_seed(0)  # as distill seeds a member (seed 0) before building it
-        spec = feature_spec("lidar", env, unmapped_scan=entry.unmapped_scan)
+        spec = feature_spec("lidar", env, unmapped_scan=recipe.unmapped_scan)
         agent = StudentAgent(StudentNet(spec))
 
         def on_round(steps: int, student: StudentAgent) -> None:
             s = _zoo_eval(eval_env, student.act, episodes)
             rows.append({"steps": steps, **s})
 
-        cfg = DAggerConfig(
-            iterations=points, steps=budget // points, status_every=30.0,
-            synthetic_goals=150, synthetic_per_goal=200,
-            teacher_manners=teacher_manners_for("lidar"),
-        )  # fmt: skip
+        cfg = replace(recipe.dagger(), iterations=points, steps=budget // points,
+                      status_every=30.0)
         run_dagger(env, world, agent, cfg, "curve dagger", history, on_round)
     finally:
         env.close()

@@ -5,12 +5,14 @@ from __future__ import annotations
 import io
 import math
 import uuid
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from helpers.daemon import Daemon
 
-from rover_env.constants import FUSED_SIZE
+from fused_image import FUSED_SIZE
+from rover_env import FORWARD_CAMERA
 from rover_train import zoo
 from rover_train.imitation.dagger import (
     DAggerConfig,
@@ -25,12 +27,11 @@ from rover_train.imitation.dagger import (
     stage2_config,
     teacher_config,
 )
-from rover_train.imitation.distill import teacher_manners_for
+from rover_train.imitation.distill import RECIPES, DistillRun, read_recipe
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert, in_camera_view
 from rover_train.imitation.zoo_eval import RandomAgent, evaluate_agent
 from rover_train.progress import StatusLine
 from rover_train.zoo.agent import (
-    CAMERA_HEIGHT,
     HEADING_BINS,
     HISTORY_STEPS,
     LIDAR_CLIP,
@@ -53,13 +54,17 @@ def test_the_zoo_ships_the_four_entries_in_a_few_megabytes() -> None:
     total = sum(zoo.ENTRIES[n].path.stat().st_size for n in zoo.names())
     assert total < 6 * 2**20
     for name in zoo.names():
-        assert "rover_train.imitation.distill" in zoo.command(name) and name in zoo.command(name)
-        # the file holds as many students as its command makes
+        # the file's command remakes it from the recipe the file stores, which is the
+        # recipe the lab's table makes the entry with
+        assert zoo.command(name).endswith(
+            f"python -m rover_train.imitation.distill --recipe rover_train/zoo/entries/{name}.pt"
+        )
         agent = zoo.load(name)
+        recipe = read_recipe(zoo.ENTRIES[name].path)
+        assert recipe == RECIPES[name]
         net = agent.net
-        assert len(getattr(net, "members", [net])) == zoo.ENTRIES[name].members
-        # ... and sees what its command's students see
-        assert agent.spec.unmapped_scan == zoo.ENTRIES[name].unmapped_scan
+        assert len(getattr(net, "members", [net])) == recipe.members
+        assert agent.spec.unmapped_scan == recipe.unmapped_scan
 
 
 def test_an_unknown_entry_names_the_ones_there_are() -> None:
@@ -116,7 +121,7 @@ def test_fused_entry_env_has_the_seed_spaces_and_the_agent_acts_on_daemon_frames
             assert not np.allclose(agent.act(blank), agent.act(obs))
             # stage 1's in-process fused image is the daemon's, for the same frame
             np.testing.assert_allclose(
-                FusedView()(env.unwrapped.sim), obs["fused_image"], atol=1e-4
+                FusedView()(env.unwrapped), obs["fused_image"], atol=1e-4
             )
         finally:
             env.close()
@@ -243,26 +248,26 @@ def test_firm_expert_passes_a_pedestrian_beside_its_path_that_the_polite_one_giv
 
 
 def test_lidar_students_are_taught_by_the_firm_expert_and_fused_ones_by_the_polite() -> None:
-    assert teacher_manners_for("lidar") == "firm" and teacher_manners_for("fused") == "polite"
+    for name, recipe in RECIPES.items():
+        assert recipe.teacher_manners == ("firm" if name.startswith("lidar") else "polite")
+        assert recipe.teacher_sees == ("all" if name.startswith("lidar") else "camera")
     cfg = DAggerConfig(teacher_manners="firm", teacher_sees="camera")
     assert teacher_config(cfg) == ExpertConfig.with_manners("firm", sees="camera")
     assert teacher_config(DAggerConfig()) == ExpertConfig()
 
 
-@pytest.mark.parametrize("head", ["bins", "regress"])
-def test_dagger_fits_a_student_that_imitates_the_expert(head: str) -> None:
+def test_dagger_fits_a_student_that_imitates_the_expert() -> None:
     env = make_training_env("lidar", "inspect")
     try:
-        spec = feature_spec("lidar", env, head)
+        spec = feature_spec("lidar", env)
         agent = zoo.StudentAgent(zoo.StudentNet(spec))
         history: list[dict[str, float]] = []
         cfg = DAggerConfig(iterations=2, steps=300, epochs=15, status_every=1e9)
         run_dagger(env, "inspect", agent, cfg, label="test", history=history)
         assert [h["round"] for h in history] == [1, 2]
         assert history[0]["beta"] == 1.0 and history[1]["beta"] < 1.0
-        # untrained: the MSE on (speed, cos, sin) is ~1, the cross-entropy ln(classes)
-        untrained = 1.0 if head == "regress" else math.log(spec.n_outputs)
-        assert history[-1]["loss"] < 0.5 * untrained
+        # untrained: the cross-entropy is ln(classes)
+        assert history[-1]["loss"] < 0.5 * math.log(spec.n_outputs)
     finally:
         env.close()
 
@@ -352,7 +357,7 @@ def test_depth_scan_sees_a_wall_ahead_and_drops_the_ground_and_the_sky() -> None
     np.testing.assert_array_equal(depth_scan(sky, 16), np.ones(16))
     # the flat ground: each pixel below the horizon at the depth where its ray meets it
     with np.errstate(divide="ignore"):
-        z_ground = np.where(up < 0, CAMERA_HEIGHT / -up, np.inf)
+        z_ground = np.where(up < 0, FORWARD_CAMERA.height_m / -up, np.inf)
     for error in (1.0, 0.9, 1.1):  # exact, and 10 % near or far (the daemon's network)
         ground = np.clip(1.0 - error * z_ground / 10.0, 0.0, 1.0).astype(np.float32)
         np.testing.assert_array_equal(depth_scan(ground, 16), np.ones(16))
@@ -394,8 +399,8 @@ def test_stage1_scan_shows_a_pedestrian_stood_ahead_in_the_middle_bands() -> Non
         people = depth_scan(image[:, :, 2], 16, image[:, :, 1] > 0.5) * LIDAR_CLIP
         assert 0.7 < people[7:9].min() < 1.7
         assert people[0] == people[15] == LIDAR_CLIP
-        spec = feature_spec("fused", env, depth_scan=16, pedestrian_scan=True)
-        assert spec.scan_points == 32
+        spec = feature_spec("fused", env, depth_scan=16)
+        assert spec.scan_points == 16
         assert spec.state_dim == len(state_features(seen, spec, ObsHistory(spec)))
     finally:
         env.close()
@@ -508,14 +513,6 @@ def test_fit_follows_the_heavier_of_two_conflicting_labels() -> None:
     fit(net, data, DAggerConfig(epochs=60, batch=16), torch.Generator().manual_seed(0))
     speed, _ = decode_action(net(torch.from_numpy(state)[None])[0].detach().numpy(), spec)
     assert speed < 0.0
-
-
-def test_stage1_only_is_refused_for_a_lidar_entry(capsys) -> None:
-    from rover_train.imitation.distill import main
-
-    with pytest.raises(SystemExit):
-        main(["lidar-inspect", "--stage1-only"])
-    assert "fused entries" in capsys.readouterr().err
 
 
 def test_stage2_rounds_refit_only_the_image_branch_with_the_student_driving() -> None:
@@ -638,6 +635,10 @@ def test_fit_refits_every_member_of_an_ensemble() -> None:
         assert not torch.equal(m.out.weight, w)
 
 
+TINY = {"iterations": 1, "steps": 60, "epochs": 1, "synthetic_goals": 0}
+"""A recipe small enough for a test: one round of 60 steps, one epoch."""
+
+
 def test_members_make_an_ensemble_from_whole_runs_and_resume_keeps_the_finished_ones(
     tmp_path, monkeypatch
 ) -> None:
@@ -646,15 +647,15 @@ def test_members_make_an_ensemble_from_whole_runs_and_resume_keeps_the_finished_
     seeds: list[int] = []
     real = distill._distill_one
 
-    def counting(name, cfg, *args):  # type: ignore[no-untyped-def]
-        seeds.append(cfg.seed)
-        return real(name, cfg, *args)
+    def counting(recipe, seed, run):  # type: ignore[no-untyped-def]
+        seeds.append(seed)
+        return real(recipe, seed, run)
 
     monkeypatch.setattr(distill, "_distill_one", counting)
-    cfg = DAggerConfig(iterations=1, steps=60, epochs=1, status_every=1e9, seed=1)
+    recipe = replace(RECIPES["lidar-inspect"], members=2, seed=1, **TINY)
     out = tmp_path / "entry.pt"
     members = tmp_path / "members"
-    distill.distill_entry("lidar-inspect", out, cfg, members=2, member_dir=members)
+    distill.distill_entry(recipe, DistillRun(out=out, member_dir=members))
     assert seeds == [1, 2]
     assert sorted(p.name for p in members.iterdir()) == [
         "lidar-inspect-seed1.pt", "lidar-inspect-seed2.pt"
@@ -663,21 +664,52 @@ def test_members_make_an_ensemble_from_whole_runs_and_resume_keeps_the_finished_
     assert len(agent.net.members) == 2 and agent.meta["name"] == "lidar-inspect"
     # a run stopped after its first member: --resume makes only the second again
     (members / "lidar-inspect-seed2.pt").unlink()
-    distill.distill_entry("lidar-inspect", out, cfg, members=2, member_dir=members, resume=True)
+    distill.distill_entry(recipe, DistillRun(out=out, member_dir=members, resume=True))
     assert seeds == [1, 2, 2]
 
 
-def test_members_flags_are_checked_before_any_work(capsys) -> None:
+def test_recipe_flags_are_checked_before_any_work(capsys, tmp_path) -> None:
     from rover_train.imitation.distill import main
 
     for argv, needle in (
         (["lidar-inspect", "--members", "0"], "--members must be >= 1"),
         (["lidar-inspect", "--members", "3", "--seed", "3"], "diagnostic seeds"),
         (["fused-inspect", "--members", "2", "--stage1-only"], "one student"),
+        (["lidar-inspect", "--stage1-only"], "fused entries"),
+        (["lidar-inspect", "--init", str(tmp_path / "none.pt")], "no such student file"),
+        ([], "name an entry"),
+        (["--recipe", str(tmp_path / "none.pt")], "none.pt"),
+        (["lidar-inspect", "--teacher-manners", "rude"], "invalid choice"),
     ):
         with pytest.raises(SystemExit):
             main(argv)
-        assert needle in capsys.readouterr().err
+        assert needle in capsys.readouterr().err, argv
+
+
+def test_an_entry_file_is_remade_from_the_recipe_it_stores(tmp_path) -> None:
+    """The recipe travels in the file: ``--recipe FILE`` alone remakes the same student,
+    bit for bit, and the file names the command that does it."""
+    import torch
+
+    from rover_train.imitation.distill import main, read_recipe
+
+    first = tmp_path / "first.pt"
+    tiny = ["--iterations", "1", "--steps", "60", "--epochs", "1", "--synthetic-goals", "0",
+            "--members", "1", "--seed", "2"]  # fmt: skip
+    assert main(["lidar-maze", *tiny, "--out", str(first)]) == 0
+    recipe = read_recipe(first)
+    assert recipe == replace(RECIPES["lidar-maze"], members=1, seed=2, **TINY)
+    again = tmp_path / "again.pt"
+    assert main(["--recipe", str(first), "--out", str(again)]) == 0
+    assert read_recipe(again) == recipe
+    a, b = zoo.StudentAgent.load(first), zoo.StudentAgent.load(again)
+    for (k, va), (_, vb) in zip(a.net.state_dict().items(), b.net.state_dict().items(),
+                                strict=True):  # fmt: skip
+        assert torch.equal(va, vb), k
+    # an option beside --recipe overrides the stored value
+    other = tmp_path / "other.pt"
+    assert main(["--recipe", str(first), "--seed", "3", "--out", str(other)]) == 0
+    assert read_recipe(other).seed == 3
 
 
 def test_a_fused_students_stage1_is_saved_and_resume_skips_it(tmp_path, monkeypatch) -> None:
@@ -691,13 +723,13 @@ def test_a_fused_students_stage1_is_saved_and_resume_skips_it(tmp_path, monkeypa
         return real(env, world, agent, cfg, label=label, **kw)
 
     monkeypatch.setattr(distill, "run_dagger", counting)
-    cfg = DAggerConfig(iterations=1, steps=20, epochs=1, status_every=1e9, seed=3)
+    recipe = replace(RECIPES["fused-inspect"], seed=3, stage1_only=True, iterations=1, steps=20,
+                     epochs=1, synthetic_goals=0)  # fmt: skip
     out = tmp_path / "fused.pt"
-    distill.distill_entry("fused-inspect", out, cfg, stage1_only=True, member_dir=tmp_path)
+    distill.distill_entry(recipe, DistillRun(out=out, member_dir=tmp_path))
     saved = tmp_path / "fused-inspect-seed3.stage1.pt"
     assert saved.is_file() and rounds == ["distill fused-inspect stage 1"]
-    distill.distill_entry("fused-inspect", out, cfg, stage1_only=True, member_dir=tmp_path,
-                          resume=True)  # fmt: skip
+    distill.distill_entry(recipe, DistillRun(out=out, member_dir=tmp_path, resume=True))
     assert rounds == ["distill fused-inspect stage 1"]  # stage 1 not made again
     assert zoo.StudentAgent.load(out).spec.image
 

@@ -62,11 +62,7 @@ ROUND_STRIDE = 1_000
 MAX_SEED = DIAGNOSTIC_SEED_BASE // SEED_STRIDE - 1
 """The last DAgger seed whose episodes stay below the diagnostic seeds."""
 MEMBER_DIR = Path("runs/distill")
-"""Where an ensemble's members are saved as they finish (``distill_entry(members=...)``)."""
-PEDESTRIAN_SCAN = False
-"""Whether a fused student gets the pedestrian scan too (``FeatureSpec.pedestrian_scan``):
-off, it did not help (73 and 74 goals on 100 diagnostic episodes of fused-inspect and
-fused-maze against 78 and 78 without it; benchmarks/RESULTS.md)."""
+"""Where an ensemble's members are saved as they finish (``DAggerRecipe.members``)."""
 
 
 @dataclass
@@ -153,9 +149,9 @@ class Dataset:
 
 
 class FusedView:
-    """The fused image the av-daemon computes from the sim's forward camera frame, computed
-    in this process: the same network (the shipped AVNet, the daemon's default backend) on
-    the same rendered frame, so the same image. Stage 1 of a fused entry drives RoverEnv
+    """The fused image the av-daemon computes from an env's forward camera frame
+    (``env.camera_frame()``), computed in this process: the same network (the shipped AVNet,
+    the daemon's default backend) on the same rendered frame, so the same image. Stage 1 of a fused entry drives RoverEnv
     with no daemon; with this its student's depth scan (``FeatureSpec.depth_scan``) is the
     one it will read in stage 2, errors of the network's depth included. The perception is
     made on first use (a renderer-side object, like the sim's GL context)."""
@@ -163,16 +159,16 @@ class FusedView:
     def __init__(self) -> None:
         self._perception: Any = None
 
-    def __call__(self, sim: Any) -> np.ndarray:
+    def __call__(self, env: Any) -> np.ndarray:
+        """The fused image of the unwrapped roverav ``env``'s camera now."""
         if self._perception is None:
             from active_vision.perception import Perception, PerceptionConfig
 
-            h, w = sim.camera_size
+            h, w = env.camera_size
             if h != w:
-                raise ValueError(f"the fused image is square; this sim renders {h}x{w}")
+                raise ValueError(f"the fused image is square; this env renders {h}x{w}")
             self._perception = Perception(PerceptionConfig(size=h, threads=None, max_batch=1))
-        rgb = sim.render_camera().rgb
-        return self._perception(rgb[None])[0].copy()
+        return self._perception(env.camera_frame()[None])[0].copy()
 
 
 class WithFusedView(gym.ObservationWrapper):
@@ -182,7 +178,7 @@ class WithFusedView(gym.ObservationWrapper):
 
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
-        h, w = env.unwrapped.sim.camera_size
+        h, w = env.unwrapped.camera_size
         self.observation_space = gym.spaces.Dict(
             {**env.observation_space.spaces,
              "fused_image": gym.spaces.Box(0.0, 1.0, (h, w, 3), np.float32)}
@@ -190,7 +186,7 @@ class WithFusedView(gym.ObservationWrapper):
         self.view = FusedView()
 
     def observation(self, observation: dict[str, Any]) -> dict[str, Any]:
-        return {**observation, "fused_image": self.view(self.env.unwrapped.sim)}
+        return {**observation, "fused_image": self.view(self.env.unwrapped)}
 
 
 def sample_weight(position: Any, pedestrians: Any, near_weight: float) -> float:
@@ -205,13 +201,11 @@ def sample_weight(position: Any, pedestrians: Any, near_weight: float) -> float:
     return near_weight if float(d.min()) < NEAR_PEDESTRIAN else 1.0
 
 
-def feature_spec(kind: str, env: Any, head: str = "bins",
-                 history: bool = True, depth_scan: int = 0,
-                 pedestrian_scan: bool = False, unmapped_scan: bool = False) -> FeatureSpec:
+def feature_spec(kind: str, env: Any, history: bool = True, depth_scan: int = 0,
+                 unmapped_scan: bool = False) -> FeatureSpec:
     """The feature spec of a student for ``kind`` (lidar, fused, or state) in ``env``'s world,
-    with output ``head`` (``bins`` or ``regress``: see :mod:`rover_train.zoo.agent`) and
-    ``depth_scan`` bands of scan, and ``pedestrian_scan`` (fused students), and
-    ``unmapped_scan`` (LIDAR students)."""
+    with ``depth_scan`` bands of scan (fused students) and ``unmapped_scan`` (LIDAR
+    students)."""
     base = env.unwrapped
     rect = base.world.goal
     centre = ((rect.x[0] + rect.x[1]) / 2, (rect.y[0] + rect.y[1]) / 2)
@@ -224,10 +218,9 @@ def feature_spec(kind: str, env: Any, head: str = "bins",
         image=kind == "fused",
         max_speed=float(high[0]),
         min_speed=float(low[0]),
-        head=head,
+        head="bins",
         history=history,
         depth_scan=depth_scan,
-        pedestrian_scan=pedestrian_scan and depth_scan > 0,
         unmapped_scan=unmapped_scan and kind == "lidar",
         world=base.world.name,
     )
@@ -342,7 +335,7 @@ def synthetic_samples(
             if spec.lidar_points:
                 obs["lidar"] = sim.lidar(base.lidar_points, base.max_lidar_range)
             if spec.depth_scan:
-                obs["fused_image"] = view(sim)
+                obs["fused_image"] = view(base)
             past = ObsHistory(spec).absent() if spec.history else None
             data.add(
                 state_features(obs, spec, past),

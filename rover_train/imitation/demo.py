@@ -35,7 +35,7 @@ from rover_train.imitation.dagger import (
     run_dagger,
     stage2_config,
 )
-from rover_train.imitation.distill import teacher_sees_for
+from rover_train.imitation.distill import RECIPES
 from rover_train.imitation.zoo_eval import RandomAgent, evaluate_agent
 from rover_train.progress import StatusLine
 from shm_protocol import default_name
@@ -143,7 +143,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     lr=3e-4,
                     seed=args.seed + 1,
                     fit_threads=args.fit_threads,
-                    teacher_sees=teacher_sees_for("fused"),
+                    teacher_sees=RECIPES[name].teacher_sees,
                 ),
                 iterations=rounds,
                 steps=max(1, args.timesteps // rounds),

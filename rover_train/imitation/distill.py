@@ -1,45 +1,52 @@
-"""Distil the privileged planner expert into zoo students with DAgger.
+"""Make the zoo's entries: each entry's recipe, and the command that runs it.
 
-    python -m rover_train.imitation.distill lidar-maze     # LIDAR student, no daemon
+    python -m rover_train.imitation.distill lidar-maze        # LIDAR entry, no daemon
     rover-pair --name distill_maze -- python -m rover_train.imitation.distill fused-maze
+    python -m rover_train.imitation.distill --recipe rover_train/zoo/entries/lidar-maze.pt
 
-The DAgger engine is :mod:`rover_train.imitation.dagger`; this module holds the entries'
-recipes and their command line.
+An entry's recipe (:class:`DAggerRecipe`) is data: :data:`RECIPES` holds the one each entry
+is made with, the entry's file stores the recipe that made it, and ``--recipe FILE`` remakes
+a file from what it says (``zoo.command(name)``). Options given on the command line override
+the recipe's values; the command line is generated from the recipe's fields.
 
-A fused entry is made in two stages. Stage 1 fits the student's state network (pose, IMU,
-target, odometry: the same keys in RoverEnv and RoverEnvFused, with the same dynamics, and
-the forward range scans read off the fused image, :func:`rover_train.zoo.agent.depth_scan`)
-by DAgger in RoverEnv, which needs no daemon and runs several times faster; the fused image
-the scans come from is the daemon's own perception run in this process on the same rendered
-frame (:class:`FusedView`). Stage 2 turns on the image branch (its projection starts at
-zero, so the student starts as the stage-1 policy) and continues DAgger in RoverEnvFused
-with the daemon in the loop, fitting the image branch.
-
-Training episodes use reset seeds below ``DIAGNOSTIC_SEED_BASE`` (the diagnostic seeds start
-there, the evaluation's at ``EVAL_SEED_BASE``) and run ``TRAIN_LENGTH`` steps, carrying on
-past goals (the env draws a new one).
+The DAgger engine is :mod:`rover_train.imitation.dagger`. A fused entry is made in two
+stages. Stage 1 fits the student's state network (pose, IMU, target, odometry: the same keys
+in RoverEnv and RoverEnvFused, with the same dynamics, and the forward range scans read off
+the fused image, :func:`rover_train.zoo.agent.depth_scan`) by DAgger in RoverEnv, which needs
+no daemon and runs several times faster; the fused image the scans come from is the daemon's
+own perception run in this process on the same rendered frame
+(:class:`~rover_train.imitation.dagger.FusedView`). Stage 2 turns on the image branch (its
+projection starts at zero, so the student starts as the stage-1 policy) and continues DAgger
+in RoverEnvFused with the daemon in the loop, fitting the image branch.
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import sys
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from rover_env.constants import FUSED_SIZE
+from fused_image import FUSED_SIZE
+from rover_train.cli import (
+    add_recipe_option,
+    build_parser,
+    instance_from,
+    recipe_defaults,
+    recipe_dict,
+    recipe_from_dict,
+    setup_logging,
+)
 from rover_train.imitation.dagger import (
     EXIT_NO_DAEMON,
     FUSED_ITERATIONS,
     FUSED_STEPS,
     MAX_SEED,
     MEMBER_DIR,
-    PEDESTRIAN_SCAN,
     SCAN_BANDS,
     DAggerConfig,
     WithFusedView,
@@ -49,322 +56,321 @@ from rover_train.imitation.dagger import (
     stage2_config,
 )
 from rover_train.imitation.expert import MANNERS, SEES
-from rover_train.zoo.agent import (
-    HEADS,
-    StudentAgent,
-    StudentNet,
-)
+from rover_train.zoo.agent import StudentAgent, StudentNet
 from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE, ENTRIES
 
+log = logging.getLogger(__name__)
 
-def teacher_sees_for(kind: str) -> str:
-    """The labelling expert's ``sees`` for a student of ``kind``: ``camera`` for fused
-    students (on 100 diagnostic episodes, fused-inspect 58 -> 70 % success and fused-maze
-    45 -> 61 % against the all-round teacher; see benchmarks/RESULTS.md), ``all`` for LIDAR
-    students, whose scan sees all round."""
-    return "camera" if kind == "fused" else "all"
+RECIPE_KEY = "recipe"
+"""The key of an entry file's ``meta`` that holds its :class:`DAggerRecipe` (as a dict)."""
 
-
-def teacher_manners_for(kind: str) -> str:
-    """The labelling expert's manners for a student of ``kind``: ``firm`` for LIDAR
-    students (the polite teacher set their ceiling, 80 % of the maze's evaluation episodes;
-    firm reaches more goals with fewer collisions on the diagnostic seeds, see
-    ``rover_train.imitation.expert.MANNERS``; its lidar-maze and lidar-inspect ensembles reached 89
-    and 92 % of 200 diagnostic episodes against the polite teacher's 86 and 87 %, with more
-    collided episodes: 12.5 and 10 % against 7.5 and 6.5 %), ``polite`` for fused students,
-    whose point is to keep out of personal space."""
-    return "firm" if kind == "lidar" else "polite"
+_D = DAggerConfig()
 
 
-def distill_entry(
-    name: str,
-    out: Path,
-    cfg: DAggerConfig,
-    fused_cfg: DAggerConfig | None = None,
-    init: Path | None = None,
-    shm_name: str | None = None,
-    slot: int = 0,
-    head: str = "bins",
-    stage1_only: bool = False,
-    depth_scan: int = SCAN_BANDS,
-    pedestrian_scan: bool = PEDESTRIAN_SCAN,
-    unmapped_scan: bool | None = None,
-    members: int = 1,
-    member_dir: Path = MEMBER_DIR,
-    resume: bool = False,
-) -> StudentAgent:
-    """Make zoo entry ``name`` (see the module docstring) and save it to ``out``; a new
-    student gets output ``head`` (and, fused, ``depth_scan`` bands of depth scan, and a
-    pedestrian scan with ``pedestrian_scan``; LIDAR, the scan of the returns the map does not
-    explain with ``unmapped_scan``, by default the entry's ``EntrySpec.unmapped_scan``).
-    ``stage1_only`` (fused entries) saves the student after stage 1, without the daemon;
-    ``init=`` that file later runs stage 2 alone. Stage 2 runs ``fused_cfg``, by default
-    :func:`stage2_config` of ``cfg``.
+@dataclass(frozen=True)
+class DAggerRecipe:
+    """Everything that decides what a zoo entry's file holds (its command line is generated
+    from these fields)."""
+
+    entry: str = field(default="", metadata={"cli": False})
+    """The zoo entry (a key of ``rover_train.zoo.ENTRIES``): its kind and world."""
+    members: int = 1
+    """Students in the entry: more than 1 makes an ensemble of that many whole runs (seeds
+    ``seed``, ``seed + 1``, ...), their mean log-probabilities acting."""
+    seed: int = _D.seed
+    """Seeds the torch init and the episode seeds of the first member."""
+    iterations: int = _D.iterations
+    """DAgger rounds (stage 1 of a fused entry)."""
+    steps: int = _D.steps
+    """Env steps per round."""
+    epochs: int = _D.epochs
+    """Passes over the aggregate data set after each round."""
+    batch: int = _D.batch
+    """Samples per optimiser step of a fit."""
+    lr: float = _D.lr
+    """Learning rate of the fits."""
+    beta0: float = _D.beta0
+    """Chance the expert drives in round 1 (halved each round; round 0 is all expert)."""
+    synthetic_goals: int = _D.synthetic_goals
+    """Goals of expert-labelled states drawn without driving, before round 0 (0: none)."""
+    synthetic_per_goal: int = _D.synthetic_per_goal
+    """Expert-labelled states drawn per synthetic goal."""
+    near_weight: float = _D.near_weight
+    """Loss weight of samples with a pedestrian within 2 m (1: no weighting)."""
+    teacher_sees: str = field(default=_D.teacher_sees, metadata={"choices": SEES})
+    """Pedestrians the labelling expert reacts to: all, or only those in the forward
+    camera's view (what a fused student can see)."""
+    teacher_manners: str = field(default=_D.teacher_manners,
+                                 metadata={"choices": tuple(sorted(MANNERS))})
+    """The labelling expert's pedestrian terms (``rover_train.imitation.expert.MANNERS``)."""
+    fused_iterations: int = FUSED_ITERATIONS
+    """Stage-2 rounds of a fused entry (daemon in the loop)."""
+    fused_steps: int = FUSED_STEPS
+    """Env steps per stage-2 round."""
+    depth_scan: int = SCAN_BANDS
+    """A fused student's bands of forward range scan read off the depth channel (0: none,
+    the image branch alone sees what is ahead)."""
+    unmapped_scan: bool = False
+    """A LIDAR student's second scan of the returns the world's map does not explain (the
+    pedestrians; ``rover_train.zoo.agent.unmapped_scan``)."""
+    threads: int = 1
+    """Torch threads while driving (the float order of the student's actions)."""
+    fit_threads: int = _D.fit_threads
+    """Torch threads for the fits, at most the cores this process may use (0: all)."""
+    init: Path | None = None
+    """Start from this student file (a fine-tune) instead of a new student."""
+    stage1_only: bool = False
+    """Fused entries: stop after stage 1 (no daemon needed) and save; run stage 2 later
+    with ``init`` set to that file."""
+
+    @property
+    def kind(self) -> str:
+        return ENTRIES[self.entry].kind
+
+    @property
+    def world(self) -> str:
+        return ENTRIES[self.entry].world
+
+    def dagger(self, seed: int | None = None) -> DAggerConfig:
+        """The DAgger rounds of stage 1 (all of a LIDAR entry), for member seed ``seed``."""
+        return DAggerConfig(
+            iterations=self.iterations, steps=self.steps, epochs=self.epochs,
+            batch=self.batch, lr=self.lr, beta0=self.beta0,
+            seed=self.seed if seed is None else seed,
+            synthetic_goals=self.synthetic_goals, synthetic_per_goal=self.synthetic_per_goal,
+            near_weight=self.near_weight, teacher_sees=self.teacher_sees,
+            teacher_manners=self.teacher_manners, fit_threads=self.fit_threads,
+        )  # fmt: skip
+
+    def fused_dagger(self, seed: int | None = None) -> DAggerConfig:
+        """The DAgger rounds of a fused entry's stage 2."""
+        return stage2_config(self.dagger(seed), self.fused_iterations, self.fused_steps)
+
+    def problem(self) -> str | None:
+        """What is wrong with this recipe, or None."""
+        if self.entry not in ENTRIES:
+            return f"no zoo entry {self.entry!r}; choose one of {sorted(ENTRIES)}"
+        if self.members < 1:
+            return f"--members must be >= 1, got {self.members}"
+        if self.members > 1 and (self.init is not None or self.stage1_only):
+            return (
+                "--init and --stage1-only work on one student; an ensemble (--members) is "
+                "made from scratch, its members saved in --member-dir as they finish (--resume)"
+            )
+        if self.seed + self.members - 1 > MAX_SEED:
+            return (
+                f"--seed {self.seed} with --members {self.members} uses seeds up to "
+                f"{self.seed + self.members - 1}; training episodes of seeds above {MAX_SEED} "
+                f"would reach the diagnostic seeds ({DIAGNOSTIC_SEED_BASE}+)"
+            )
+        if self.stage1_only and self.kind != "fused":
+            return f"--stage1-only is for fused entries; {self.entry} is made in one stage"
+        if self.init is not None and not self.init.is_file():
+            return f"--init {self.init}: no such student file"
+        return None
+
+
+def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
+    kind = ENTRIES[entry].kind
+    # The labelling expert by kind: a fused student learns from a teacher that sees only
+    # what the camera shows (fused-inspect 58 -> 70 %, fused-maze 45 -> 61 % success on 100
+    # diagnostic episodes) and keeps personal space (polite); a LIDAR student, whose scan
+    # sees all round, from the firm teacher, which passes people in corridors (its
+    # ensembles: 89 and 92 % of 200 diagnostic episodes against 86 and 87 % polite).
+    teacher = ({"teacher_sees": "camera", "teacher_manners": "polite"} if kind == "fused"
+               else {"teacher_sees": "all", "teacher_manners": "firm"})  # fmt: skip
+    return DAggerRecipe(entry=entry, synthetic_goals=150, **teacher, **kw)
+
+
+RECIPES: dict[str, DAggerRecipe] = {
+    "lidar-inspect": _recipe("lidar-inspect", members=5),
+    "lidar-maze": _recipe("lidar-maze", members=2, unmapped_scan=True),
+    "fused-inspect": _recipe("fused-inspect"),
+    "fused-maze": _recipe("fused-maze", members=3),
+}
+"""The recipe each zoo entry is made with. Ensembles (members) were chosen on the
+diagnostic seeds; lidar-maze's students see the unmapped scan (34 collided diagnostic
+episodes of 200 against 40 without; docs/journal.md)."""
+
+
+@dataclass(frozen=True)
+class DistillRun:
+    """Where a distillation writes and which daemon it uses: not part of the recipe."""
+
+    out: Path | None = None
+    """The entry file to write (default: the zoo's own file of the entry)."""
+    member_dir: Path = MEMBER_DIR
+    """Where an ensemble's members, and a fused student's stage 1, are saved as they
+    finish."""
+    resume: bool = False
+    """Load the members and fused stage 1s already in ``member_dir`` instead of making them
+    again (a run stopped part-way loses only the part it was making)."""
+    name: str | None = None
+    """Daemon name for fused entries (default: ``$ROVERAV_SHM_NAME``, set by rover-pair)."""
+    slot: int = 0
+    """The daemon slot a fused entry's stage 2 uses."""
+
+
+def read_recipe(path: Path) -> DAggerRecipe:
+    """The recipe stored in the entry file ``path``."""
+    meta = StudentAgent.load(path).meta
+    if RECIPE_KEY not in meta:
+        raise ValueError(f"{path} holds no recipe (a file written before recipes were "
+                         "stored); remake it with its entry's name instead")  # fmt: skip
+    return recipe_from_dict(DAggerRecipe, meta[RECIPE_KEY])
+
+
+def entry_command(recipe: DAggerRecipe, path: Path) -> str:
+    """The command that remakes the file ``path`` from the recipe it stores."""
+    return ENTRIES[recipe.entry].distill_command(f"--recipe {path}")
+
+
+def distill_entry(recipe: DAggerRecipe, run: DistillRun | None = None) -> StudentAgent:
+    """Make the entry of ``recipe`` (see the module docstring) and save it to ``run.out``
+    (default: the zoo's file of the entry), the recipe in its ``meta``.
 
     ``members`` > 1 makes an ensemble (:class:`rover_train.zoo.agent.EnsembleNet`): that
-    many whole runs, seeds ``cfg.seed``, ``cfg.seed + 1``, ..., each saved to
-    ``member_dir`` as it finishes; with ``resume``, a member whose file is there already is
-    loaded instead of made again (a run stopped between members loses only the one it was
-    making)."""
-    entry = ENTRIES[name]
-    if unmapped_scan is None:
-        unmapped_scan = entry.unmapped_scan
-    problem = members_problem(members, cfg.seed, init is not None, stage1_only)
+    many whole runs, seeds ``seed``, ``seed + 1``, ..., each saved to ``run.member_dir`` as
+    it finishes; with ``run.resume``, a member whose file is there already is loaded instead
+    of made again (a run stopped between members loses only the one it was making)."""
+    run = run or DistillRun()
+    problem = recipe.problem()
     if problem:
         raise ValueError(problem)
-    if members == 1:
-        return _save_entry(
-            _distill_one(name, cfg, fused_cfg, init, shm_name, slot, head, stage1_only,
-                         depth_scan, pedestrian_scan, unmapped_scan, member_dir, resume),
-            name, entry, out,
-        )  # fmt: skip
+    out = run.out or ENTRIES[recipe.entry].path
+    if recipe.members == 1:
+        return _save_entry(_distill_one(recipe, recipe.seed, run), recipe, out)
     agents = []
-    for i in range(members):
-        seed = cfg.seed + i
-        path = member_dir / f"{name}-seed{seed}.pt"
-        if resume and path.is_file():
-            print(f"distill {name}: member {i + 1}/{members} (seed {seed}) from {path}",
-                  flush=True)  # fmt: skip
+    name = recipe.entry
+    for i in range(recipe.members):
+        seed = recipe.seed + i
+        path = run.member_dir / f"{name}-seed{seed}.pt"
+        if run.resume and path.is_file():
+            log.info("distill %s: member %d/%d (seed %d) from %s", name, i + 1,
+                     recipe.members, seed, path)  # fmt: skip
             agents.append(StudentAgent.load(path))
             continue
-        print(f"distill {name}: member {i + 1}/{members} (seed {seed})", flush=True)
-        member_fused = replace(fused_cfg, seed=seed) if fused_cfg is not None else None
-        agent = _distill_one(name, replace(cfg, seed=seed), member_fused, None, shm_name, slot,
-                             head, False, depth_scan, pedestrian_scan, unmapped_scan,
-                             member_dir, resume)  # fmt: skip
-        agents.append(_save_entry(agent, name, entry, path))
-    return _save_entry(StudentAgent.ensemble(agents), name, entry, out)
+        log.info("distill %s: member %d/%d (seed %d)", name, i + 1, recipe.members, seed)
+        agent = _distill_one(recipe, seed, run)
+        agents.append(_save_entry(agent, replace(recipe, seed=seed, members=1), path))
+    return _save_entry(StudentAgent.ensemble(agents), recipe, out)
 
 
-def members_problem(members: int, seed: int, init: bool, stage1_only: bool) -> str | None:
-    """What is wrong with making ``members`` students from ``seed`` (with ``--init`` /
-    ``--stage1-only`` given or not), or None."""
-    if members < 1:
-        return f"--members must be >= 1, got {members}"
-    if members > 1 and (init or stage1_only):
-        return (
-            "--init and --stage1-only work on one student; an ensemble (--members) is made "
-            "from scratch, its members saved in --member-dir as they finish (--resume)"
-        )
-    if seed + members - 1 > MAX_SEED:
-        return (
-            f"--seed {seed} with --members {members} uses seeds up to {seed + members - 1}; "
-            f"training episodes of seeds above {MAX_SEED} would reach the diagnostic seeds "
-            f"({DIAGNOSTIC_SEED_BASE}+)"
-        )
-    return None
-
-
-def _distill_one(
-    name: str,
-    cfg: DAggerConfig,
-    fused_cfg: DAggerConfig | None,
-    init: Path | None,
-    shm_name: str | None,
-    slot: int,
-    head: str,
-    stage1_only: bool,
-    depth_scan: int,
-    pedestrian_scan: bool,
-    unmapped_scan: bool = False,
-    checkpoint_dir: Path | None = None,
-    resume: bool = False,
-) -> StudentAgent:
-    """One student of entry ``name`` (see :func:`distill_entry`), not saved. A fused
-    student made from scratch saves its stage-1 network in ``checkpoint_dir`` (a stage 2
-    that fails, its daemon gone for good, loses only stage 2); with ``resume`` that file,
-    if there, replaces stage 1."""
-    entry = ENTRIES[name]
-    torch.manual_seed(cfg.seed)
+def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAgent:
+    """One student of ``recipe`` with DAgger seed ``seed``, not saved. A fused student made
+    from scratch saves its stage-1 network in ``run.member_dir`` (a stage 2 that fails, its
+    daemon gone for good, loses only stage 2); with ``run.resume`` that file, if there,
+    replaces stage 1."""
+    name, world = recipe.entry, recipe.world
+    cfg = recipe.dagger(seed)
+    torch.manual_seed(seed)
+    init = recipe.init
     stage1_file = (
-        checkpoint_dir / f"{name}-seed{cfg.seed}.stage1.pt"
-        if checkpoint_dir is not None and entry.kind == "fused" and init is None
+        run.member_dir / f"{name}-seed{seed}.stage1.pt"
+        if recipe.kind == "fused" and init is None
         else None
     )
-    if resume and stage1_file is not None and stage1_file.is_file():
-        print(f"distill {name}: stage 1 from {stage1_file}", flush=True)
+    if run.resume and stage1_file is not None and stage1_file.is_file():
+        log.info("distill %s: stage 1 from %s", name, stage1_file)
         init = stage1_file
-    if entry.kind == "lidar":
-        env = make_training_env("lidar", entry.world)
+    if recipe.kind == "lidar":
+        env = make_training_env("lidar", world)
         try:
             if init is not None:
                 agent = StudentAgent.load(init)
             else:
                 agent = StudentAgent(StudentNet(
-                    feature_spec("lidar", env, head, unmapped_scan=unmapped_scan)
-                ))
-            run_dagger(env, entry.world, agent, cfg, label=f"distill {name}")
+                    feature_spec("lidar", env, unmapped_scan=recipe.unmapped_scan)
+                ))  # fmt: skip
+            run_dagger(env, world, agent, cfg, label=f"distill {name}")
         finally:
             env.close()
+        return agent
+    if init is not None:
+        agent = StudentAgent.load(init)
     else:
-        if init is not None:
-            agent = StudentAgent.load(init)
-        else:
-            # stage 1: the state network in RoverEnv (fast, no daemon), the depth scan
-            # read off the fused image computed in this process
-            env = make_training_env("lidar", entry.world, size=FUSED_SIZE)
-            if depth_scan:
-                env = WithFusedView(env)
-            try:
-                fused_spec = replace(
-                    feature_spec("lidar", env, head, depth_scan=depth_scan,
-                                 pedestrian_scan=pedestrian_scan),
-                    lidar_points=0,
-                    image=True,
-                    min_speed=-0.6,
-                )
-                state_agent = StudentAgent(StudentNet(replace(fused_spec, image=False)))
-                run_dagger(env, entry.world, state_agent, cfg, label=f"distill {name} stage 1")
-            finally:
-                env.close()
-            net = StudentNet(fused_spec)
-            net.load_state_dict(state_agent.net.state_dict(), strict=False)
-            agent = StudentAgent(net)
-            if stage1_file is not None:
-                _save_entry(agent, name, entry, stage1_file)
-        if stage1_only:
-            return agent
-        # stage 2: everything, with the daemon's fused images
-        env = make_training_env("fused", entry.world, shm_name=shm_name, slot=slot)
+        # stage 1: the state network in RoverEnv (fast, no daemon), the depth scan read off
+        # the fused image computed in this process
+        env = make_training_env("lidar", world, size=FUSED_SIZE)
+        if recipe.depth_scan:
+            env = WithFusedView(env)
         try:
-            stage2 = fused_cfg if fused_cfg is not None else stage2_config(cfg)
-            run_dagger(env, entry.world, agent, stage2, label=f"distill {name} stage 2")
+            fused_spec = replace(
+                feature_spec("lidar", env, depth_scan=recipe.depth_scan),
+                lidar_points=0,
+                image=True,
+                min_speed=-0.6,
+            )
+            state_agent = StudentAgent(StudentNet(replace(fused_spec, image=False)))
+            run_dagger(env, world, state_agent, cfg, label=f"distill {name} stage 1")
         finally:
             env.close()
+        net = StudentNet(fused_spec)
+        net.load_state_dict(state_agent.net.state_dict(), strict=False)
+        agent = StudentAgent(net)
+        if stage1_file is not None:
+            _save_entry(agent, replace(recipe, seed=seed, members=1, stage1_only=True),
+                        stage1_file)  # fmt: skip
+    if recipe.stage1_only:
+        return agent
+    # stage 2: everything, with the daemon's fused images
+    env = make_training_env("fused", world, name=run.name, slot=run.slot)
+    try:
+        run_dagger(env, world, agent, recipe.fused_dagger(seed),
+                   label=f"distill {name} stage 2")  # fmt: skip
+    finally:
+        env.close()
     return agent
 
 
-def _save_entry(agent: StudentAgent, name: str, entry: Any, out: Path) -> StudentAgent:
-    agent.meta = {"name": name, "command": entry.command, "kind": entry.kind, "world": entry.world}
+def _save_entry(agent: StudentAgent, recipe: DAggerRecipe, out: Path) -> StudentAgent:
+    entry = ENTRIES[recipe.entry]
+    agent.meta = {"name": recipe.entry, "kind": entry.kind, "world": entry.world,
+                  RECIPE_KEY: recipe_dict(recipe)}  # fmt: skip
     out.parent.mkdir(parents=True, exist_ok=True)
     agent.save(out)
-    print(f"wrote {out} ({out.stat().st_size / 1024:.0f} KiB)", flush=True)
+    log.info("wrote %s (%.0f KiB)", out, out.stat().st_size / 1024)
     return agent
+
+
+def _parser(base: DAggerRecipe | None) -> Any:
+    p = build_parser(
+        (DAggerRecipe, DistillRun), "python -m rover_train.imitation.distill",
+        __doc__.split("\n")[0], defaults={DAggerRecipe: base} if base else None,
+    )  # fmt: skip
+    p.add_argument("entry", nargs="?", choices=sorted(RECIPES),
+                   help="the entry to make, from its recipe in RECIPES (or give --recipe)")
+    add_recipe_option(p, "an entry file")
+    return p
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s")
-    p = argparse.ArgumentParser(
-        prog="rover_train.imitation.distill", description=__doc__.split("\n")[0]
-    )
-    p.add_argument("entry", choices=sorted(ENTRIES))
-    p.add_argument("--out", type=Path, help="default: the zoo's entry file")
-    p.add_argument("--init", type=Path, help="start from this student file (fine-tune)")
-    d = DAggerConfig()
-    p.add_argument("--iterations", type=int, default=d.iterations)
-    p.add_argument("--steps", type=int, default=d.steps, help="env steps per DAgger round")
-    p.add_argument("--epochs", type=int, default=d.epochs)
-    p.add_argument("--fused-iterations", type=int, default=FUSED_ITERATIONS,
-                   help="stage-2 rounds of a fused entry (daemon in the loop)")
-    p.add_argument("--fused-steps", type=int, default=FUSED_STEPS,
-                   help="env steps per stage-2 round")
-    p.add_argument("--synthetic-goals", type=int, default=150,
-                   help="goals of expert-labelled states drawn without driving (0: none)")
-    p.add_argument("--synthetic-per-goal", type=int, default=200)
-    p.add_argument(
-        "--near-weight", type=float, default=d.near_weight,
-        help="loss weight of samples with a pedestrian within 2 m (1: no weighting)",
-    )  # fmt: skip
-    p.add_argument("--seed", type=int, default=d.seed)
-    p.add_argument("--head", choices=HEADS, default="bins",
-                   help="a new student's output head (see rover_train.zoo.agent)")
-    p.add_argument("--threads", type=int, default=1, help="torch threads while driving")
-    p.add_argument(
-        "--fit-threads", type=int, default=d.fit_threads,
-        help="torch threads for the fits (0: all cores; the env and the daemon are idle then)",
-    )  # fmt: skip
-    p.add_argument(
-        "--name", dest="shm_name", default=None,
-        help="daemon name for fused entries (default: $ROVERAV_SHM_NAME, set by rover-pair)",
-    )  # fmt: skip
-    p.add_argument("--shm-name", dest="shm_name", help=argparse.SUPPRESS)
-    p.add_argument("--slot", type=int, default=0)
-    p.add_argument(
-        "--stage1-only", action="store_true",
-        help="fused entries: stop after stage 1 (no daemon needed) and save; run stage 2 "
-        "later with --init FILE",
-    )  # fmt: skip
-    p.add_argument(
-        "--depth-scan", type=int, default=SCAN_BANDS,
-        help="a new fused student's bands of forward range scan read off the depth channel "
-        "(0: none, the image branch alone sees what is ahead)",
-    )  # fmt: skip
-    p.add_argument(
-        "--pedestrian-scan", action=argparse.BooleanOptionalAction, default=PEDESTRIAN_SCAN,
-        help="with --depth-scan: a second scan of the pixels the heatmap marks as a pedestrian",
-    )  # fmt: skip
-    p.add_argument(
-        "--unmapped-scan", action=argparse.BooleanOptionalAction, default=None,
-        help="a new LIDAR student's second scan of the returns the world's map does not "
-        "explain (the pedestrians); default: the entry's own (rover_train.zoo.registry)",
-    )  # fmt: skip
-    p.add_argument(
-        "--teacher-sees", choices=SEES, default=None,
-        help="pedestrians the labelling expert reacts to: all, or only those in the forward "
-        "camera's view (what a fused student can see); default: camera for fused entries, "
-        "all for LIDAR ones",
-    )  # fmt: skip
-    p.add_argument(
-        "--teacher-manners", choices=sorted(MANNERS), default=None,
-        help="the labelling expert's pedestrian terms (rover_train.imitation.expert.MANNERS); "
-        "default: firm for LIDAR entries, polite for fused ones",
-    )  # fmt: skip
-    p.add_argument(
-        "--members", type=int, default=None,
-        help="students in the entry: more than 1 makes an ensemble of that many whole runs "
-        "(seeds --seed, --seed+1, ...), their mean log-probabilities acting; default: the "
-        "entry's own count (rover_train.zoo.registry.MEMBERS)",
-    )  # fmt: skip
-    p.add_argument(
-        "--member-dir", type=Path, default=MEMBER_DIR,
-        help="where an ensemble's members, and a fused student's stage 1, are saved as they "
-        "finish",
-    )  # fmt: skip
-    p.add_argument(
-        "--resume", action="store_true",
-        help="load the members and fused stage 1s already in --member-dir instead of making "
-        "them again (a run stopped part-way loses only the part it was making)",
-    )  # fmt: skip
-    args = p.parse_args(argv)
-    if args.members is None:
-        args.members = 1 if args.init or args.stage1_only else ENTRIES[args.entry].members
-    problem = members_problem(args.members, args.seed, args.init is not None, args.stage1_only)
+    stored, rest = recipe_defaults(argv, read_recipe)
+    entry = next((a for a in rest if a in RECIPES), None)
+    base = stored if stored is not None else RECIPES.get(entry or "")
+    p = _parser(base)
+    ns = p.parse_args(rest)
+    if ns.entry is None and stored is None:
+        p.error("name an entry (one of " + ", ".join(sorted(RECIPES)) + ") or give --recipe FILE")
+    if stored is not None and ns.entry not in (None, stored.entry):
+        p.error(f"--recipe is of {stored.entry}, not {ns.entry}")
+    setup_logging(ns.log_level)
+    recipe = replace(instance_from(DAggerRecipe, ns), entry=ns.entry or stored.entry)
+    if (recipe.init is not None or recipe.stage1_only) and "--members" not in rest:
+        recipe = replace(recipe, members=1)  # a fine-tune or a stage 1 is of one student
+    problem = recipe.problem()
     if problem:
         p.error(problem)
-    if args.stage1_only and ENTRIES[args.entry].kind != "fused":
-        p.error(f"--stage1-only is for fused entries; {args.entry} is made in one stage")
-    torch.set_num_threads(args.threads)
-    entry = ENTRIES[args.entry]
-    cfg = DAggerConfig(
-        iterations=args.iterations, steps=args.steps, epochs=args.epochs, seed=args.seed,
-        synthetic_goals=args.synthetic_goals, synthetic_per_goal=args.synthetic_per_goal,
-        near_weight=args.near_weight, fit_threads=args.fit_threads,
-        teacher_sees=args.teacher_sees or teacher_sees_for(entry.kind),
-        teacher_manners=args.teacher_manners or teacher_manners_for(entry.kind),
-    )  # fmt: skip
-    fused_cfg = stage2_config(cfg, args.fused_iterations, args.fused_steps)
+    run = instance_from(DistillRun, ns)
+    torch.set_num_threads(recipe.threads)
     from shm_protocol.errors import ShmError
 
     try:
-        distill_entry(
-            args.entry,
-            args.out or entry.path,
-            cfg,
-            fused_cfg,
-            init=args.init,
-            shm_name=args.shm_name,
-            slot=args.slot,
-            head=args.head,
-            stage1_only=args.stage1_only,
-            depth_scan=args.depth_scan,
-            pedestrian_scan=args.pedestrian_scan,
-            unmapped_scan=args.unmapped_scan,
-            members=args.members,
-            member_dir=args.member_dir,
-            resume=args.resume,
-        )
+        distill_entry(recipe, run)
     except ShmError as exc:
-        print(f"{exc}\n\n{args.entry} needs the daemon: {entry.command}", file=sys.stderr)
+        print(f"{exc}\n\n{recipe.entry} needs the daemon: "
+              f"{entry_command(recipe, run.out or ENTRIES[recipe.entry].path)}",
+              file=sys.stderr)  # fmt: skip
         return EXIT_NO_DAEMON
     return 0
 

@@ -26,7 +26,7 @@ import numpy as np
 from rover_train import zoo
 from rover_train.cli import add_deprecated_alias
 from rover_train.evaluate import EpisodeResult, format_table, run_episode, summarise
-from rover_train.imitation.distill import teacher_manners_for
+from rover_train.imitation.distill import RECIPES
 from rover_train.imitation.expert import MANNERS, ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
 
@@ -137,7 +137,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     env = entry_env(args.entry, args.name)
     try:
         if args.expert:
-            manners = args.manners or teacher_manners_for(spec.kind)
+            manners = args.manners or RECIPES[args.entry].teacher_manners
             config = ExpertConfig.with_manners(manners)
             agent: zoo.Agent = ExpertAgent(env, spec.world, config)
             who = f"planner expert ({manners})"

@@ -16,11 +16,12 @@ the one command that reproduces its file. Fused entries need the daemon for thei
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import gymnasium as gym
 
-from rover_train.zoo.agent import FeatureSpec, StudentAgent, StudentNet
+from rover_train.zoo.agent import Agent, FeatureSpec, StudentAgent, StudentNet
 from rover_train.zoo.registry import ENTRIES, EVAL_MAX_STEPS, EVAL_SEED_BASE, EntrySpec
 
 
@@ -47,8 +48,17 @@ def names() -> list[str]:
 
 
 def command(name: str) -> str:
-    """The one command that reproduces entry ``name``'s file."""
-    return _spec(name).command
+    """The one command that remakes entry ``name``'s file from the recipe the file stores
+    (``--recipe FILE``); for an entry whose file is missing, the command that makes it from
+    its recipe in the lab's table."""
+    spec = _spec(name)
+    if not spec.path.is_file():
+        return spec.command
+    recipe = StudentAgent.load(spec.path).meta.get("recipe")
+    if recipe is None:
+        return spec.command
+    path = os.path.relpath(spec.path)
+    return spec.distill_command(f"--recipe {spec.path if path.startswith('..') else path}")
 
 
 def make_env(name: str, **overrides: Any) -> gym.Env:
@@ -62,7 +72,9 @@ def make_env(name: str, **overrides: Any) -> gym.Env:
 
 
 def load(name: str) -> StudentAgent:
-    """The agent of entry ``name``: ``agent.reset()`` per episode, ``agent.act(obs)``."""
+    """The agent of entry ``name``: ``agent.reset()`` per episode, ``agent.act(obs)`` (an
+    :class:`Agent`; the concrete :class:`StudentAgent` also saves, fine-tunes and says
+    what it is in ``meta``)."""
     spec = _spec(name)
     if not spec.path.is_file():
         raise FileNotFoundError(
@@ -75,6 +87,7 @@ __all__ = [
     "ENTRIES",
     "EVAL_MAX_STEPS",
     "EVAL_SEED_BASE",
+    "Agent",
     "EntrySpec",
     "FeatureSpec",
     "StudentAgent",

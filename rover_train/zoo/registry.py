@@ -18,56 +18,42 @@ EVAL_MAX_STEPS = 600
 
 @dataclass(frozen=True)
 class EntrySpec:
-    """One zoo entry.
+    """One zoo entry: what it drives and where its file is. How it is made (its recipe)
+    is stored in the file (``rover_train.imitation.distill.DAggerRecipe``).
 
     :param kind: ``lidar`` (RoverEnv) or ``fused`` (RoverEnvFused).
     :param world: the world it was trained in.
     :param env_kwargs: constructor keywords of the env it was trained for.
-    :param command: the one command that reproduces its file.
-    :param members: students in the file: more than 1 is an ensemble of that many DAgger
-        runs (``rover_train.imitation.distill --members``, whose default this is).
-    :param unmapped_scan: its LIDAR students see which returns the world's map does not
-        explain (``rover_train.zoo.agent.unmapped_scan``; ``distill --unmapped-scan``, whose
-        default this is).
     """
 
     kind: str
     world: str
     env_kwargs: dict[str, Any] = field(default_factory=dict)
-    command: str = ""
-    members: int = 1
-    unmapped_scan: bool = False
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind}-{self.world}"
 
     @property
     def path(self) -> Path:
-        return ENTRY_DIR / f"{self.kind}-{self.world}.pt"
+        return ENTRY_DIR / f"{self.name}.pt"
 
+    @property
+    def command(self) -> str:
+        """The command that makes the entry from its recipe in the lab's table."""
+        return self.distill_command(self.name)
 
-def _entry(kind: str, world: str) -> EntrySpec:
-    name = f"{kind}-{world}"
-    if kind == "lidar":
-        command = f"python -m rover_train.imitation.distill {name}"
-    else:
-        command = (f"rover-pair --name distill_{world} -- "
-                   f"python -m rover_train.imitation.distill {name}")
-    return EntrySpec(kind=kind, world=world, env_kwargs={"world_n": world}, command=command,
-                     members=MEMBERS.get(name, 1),
-                     unmapped_scan=name in UNMAPPED_SCAN)  # fmt: skip
+    def distill_command(self, args: str) -> str:
+        """``rover_train.imitation.distill`` with ``args``, under rover-pair for a fused
+        entry (its stage 2 needs the daemon)."""
+        cmd = f"python -m rover_train.imitation.distill {args}"
+        if self.kind == "fused":
+            return f"rover-pair --name distill_{self.world} -- {cmd}"
+        return cmd
 
-
-MEMBERS = {"lidar-inspect": 5, "lidar-maze": 2, "fused-maze": 3}
-"""Entries that are ensembles, and of how many students (chosen on the diagnostic seeds;
-benchmarks/RESULTS.md, "Ensembles")."""
-
-UNMAPPED_SCAN: frozenset[str] = frozenset({"lidar-maze"})
-"""LIDAR entries whose students see the returns the world's map does not explain
-(``rover_train.zoo.agent.unmapped_scan``): lidar-maze's students, made with it, collided in
-34 of 200 diagnostic episodes on average against 40 without (5 students each; benchmarks/
-RESULTS.md, "The unmapped scan"). lidar-inspect's entry was made before it and meets its
-targets without it."""
 
 ENTRIES: dict[str, EntrySpec] = {
-    f"{kind}-{world}": _entry(kind, world)
+    f"{kind}-{world}": EntrySpec(kind=kind, world=world, env_kwargs={"world_n": world})
     for kind in ("lidar", "fused")
     for world in ("inspect", "maze")
 }
