@@ -54,7 +54,7 @@ import functools
 import math
 from collections import deque
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, Protocol, cast, runtime_checkable
 
 import numpy as np
 import torch
@@ -455,6 +455,19 @@ class EnsembleNet(nn.Module):
         return outs.mean(dim=0)
 
 
+@runtime_checkable
+class Agent(Protocol):
+    """What drives an env episode: ``reset()`` at each episode start, then ``act(obs)`` ->
+    the env's action for each observation. :class:`StudentAgent` (what ``zoo.load``
+    returns) is one; so are ``rover_train.imitation.zoo_eval``'s expert and random agents,
+    and anything ``zoo_eval.evaluate_agent`` runs. ``isinstance(x, Agent)`` checks that the
+    two methods exist, not their signatures (mypy checks those)."""
+
+    def reset(self) -> None: ...
+
+    def act(self, obs: Any) -> np.ndarray: ...
+
+
 class StudentAgent:
     """A zoo agent: ``reset()`` at each episode start, ``act(obs)`` -> action (deterministic).
 
@@ -511,7 +524,8 @@ class StudentAgent:
         that are ensembles themselves are flattened into it)."""
         nets: list[StudentNet] = []
         for a in agents:
-            nets.extend(a.net.members if isinstance(a.net, EnsembleNet) else [a.net])
+            members = a.net.members if isinstance(a.net, EnsembleNet) else [a.net]
+            nets.extend(cast(list[StudentNet], members))  # an EnsembleNet holds StudentNets
         return cls(EnsembleNet(nets), meta if meta is not None else agents[0].meta)
 
     def save(self, path: Any) -> None:
