@@ -1,4 +1,5 @@
-# roverav: `make demo` runs the main job, `make test` runs the suite.
+# roverav: `make demo` runs the main job, `make test` runs the suite (after `make lint`:
+# ruff, then mypy over the typed packages listed in pyproject.toml's [tool.mypy]).
 # Both set everything up on a fresh machine first (Debian libraries for headless
 # MuJoCo rendering, a .venv with the CPU build of torch).
 
@@ -9,7 +10,7 @@ STAMP  := $(VENV)/.roverav-installed
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: setup demo test lint bench clean-shm
+.PHONY: setup demo test lint typecheck bench clean-shm
 
 setup: $(STAMP)
 
@@ -37,11 +38,15 @@ DEMO_STEPS ?= 24000
 demo: setup
 	$(PY) launch/run_pair.py --name roverav_demo --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.imitation.demo --timesteps $(DEMO_STEPS) --out runs/demo
 
-test: setup
+test: setup lint
 	$(PY) -m pytest -q
 
 lint: setup
 	$(VENV)/bin/ruff check .
+	$(MAKE) --no-print-directory typecheck
+
+typecheck: setup
+	$(PY) -m mypy
 
 bench: setup
 	$(PY) benchmarks/ipc_latency.py

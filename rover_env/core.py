@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from typing import Any
+from typing import Any, cast
 
 import gymnasium as gym
 import numpy as np
@@ -188,7 +188,8 @@ class RoverEnvBase(gym.Env):
         speed, heading = float(a[0]), float(a[1])
         if not (math.isfinite(speed) and math.isfinite(heading)):
             raise ValueError(f"action must be finite, got {a.tolist()}")
-        low, high = self.action_space.low, self.action_space.high
+        box = cast(spaces.Box, self.action_space)  # the discrete envs override this method
+        low, high = box.low, box.high
         speed = _clamp(speed, float(low[0]), float(high[0]))
         heading = _clamp(heading, float(low[1]), float(high[1]))
         return speed, float(self.orientation[2]) + heading

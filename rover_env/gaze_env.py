@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from gymnasium import spaces
@@ -97,7 +97,7 @@ class RoverEnvFusedGaze(RoverEnvFused):
         self.pan_limit = c.PAN_LIMIT
         self.observation_space = spaces.Dict(
             {
-                **self.observation_space.spaces,
+                **cast(spaces.Dict, self.observation_space).spaces,
                 "gaze": spaces.Box(-self.pan_limit, self.pan_limit, shape=(1,), dtype=_F32),
             }
         )
@@ -116,7 +116,8 @@ class RoverEnvFusedGaze(RoverEnvFused):
             raise ValueError(self._bad_action(action, f"shape {np.shape(action)}"))
         if not np.all(np.isfinite(a)):
             raise ValueError(self._bad_action(action, "non-finite values"))
-        low, high = self.action_space.low, self.action_space.high
+        box = cast(spaces.Box, self.action_space)  # the discrete gaze env overrides this method
+        low, high = box.low, box.high
         speed, heading, pan = (float(min(max(a[i], low[i]), high[i])) for i in range(3))
         self.pan_target = pan
         self._pan_cost_units = 0

@@ -33,6 +33,7 @@ import logging
 import platform
 import sys
 import threading
+from collections.abc import Callable
 
 logger = logging.getLogger(__name__)
 
@@ -53,7 +54,7 @@ class _Timespec(ctypes.Structure):
     _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
 
 
-def _load_syscall() -> tuple[object, int] | None:
+def _load_syscall() -> tuple[Callable[..., int], int] | None:
     if not sys.platform.startswith("linux"):
         return None
     nr = _SYS_FUTEX.get(MACHINE)

@@ -110,7 +110,7 @@ class Trailer(ctypes.LittleEndianStructure):
 
 assert ctypes.sizeof(Header) == HEADER_SIZE
 assert ctypes.sizeof(Trailer) == TRAILER_SIZE == TRAILER_STRUCT.size
-assert Trailer.seq.offset == T_SEQ and Trailer.wake.offset == T_WAKE  # type: ignore[attr-defined]
+assert Trailer.seq.offset == T_SEQ and Trailer.wake.offset == T_WAKE
 
 # --- dtypes ----------------------------------------------------------------------------
 
@@ -148,7 +148,7 @@ def normalize_shape(shape: Any) -> tuple[int, int, int]:
         )
     if not all(1 <= d <= U32_MAX for d in dims):
         raise LayoutError(f"every dimension must be in 1..{U32_MAX}, got {dims}")
-    return dims  # type: ignore[return-value]
+    return dims
 
 
 # --- one segment's layout --------------------------------------------------------------

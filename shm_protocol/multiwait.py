@@ -28,7 +28,7 @@ import errno
 import logging
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from ._futex import AVAILABLE as FUTEX_AVAILABLE
 from ._futex import MACHINE
@@ -53,7 +53,7 @@ class _Timespec(ctypes.Structure):
     _fields_ = [("tv_sec", ctypes.c_long), ("tv_nsec", ctypes.c_long)]
 
 
-def _load() -> tuple[object, int] | None:
+def _load() -> tuple[Callable[..., int], int] | None:
     if not (sys.platform.startswith("linux") and FUTEX_AVAILABLE):
         return None
     nr = _SYS_FUTEX_WAITV.get(MACHINE)

@@ -166,7 +166,7 @@ class FrameReader:
         self.dtype: np.dtype[Any] = layout.dtype
         self._h = seg.struct_at(Header, 0)
         self._t = seg.struct_at(Trailer, layout.trailer_offset) if info is not None else None
-        self._payload = seg.array_at(PAYLOAD_OFFSET, layout.shape, layout.dtype)
+        self._payload: np.ndarray | None = seg.array_at(PAYLOAD_OFFSET, layout.shape, layout.dtype)
         wake_addr = seg.address + layout.wake_offset
         self._futex = (
             FutexWord(wake_addr)
@@ -219,6 +219,7 @@ class FrameReader:
         if t is None:
             return self._read_seed(out, newer)
         h, payload, dst = self._h, self._payload, out
+        assert payload is not None  # only close() clears it, and reads check _closed first
         for _ in range(MAX_TEAR_RETRIES):
             s1 = t.seq
             if s1 & 1 or s1 == 0:
@@ -242,7 +243,8 @@ class FrameReader:
             if self._recheck and (h.valid != 1 or h.timestamp != ts or t.seq != s1):
                 self._tears += 1
                 continue
-            if flags & FLAG_CHECKSUM and zlib.crc32(dst, s1 & U32_MAX) != crc:
+            # (an ndarray is a buffer; numpy declares __buffer__ for Python >= 3.12 only)
+            if flags & FLAG_CHECKSUM and zlib.crc32(dst, s1 & U32_MAX) != crc:  # type: ignore[arg-type]
                 self._tears += 1
                 continue
             self._last_seq = s1
@@ -253,6 +255,7 @@ class FrameReader:
     def _read_seed(self, out: np.ndarray | None, newer: bool) -> Frame | None:
         """The seed's rule: timestamp changed and valid == 1; plus our re-check."""
         h, payload, dst = self._h, self._payload, out
+        assert payload is not None  # only close() clears it, and reads check _closed first
         for _ in range(MAX_TEAR_RETRIES):
             ts = h.timestamp
             if h.valid != 1:
@@ -358,7 +361,8 @@ class FrameReader:
         deadline = time.monotonic() + timeout
         while True:
             t, fw = self._t, self._futex
-            wake = t.wake if fw is not None else 0  # read before looking: no lost wake-up
+            # read before looking: no lost wake-up (a futex is only set with a trailer)
+            wake = t.wake if fw is not None and t is not None else 0
             f = self._read(out, newer, min_src)
             if f is not None:
                 return f
@@ -372,6 +376,7 @@ class FrameReader:
                 gone = self._gone()
                 if gone is not None:
                     reason, message = gone
+                    assert self._t is not None  # _gone() found a writer to be gone
                     raise WriterGoneError(message, self.name, self._t.pid, reason)
             if now >= deadline:
                 raise FrameTimeoutError(self._timeout_message(timeout, min_src), self.name, timeout)

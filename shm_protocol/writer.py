@@ -283,7 +283,8 @@ class FrameWriter:
         if self._checksum:
             if h.valid == 1:  # make the frame already there verifiable before announcing it
                 assert self._payload is not None
-                t.checksum = zlib.crc32(self._payload, seq & U32_MAX)
+                # (an ndarray is a buffer; numpy declares __buffer__ for Python >= 3.12 only)
+                t.checksum = zlib.crc32(self._payload, seq & U32_MAX)  # type: ignore[arg-type]
             flags |= FLAG_CHECKSUM
         else:
             flags &= ~FLAG_CHECKSUM

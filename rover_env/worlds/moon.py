@@ -67,7 +67,8 @@ def _terrain(x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> np.ndarr
 
 
 def _rocks(rng: np.random.Generator, hf: HeightField) -> tuple[str, list[Obstacle]]:
-    parts, obstacles = [], []
+    parts: list[str] = []
+    obstacles: list[Obstacle] = []
     rect = Rect((-19.0, 9.0), (-19.0, 19.0))
     placed: list[tuple[float, float, float]] = []
     n_near, n_far = 7, 28

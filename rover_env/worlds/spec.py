@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TypedDict
 
 import numpy as np
 
@@ -267,7 +268,15 @@ class WorldSpec:
         )
 
 
-def seed_areas(name: str) -> dict[str, Rect]:
+class SeedAreas(TypedDict):
+    """:func:`seed_areas`' keywords (typed, so that ``WorldSpec(**seed_areas(n))`` checks)."""
+
+    spawn: Rect
+    goal: Rect
+    bounds: Rect
+
+
+def seed_areas(name: str) -> SeedAreas:
     """The seed's ``spawn``, ``goal`` and ``bounds`` rectangles of world ``name``, as
     keyword arguments for :class:`WorldSpec`."""
     r = WORLD_RECTANGLES[name]
