@@ -41,10 +41,11 @@ import torch
 from active_vision.models import HEAD_DEPTH, AVNet, AVNetConfig
 from active_vision.training.dataset import TRAIN_SEED, VALIDATION_SEED, DatasetConfig, FrameRenderer
 from active_vision.training.driving import DriveRecorder
-from active_vision.training.train import _augment, figure_weights, losses, parse_widths
-from rover_env.rover import CAMERA_FOVY, CAMERA_NAME
+from active_vision.training.train import augment_batch, figure_weights, losses, parse_widths
+from fused_image import FUSED_SIZE
+from rover_env import FORWARD_CAMERA
 
-SIZE = 96
+SIZE = FUSED_SIZE[0]
 ROW_BAND = 16
 
 
@@ -54,13 +55,12 @@ def render(seed: int, frames: int, path: Path) -> None:
     renderer = FrameRenderer("moon", DatasetConfig(frames=frames, seed=seed, worlds=("moon",),
                                                    drive_fraction=1.0))
     sim = renderer.sim
-    camera = sim.model.camera(CAMERA_NAME).id
     ups: list[np.ndarray] = []
     plain = sim.render_camera
 
     def render_camera(depth: bool = False, segmentation: bool = False):  # noqa: ANN202
         if depth:  # the recorder's kept frames are the ones rendered with depth
-            ups.append(sim.data.cam_xmat[camera].reshape(3, 3)[2].copy())
+            ups.append(sim.camera_up)
         return plain(depth=depth, segmentation=segmentation)
 
     sim.render_camera = render_camera
@@ -81,7 +81,7 @@ def render(seed: int, frames: int, path: Path) -> None:
 def ray_elevation(up: torch.Tensor) -> torch.Tensor:
     """``(N, 1, S, S)`` sine of each pixel's ray elevation for up vectors ``(N, 3)`` in camera
     coordinates (x right, y up, looking along -z)."""
-    f = (SIZE / 2) / math.tan(math.radians(CAMERA_FOVY) / 2)
+    f = (SIZE / 2) / math.tan(math.radians(FORWARD_CAMERA.fovy_deg) / 2)
     u = (torch.arange(SIZE, dtype=torch.float32) + 0.5 - SIZE / 2) / f
     rx, ry = u.view(1, SIZE).expand(SIZE, SIZE), -u.view(SIZE, 1).expand(SIZE, SIZE)
     norm = torch.sqrt(rx**2 + ry**2 + 1.0)
@@ -168,8 +168,8 @@ def main() -> int:
             idx = order[b * batch:(b + 1) * batch]
             peek = torch.Generator()
             peek.set_state(gen.get_state())
-            flip = torch.rand(len(idx), generator=peek) < 0.5  # _augment's first draw
-            x, m, d, _ = _augment(rgb[idx].float() / 255.0, mask[idx], depth[idx], gen)
+            flip = torch.rand(len(idx), generator=peek) < 0.5  # augment_batch's first draw
+            x, m, d = augment_batch(rgb[idx].float() / 255.0, mask[idx], depth[idx], gen)
             if gravity:
                 e = ray_elevation(up[idx])
                 model.elevation = torch.where(flip.view(-1, 1, 1, 1), e.flip(-1), e)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import replace
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -23,7 +24,7 @@ from active_vision.models import (  # noqa: E402
 from active_vision.training import dataset as ds  # noqa: E402
 from active_vision.training.evaluate import Metrics, evaluate  # noqa: E402
 from active_vision.training.evaluate import main as evaluate_main  # noqa: E402
-from active_vision.training.train import TrainConfig, train  # noqa: E402
+from active_vision.training.train import AVNetRecipe, TrainRun, train  # noqa: E402
 
 TEST_SEED = 424_242  # neither the training nor the evaluation split
 # Well below the targets (IoU 0.6, recall 0.95, FP 2 %, AbsRel 0.15, delta1 0.85) so the
@@ -105,11 +106,10 @@ def test_untrained_network_does_not(heldout: ds.Dataset) -> None:
 
 def test_train_and_evaluate_clis_run_end_to_end(tmp_path, heldout: ds.Dataset, capsys) -> None:
     data = heldout.save(tmp_path / "tiny.npz")
-    cfg = TrainConfig(data=data, epochs=1, batch=16, threads=1, evaluate=False,
-                      widths=(4, 8, 8, 8), out=tmp_path / "w.pt")
-    model, facts = train(cfg)
+    run = TrainRun(data=data, evaluate=False, out=tmp_path / "w.pt")
+    model, facts = train(AVNetRecipe(epochs=1, batch=16, threads=1, widths=(4, 8, 8, 8)), run)
     assert facts["epochs"] == 1
-    path = save_weights(model, cfg.out, facts)
+    path = save_weights(model, run.out, facts)
     assert evaluate_main(["--weights", str(path), "--data", str(data), "--json",
                           "--threads", "1", "--depth-bands"]) == 0
     printed = capsys.readouterr().out
@@ -146,8 +146,8 @@ def test_evaluate_json_is_strict_with_nothing_to_measure() -> None:
 
 
 def test_evaluate_reports_near_pixels_apart() -> None:
-    from active_vision.training.evaluate import NEAR_DEPTH_M, _figures, frame_counts
-    from shm_protocol import depth_to_channel
+    from active_vision.training.evaluate import NEAR_DEPTH_M, figures_of, frame_counts
+    from fused_image import depth_to_channel
 
     gt = np.full((4, 4), 2.0, np.float32)
     gt[0, :] = 0.2  # a wall at arm's length on one row
@@ -155,7 +155,7 @@ def test_evaluate_reports_near_pixels_apart() -> None:
     pred[0, :] = 0.8  # 4x too far there, exact elsewhere
     c = frame_counts(np.zeros((4, 4), np.float32), depth_to_channel(pred), np.zeros((4, 4), bool),
                      gt)
-    f = _figures(c)
+    f = figures_of(c)
     assert NEAR_DEPTH_M == 0.3
     assert f["abs_rel_near"] == pytest.approx(3.0, rel=1e-3)
     assert f["abs_rel"] == pytest.approx(0.0, abs=1e-3)  # the 0.3-10 m pixels are exact
@@ -168,14 +168,14 @@ def test_a_lower_threshold_finds_a_faint_figure_and_the_sweep_reports_it(
     missed at 0.5 and found at 0.2. ``threshold_sweep`` at 0.5 gives the evaluation's own
     heatmap figures, and a lower threshold never finds fewer figures; ``--sweep`` refuses a
     threshold outside (0, 1)."""
-    from active_vision.training.evaluate import _figures, frame_counts, threshold_sweep
+    from active_vision.training.evaluate import figures_of, frame_counts, threshold_sweep
 
     mask = np.zeros((16, 16), bool)
     mask[4:12, 5:10] = True  # 40 px: a pedestrian for recall
     heat = np.where(mask, 0.3, 0.0).astype(np.float32)
     depth = np.full((16, 16), np.inf, np.float32)
-    assert _figures(frame_counts(heat, None, mask, depth))["recall"] == 0.0
-    assert _figures(frame_counts(heat, None, mask, depth, 0.2))["recall"] == 1.0
+    assert figures_of(frame_counts(heat, None, mask, depth))["recall"] == 0.0
+    assert figures_of(frame_counts(heat, None, mask, depth, 0.2))["recall"] == 1.0
     model = load_model()
     m = evaluate(model, heldout, threads=1)
     sweep = threshold_sweep(model, heldout, [0.5, 0.1], threads=1)
@@ -233,7 +233,7 @@ def test_pasted_figures_are_hidden_by_what_is_nearer() -> None:
     # a generator whose draws give frame 1 frame 0's figure: find one by seed
     for seed in range(200):
         gen = torch.Generator().manual_seed(seed)
-        px, pm, pd, _ = paste_figures(x, mask, depth, gen, prob=1.0)
+        px, pm, pd = paste_figures(x, mask, depth, gen, prob=1.0)
         if pm[1].sum() > 0:
             break
     else:
@@ -248,41 +248,8 @@ def test_pasted_figures_are_hidden_by_what_is_nearer() -> None:
     # frame 1 had no figure to give, so frame 0 is as it was
     assert torch.equal(pm[0], mask[0]) and torch.equal(px[0], x[0])
     # prob 0: nothing changes
-    px, pm, pd, _ = paste_figures(x, mask, depth, torch.Generator().manual_seed(0), prob=0.0)
+    px, pm, pd = paste_figures(x, mask, depth, torch.Generator().manual_seed(0), prob=0.0)
     assert torch.equal(px, x) and torch.equal(pm, mask) and torch.equal(pd, depth)
-
-
-def test_edge_pastes_cut_figures_at_the_frame_side() -> None:
-    """With ``edge_share=1`` every paste lands at the left or right edge with a quarter to
-    three quarters of the figure cut off; with ``edge_share=0`` a paste keeps the whole
-    figure (a 10-column figure in the middle, shifts of at most PASTE_MAX_SHIFT)."""
-    from active_vision.training.train import paste_figures
-
-    x = torch.zeros(4, 3, 96, 96)
-    mask = torch.zeros(4, 1, 96, 96)
-    depth = torch.full((4, 1, 96, 96), 1e3)
-    x[0, :, 40:80, 43:53] = 0.9
-    mask[0, :, 40:80, 43:53] = 1
-    depth[0, :, 40:80, 43:53] = 3.0
-    kept, sides = [], set()
-    for seed in range(100):
-        gen = torch.Generator().manual_seed(seed)
-        _, pm, pd, _ = paste_figures(x, mask, depth, gen, prob=1.0, edge_share=1.0)
-        for i in range(1, 4):
-            cols = torch.nonzero(pm[i, 0].sum(dim=0)).flatten()
-            if len(cols) == 0:
-                continue
-            kept.append(len(cols) / 10)
-            sides.add("left" if int(cols[0]) == 0 else "right")
-            assert int(cols[0]) == 0 or int(cols[-1]) == 95  # touches an edge
-            assert torch.all(pd[i, 0][pm[i, 0] > 0] == 3.0)
-    assert kept and sides == {"left", "right"}
-    assert min(kept) >= 0.25 and max(kept) <= 0.75
-    for seed in range(30):
-        _, pm, _, _ = paste_figures(x, mask, depth, torch.Generator().manual_seed(seed),
-                                 prob=1.0, edge_share=0.0)
-        for i in range(1, 4):
-            assert pm[i].sum() in (0, 400)  # whole figures only
 
 
 def test_a_worlds_depth_weight_scales_its_frames_depth_loss() -> None:
@@ -302,47 +269,16 @@ def test_a_worlds_depth_weight_scales_its_frames_depth_loss() -> None:
     assert torch.allclose(tilted, (3 * first + second) / 2)
 
 
-def test_hard_positives_push_each_counted_figures_strongest_pixels_up() -> None:
-    from active_vision.training.evaluate import MIN_PEDESTRIAN_PX
-    from active_vision.training.train import HARD_POSITIVES, hard_positive_loss, losses
-
-    mask = torch.zeros(3, 1, 32, 32)
-    mask[0, 0, 4:20, 4:8] = 1  # a 64-px figure: counted by the evaluation's recall
-    mask[1, 0, 0:4, 0:5] = 1  # a 20-px sliver: under MIN_PEDESTRIAN_PX, not counted
-    assert mask[1].sum() < MIN_PEDESTRIAN_PX <= mask[0].sum()
-    logits = torch.full((3, 2, 32, 32), -4.0)
-    logits[0, 0, 4:20, 4:8] = torch.linspace(-3.0, 1.0, 64).view(16, 4)
-    logits.requires_grad_(True)
-    loss = hard_positive_loss(logits[:, :1], mask)
-    loss.backward()
-    grad = logits.grad[:, 0]
-    # only the figure's HARD_POSITIVES highest logits move, and upwards
-    assert int((grad[0] != 0).sum()) == HARD_POSITIVES
-    assert float(grad[0].max()) <= 0.0
-    assert float(grad[1:].abs().sum()) == 0.0
-    top = torch.linspace(-3.0, 1.0, 64)[-HARD_POSITIVES:]
-    assert torch.isclose(loss, torch.nn.functional.softplus(-top).mean())
-    # a figure whose core is confident costs almost nothing; no figure costs nothing
-    sure = logits.detach().clone()
-    sure[0, 0, 4:20, 4:8] = 8.0
-    assert float(hard_positive_loss(sure[:, :1], mask)) < 1e-3
-    assert float(hard_positive_loss(sure[:, :1], torch.zeros_like(mask))) == 0.0
-    # in losses() it is off by default and adds weight * term when on
-    w, depth = torch.ones_like(mask), torch.full_like(mask, 2.0)
-    off, _ = losses(logits.detach(), mask, depth, w)
-    on, _ = losses(logits.detach(), mask, depth, w, hard_positive_weight=0.5)
-    assert torch.isclose(on - off, 0.5 * loss.detach())
-
-
 def test_training_is_reproducible_from_its_seed_and_the_seed_matters(tmp_path,
                                                                     heldout) -> None:
     """What lets one command remake the shipped weights: the same options give the same
     weights bit for bit (one thread, the CPU), and another seed gives other weights."""
 
     def weights(seed: int) -> dict[str, torch.Tensor]:
-        cfg = TrainConfig(epochs=1, batch=16, threads=1, seed=seed, evaluate=False,
-                          widths=(4, 8, 8, 8), device="cpu", out=tmp_path / f"s{seed}.pt")
-        return train(cfg, data=heldout)[0].state_dict()
+        cfg = AVNetRecipe(epochs=1, batch=16, threads=1, seed=seed, widths=(4, 8, 8, 8),
+                          device="cpu")
+        run = TrainRun(evaluate=False, out=tmp_path / f"s{seed}.pt")
+        return train(cfg, run, data=heldout)[0].state_dict()
 
     a, b, c = weights(3), weights(3), weights(4)
     assert all(torch.equal(a[k], b[k]) for k in a)
@@ -353,90 +289,60 @@ def test_training_can_start_from_weights_of_the_same_shape(tmp_path, heldout) ->
     data = heldout.save(tmp_path / "tiny.npz")
     start = AVNet(AVNetConfig(widths=(4, 8, 8, 8)))
     path = save_weights(start, tmp_path / "start.pt")
-    cfg = TrainConfig(data=data, epochs=1, batch=16, threads=1, evaluate=False, lr=0.0,
-                      widths=(4, 8, 8, 8), init=path, out=tmp_path / "w.pt")
-    model, _ = train(cfg)  # lr 0: the weights stay the start's (batch norm stats move)
+    cfg = AVNetRecipe(epochs=1, batch=16, threads=1, lr=0.0, widths=(4, 8, 8, 8), init=path)
+    # lr 0: the weights stay the start's (batch norm stats move)
+    model, _ = train(cfg, TrainRun(data=data, evaluate=False, out=tmp_path / "w.pt"))
     trained = {k: v for k, v in model.state_dict().items() if "running" not in k
                and "num_batches" not in k}
     for k, v in trained.items():
         assert torch.allclose(v, start.state_dict()[k].half().float()), k
     with pytest.raises(ValueError, match="--widths"):
-        train(TrainConfig(data=data, epochs=1, threads=1, evaluate=False,
-                          widths=(4, 8, 8, 16), init=path, out=tmp_path / "x.pt"))
+        train(AVNetRecipe(epochs=1, threads=1, widths=(4, 8, 8, 16), init=path),
+              TrainRun(data=data, evaluate=False, out=tmp_path / "x.pt"))
 
 
-def test_distillation_target_is_the_teachers_mean_and_follows_the_augmentation(tmp_path
-                                                                               ) -> None:
-    from active_vision.training.train import _augment, losses, teacher_heatmaps
-
-    torch.manual_seed(0)
-    nets = [AVNet(AVNetConfig(widths=(4, 8, 8, 8))).eval() for _ in range(2)]
-    paths = [save_weights(n, tmp_path / f"t{i}.pt") for i, n in enumerate(nets)]
-    rgb = torch.randint(0, 256, (5, 3, 32, 32), dtype=torch.uint8)
-    soft = teacher_heatmaps(paths, rgb, batch=2)
-    assert soft.shape == (5, 1, 32, 32) and soft.dtype == torch.uint8
-    with torch.no_grad():
-        probs = [torch.sigmoid(load_model(p)(rgb.float() / 255.0)[:, :1]) for p in paths]
-    assert torch.allclose(soft.float() / 255.0, (probs[0] + probs[1]) / 2, atol=1 / 255)
-    assert not torch.allclose(probs[0], probs[1], atol=1 / 255)  # the mean, not one teacher
-
-    # a target equal to the mask stays equal to it through pastes and flips, and carrying
-    # it draws no random numbers: the batch is the one a run without teachers sees
-    x = torch.rand(8, 3, 32, 32)
-    mask = torch.zeros(8, 1, 32, 32)
-    mask[::2, 0, 10:26, 4:10] = 1.0
-    depth = torch.where(mask > 0, 2.0, 5.0)
-    plain = _augment(x, mask, depth, torch.Generator().manual_seed(1), paste_prob=1.0)
-    carried = _augment(x, mask, depth, torch.Generator().manual_seed(1), paste_prob=1.0,
-                       soft=mask.clone())
-    assert plain[3] is None
-    for a, b in zip(plain[:3], carried[:3], strict=True):
-        assert torch.equal(a, b)
-    assert torch.equal(carried[3], carried[1])
-    assert not torch.equal(carried[1], mask)  # the batch was pasted and flipped
-
-    # the loss: without teachers' weight as before; all of it on a target that says
-    # "pedestrian" everywhere pushes every logit up
-    logits = torch.zeros(2, 2, 8, 8, requires_grad=True)
-    m, d, w = torch.zeros(2, 1, 8, 8), torch.full((2, 1, 8, 8), 2.0), torch.ones(2, 1, 8, 8)
-    base, _ = losses(logits, m, d, w)
-    same, _ = losses(logits, m, d, w, soft=torch.ones_like(m), distill_weight=0.0)
-    assert torch.equal(base, same)
-    heat, _ = losses(logits, m, d, w, soft=torch.ones_like(m), distill_weight=1.0)
-    heat.backward()
-    assert float(logits.grad[:, 0].max()) < 0.0
-
-
-def test_a_distilled_run_records_its_teachers_and_resumes_only_with_them(tmp_path,
-                                                                          heldout) -> None:
-    from active_vision.models import weights_meta
+def test_a_weights_file_is_remade_from_the_recipe_it_stores(tmp_path, heldout) -> None:
+    """The recipe travels in the weights: ``--recipe FILE`` alone remakes the same weights
+    bit for bit, an option beside it overrides the stored value, and a checkpoint resumes
+    only a run of the same recipe."""
+    from active_vision.models import load_model
     from active_vision.training.train import main as train_main
+    from active_vision.training.train import read_recipe
 
     data = heldout.save(tmp_path / "tiny.npz")
-    teacher = save_weights(AVNet(AVNetConfig(widths=(4, 8, 8, 8))), tmp_path / "teacher.pt")
-    out = tmp_path / "student.pt"
-    args = ["--data", str(data), "--epochs", "1", "--batch", "16", "--threads", "1",
-            "--widths", "4,8,8,8", "--no-evaluate", "--out", str(out)]
-    assert train_main(args + ["--teacher", str(teacher)]) == 0
-    meta = weights_meta(out)
-    assert meta["teachers"] == f"{tmp_path.name}/teacher.pt" and meta["distill_weight"] == 0.5
-    cfg = TrainConfig(data=data, epochs=1, batch=16, threads=1, evaluate=False,
-                      widths=(4, 8, 8, 8), out=out, resume=True)
-    with pytest.raises(ValueError, match="teachers"):
-        train(cfg)  # the checkpoint was made with a teacher
+    first = tmp_path / "first.pt"
+    run = ["--data", str(data), "--no-evaluate"]
+    assert train_main(run + ["--epochs", "1", "--batch", "16", "--threads", "1",
+                             "--widths", "4,8,8,8", "--depth-world-weights", "moon=2",
+                             "--out", str(first)]) == 0  # fmt: skip
+    recipe = read_recipe(first)
+    assert recipe == AVNetRecipe(epochs=1, batch=16, threads=1, widths=(4, 8, 8, 8),
+                                 depth_world_weights={"moon": 2.0})  # fmt: skip
+    again = tmp_path / "again.pt"
+    assert train_main(run + ["--recipe", str(first), "--out", str(again)]) == 0
+    assert read_recipe(again) == recipe
+    a, b = load_model(first, fuse=False).state_dict(), load_model(again, fuse=False).state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    other = tmp_path / "other.pt"
+    assert train_main(run + ["--recipe", str(first), "--seed", "5", "--out", str(other)]) == 0
+    assert read_recipe(other).seed == 5
+    # the checkpoint beside ``again`` is of that recipe: a resume with another lr is refused
+    with pytest.raises(ValueError, match=r"recipe fields that differ: \['lr'\]"):
+        train(replace(recipe, lr=1e-3), TrainRun(data=data, evaluate=False, out=again,
+                                                  resume=True))  # fmt: skip
 
 
 def test_episode_intervals_span_what_one_episode_can_move() -> None:
     """The bootstrap draws whole episodes: identical episodes give a point; one episode that
     misses every pedestrian among good ones widens recall's interval down towards it."""
-    from active_vision.training.evaluate import _Counts, episode_intervals
+    from active_vision.training.evaluate import FrameCounts, episode_intervals
 
-    good = _Counts(inter=90, union=100, peds=10, peds_hit=10, empty_frames=5, fp_frames=0,
+    good = FrameCounts(inter=90, union=100, peds=10, peds_hit=10, empty_frames=5, fp_frames=0,
                    frames=24, depth_px=1000, abs_rel_sum=100.0, delta1_hits=900)
     same = episode_intervals([good] * 8)
     assert same["recall"] == [1.0, 1.0] and same["iou"] == [0.9, 0.9]
     assert same["abs_rel"] == pytest.approx([0.1, 0.1]) and same["delta1"] == [0.9, 0.9]
-    blind = _Counts(inter=0, union=100, peds=10, peds_hit=0, frames=24)
+    blind = FrameCounts(inter=0, union=100, peds=10, peds_hit=0, frames=24)
     mixed = episode_intervals([good] * 7 + [blind])
     lo, hi = mixed["recall"]
     assert lo < 0.8 and hi == 1.0  # recall 7/8 measured; draws with 2+ blind copies below
@@ -452,14 +358,11 @@ def test_evaluate_refuses_an_unknown_split() -> None:
 
 @pytest.mark.parametrize("argv, message", [
     (["--paste-prob", "1.5"], "--paste-prob 1.5"),
-    (["--edge-paste-share", "-0.1"], "--edge-paste-share -0.1"),
-    (["--hard-positive-weight", "-0.2"], "--hard-positive-weight -0.2"),
     (["--widths", "16,32"], "'16,32': give four positive integers"),
-    (["--depth-world-weight", "moon"], "WORLD=WEIGHT"),
-    (["--depth-world-weight", "moon=-1"], "cannot be negative"),
+    (["--depth-world-weights", "moon"], "WORLD=WEIGHT"),
+    (["--depth-world-weights", "moon=-1"], "cannot be negative"),
     (["--init", "/nonexistent/avnet.pt"], "no such weights file"),
-    (["--teacher", "/nonexistent/teacher.pt"], "--teacher /nonexistent/teacher.pt: no such"),
-    (["--distill-weight", "1.5"], "--distill-weight 1.5: give a share in [0, 1]"),
+    (["--recipe", "/nonexistent/avnet.pt"], "--recipe /nonexistent/avnet.pt"),
     (["--device", "tpu9"], "--device 'tpu9': give cpu, cuda or cuda:N"),
     (["--device", "meta"], "--device 'meta': give cpu, cuda or cuda:N"),
     pytest.param(["--device", "cuda"], "sees no CUDA GPU; train with --device cpu",
@@ -476,12 +379,11 @@ def test_train_cli_names_a_bad_option(argv, message, capsys) -> None:
 def test_train_cli_reads_world_depth_weights() -> None:
     from active_vision.training.train import _parse
 
-    cfg = _parse(["--depth-world-weight", "moon=3", "--depth-world-weight", "maze=0.5"])
+    cfg, _, _ = _parse(["--depth-world-weights", "moon=3,maze=0.5"])
     assert cfg.depth_world_weights == {"moon": 3.0, "maze": 0.5}
-    # the shipped recipe: no edge pastes, no calibration; both are options
-    assert cfg.edge_paste_share == 0.0 and not cfg.calibrate
-    cfg = _parse(["--edge-paste-share", "0.5", "--calibrate"])
-    assert cfg.edge_paste_share == 0.5 and cfg.calibrate
+    assert not cfg.calibrate
+    cfg, _, _ = _parse(["--calibrate", "--worlds", "moon,maze"])
+    assert cfg.calibrate and cfg.worlds == ("moon", "maze")
 
 
 def test_depth_bands_say_where_the_depth_goes_wrong() -> None:
@@ -490,8 +392,13 @@ def test_depth_bands_say_where_the_depth_goes_wrong() -> None:
     (0.5 m) reads delta1 1 and 0 in those bands, with log ratios log 1.1 and log 2; pixels
     beyond 10 m count nowhere, and the shares weight the bands back to the world's own
     delta1 as the evaluation computes it."""
-    from active_vision.training.evaluate import ROW_BAND, _figures, depth_band_figures, frame_counts
-    from shm_protocol import CHANNEL_DEPTH, depth_to_channel
+    from active_vision.training.evaluate import (
+        ROW_BAND,
+        depth_band_figures,
+        figures_of,
+        frame_counts,
+    )
+    from fused_image import CHANNEL_DEPTH, depth_to_channel
 
     size = 2 * ROW_BAND
     true = np.full((size, size), 2.0, np.float32)
@@ -512,7 +419,7 @@ def test_depth_bands_say_where_the_depth_goes_wrong() -> None:
     assert set(by_depth) == {0.3, 2.0}  # the sky is in no band
     assert by_depth[2.0]["delta1"] == 1.0 and by_depth[0.3]["delta1"] == 0.0
     assert by_depth[0.3]["abs_rel"] == pytest.approx(1.0, abs=0.02)
-    whole = _figures(frame_counts(fused[:, :, 1], fused[:, :, CHANNEL_DEPTH], data.mask[0],
+    whole = figures_of(frame_counts(fused[:, :, 1], fused[:, :, CHANNEL_DEPTH], data.mask[0],
                                   true))["delta1"]
     assert sum(b["share"] * b["delta1"] for b in bands["depth"]) == pytest.approx(whole)
     assert sum(b["share"] for b in bands["rows"]) == pytest.approx(1.0)
@@ -559,7 +466,7 @@ def test_train_cli_calibrates_on_validation_then_reports_on_heldout(
     monkeypatch.setattr(ev, "heldout", tiny_split)
     monkeypatch.setattr(cal, "choose_threshold", lambda sweep: 0.3)
     argv = ["--data", str(data), "--epochs", "1", "--batch", "16", "--threads", "1",
-            "--widths", "4,8,8,8", "--hard-positive-weight", "0.2", "--log-level", "WARNING"]
+            "--widths", "4,8,8,8", "--log-level", "WARNING"]
     assert train_main([*argv, "--out", str(tmp_path / "plain.pt")]) == 0
     assert splits == ["heldout"]
     assert train_main([*argv, "--out", str(tmp_path / "cal.pt"), "--calibrate"]) == 0
