@@ -61,7 +61,7 @@ def run_env(name: str, slot: int, steps: int, world: str, out: mp.Queue) -> None
     """Step one env ``steps`` times; put its timings on ``out``."""
     from rover_env.fused_env import RoverEnvFused
 
-    env = RoverEnvFused(rl_obs_name=name, slot=slot, world_n=world)
+    env = RoverEnvFused(rl_obs_name=name, slot=slot, world_n=world, report_latency=True)
     physics: list[float] = []
     render: list[float] = []
     env.sim.advance = _timed(env.sim.advance, physics)

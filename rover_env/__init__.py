@@ -10,7 +10,10 @@ so rendering works headless, and registers the ``roverav/`` env ids:
 - ``roverav/RoverEnvFusedGazeDiscrete-v0``: :class:`DiscreteRoverEnvFusedGaze` (Discrete(180))
 
 Episode length is the envs' own ``length`` argument (they truncate themselves), so no
-``TimeLimit`` wrapper is registered.
+``TimeLimit`` wrapper is registered. The fused ids are registered with ``slot="auto"`` (the
+first daemon slot no open env holds), so ``gym.make_vec(id, num_envs=N, rl_obs_name=...)``
+works in ``sync`` and ``async`` mode against ``av-daemon --slots N``; pass ``slot=i`` to
+choose one.
 """
 
 import os
@@ -22,28 +25,32 @@ from gymnasium.envs.registration import register, registry  # noqa: E402
 from rover_env.core import RoverEnvBase  # noqa: E402
 from rover_env.discrete_env import DiscreteRoverEnvFused  # noqa: E402
 from rover_env.errors import EnvClosedError  # noqa: E402
-from rover_env.fused_env import RoverEnvFused  # noqa: E402
+from rover_env.fused_env import AUTO_SLOT, RoverEnvFused, served_slots  # noqa: E402
 from rover_env.gaze_discrete_env import DiscreteRoverEnvFusedGaze  # noqa: E402
 from rover_env.gaze_env import RoverEnvFusedGaze  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
-from rover_env.pedestrians import Appearance  # noqa: E402
+from rover_env.pedestrians import PEDESTRIAN_MODES, Appearance  # noqa: E402
 from rover_env.rendering import CameraFrame  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
 from rover_env.simulation import Contacts, Lighting, RoverSim  # noqa: E402
 from rover_env.worlds import WORLD_NAMES, WorldSpec, make_world  # noqa: E402
 
+_FUSED = {"slot": AUTO_SLOT}  # registered keywords of the fused ids
 _ENVS = {
-    "roverav/RoverEnv-v0": "rover_env.lidar_env:RoverEnv",
-    "roverav/RoverEnvFused-v0": "rover_env.fused_env:RoverEnvFused",
-    "roverav/RoverEnvFusedDiscrete-v0": "rover_env.discrete_env:DiscreteRoverEnvFused",
-    "roverav/RoverEnvFusedGaze-v0": "rover_env.gaze_env:RoverEnvFusedGaze",
-    "roverav/RoverEnvFusedGazeDiscrete-v0": "rover_env.gaze_discrete_env:DiscreteRoverEnvFusedGaze",
+    "roverav/RoverEnv-v0": ("rover_env.lidar_env:RoverEnv", {}),
+    "roverav/RoverEnvFused-v0": ("rover_env.fused_env:RoverEnvFused", _FUSED),
+    "roverav/RoverEnvFusedDiscrete-v0": ("rover_env.discrete_env:DiscreteRoverEnvFused", _FUSED),
+    "roverav/RoverEnvFusedGaze-v0": ("rover_env.gaze_env:RoverEnvFusedGaze", _FUSED),
+    "roverav/RoverEnvFusedGazeDiscrete-v0": (
+        "rover_env.gaze_discrete_env:DiscreteRoverEnvFusedGaze", _FUSED),
 }
-for _env_id, _entry_point in _ENVS.items():
+for _env_id, (_entry_point, _kwargs) in _ENVS.items():
     if _env_id not in registry:
-        register(id=_env_id, entry_point=_entry_point)
+        register(id=_env_id, entry_point=_entry_point, kwargs=dict(_kwargs))
 
 __all__ = [
+    "AUTO_SLOT",
+    "PEDESTRIAN_MODES",
     "WORLD_NAMES",
     "Appearance",
     "CameraFrame",
@@ -60,4 +67,5 @@ __all__ = [
     "RoverSim",
     "WorldSpec",
     "make_world",
+    "served_slots",
 ]

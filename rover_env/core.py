@@ -10,9 +10,11 @@ listed in the class docstring.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from collections import deque
+from dataclasses import dataclass
 from typing import Any, cast
 
 import gymnasium as gym
@@ -53,6 +55,59 @@ def _clamp(value: float, lo: float, hi: float) -> float:
     return lo if value < lo else hi if value > hi else value
 
 
+@dataclass(frozen=True)
+class EnvOptions:
+    """The keyword-only options every roverav env accepts, declared once.
+
+    Each env takes them as keywords (``RoverEnv(world_n="maze", control_dt=0.1)``) beside
+    its seed arguments; an unknown keyword raises ``TypeError`` naming the accepted ones.
+    The env keeps the validated set as ``env.options``.
+    """
+
+    control_dt: float = c.CONTROL_DT
+    """Simulated seconds per step (the PID's dt)."""
+    physics_dt: float = PHYSICS_DT
+    """Largest physics step (s); the one used divides ``control_dt`` evenly."""
+    reward_config: RewardConfig | None = None
+    """Reward and termination constants; None: the env's own (``RewardConfig()`` for
+    RoverEnv, ``RewardConfig.fused()`` for the fused envs)."""
+    render_mode: str | None = None
+    """None or ``"rgb_array"``: ``render()`` returns a chase-camera frame."""
+    render_size: tuple[int, int] = RENDER_SIZE
+    """(width, height) of ``render()`` frames."""
+    pedestrian_mode: str = PEDESTRIAN_MODES[0]
+    """``walk`` (paths anywhere in the pedestrian area) or ``crossing`` (paths across the
+    line from the rover's start to its first goal, walked from the side: see
+    ``Pedestrians.lay_crossings``)."""
+    pedestrian_appearance: str = "fixed"
+    """``"fixed"`` (the seed's look) or ``"random"`` (clothing colours, height, girth and
+    gait phase drawn per episode, deterministic from the reset seed)."""
+
+    def __post_init__(self) -> None:
+        if not self.control_dt > 0:
+            raise ValueError(f"control_dt must be > 0 s, got {self.control_dt}")
+        if not self.physics_dt > 0:
+            raise ValueError(f"physics_dt must be > 0 s, got {self.physics_dt}")
+        if self.pedestrian_mode not in PEDESTRIAN_MODES:
+            raise ValueError(
+                f"pedestrian_mode must be one of {PEDESTRIAN_MODES}, got {self.pedestrian_mode!r}"
+            )
+
+    @classmethod
+    def of(cls, owner: str, options: dict[str, Any]) -> EnvOptions:
+        """The options from an env's keywords; ``TypeError`` naming ``owner`` and the accepted
+        keywords for an unknown one."""
+        unknown = sorted(set(options) - {f.name for f in dataclasses.fields(cls)})
+        if unknown:
+            accepted = ", ".join(f.name for f in dataclasses.fields(cls))
+            raise TypeError(
+                f"{owner}() got unexpected keyword argument(s) {', '.join(unknown)}; the "
+                f"options common to the roverav envs are {accepted} (its docstring lists "
+                "its own arguments)"
+            )
+        return cls(**options)
+
+
 class RoverEnvBase(gym.Env):
     """Base class of the roverav envs (not registered itself).
 
@@ -81,6 +136,8 @@ class RoverEnvBase(gym.Env):
     ``_on_reset() -> None``
         Called after the sim and the goal are reset, before the first ``_observe`` (e.g. to
         drop stale shared-memory frames). Default: nothing.
+    ``_default_reward_config() -> RewardConfig`` (classmethod)
+        The constants used when ``reward_config`` is None. Default: ``RewardConfig()``.
 
     Readable per-step state for hooks: ``self.sim``, ``self.goal`` (x, y),
     ``self.distance_to_goal``, ``self.distance_delta`` (m closer to this step's goal),
@@ -98,17 +155,9 @@ class RoverEnvBase(gym.Env):
     :param lidar_points: LIDAR points (also used by the default ``_collision``).
     :param max_lidar_range: LIDAR range in metres.
     :param camera_size: forward camera (height, width).
-    :param control_dt: simulated seconds per step (the PID's dt).
-    :param physics_dt: largest physics step; the one used divides ``control_dt`` evenly.
-    :param reward_config: reward and termination constants (default ``RewardConfig()``).
-    :param render_mode: None or ``"rgb_array"`` (chase camera).
-    :param render_size: (width, height) of ``render()`` frames.
-    :param pedestrian_mode: ``walk`` (paths anywhere in the pedestrian area) or
-        ``crossing`` (paths across the line from the rover's start to its first goal,
-        walked from the side: see ``Pedestrians.lay_crossings``).
-    :param pedestrian_appearance: ``"fixed"`` (default, the seed's look) or ``"random"``
-        (clothing colours, height, girth and gait phase drawn per episode, deterministic
-        from the reset seed).
+    :param options: the keyword-only options of :class:`EnvOptions` (``control_dt``,
+        ``physics_dt``, ``reward_config``, ``render_mode``, ``render_size``,
+        ``pedestrian_mode``, ``pedestrian_appearance``); subclasses forward theirs here.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / c.CONTROL_DT))}
@@ -121,14 +170,10 @@ class RoverEnvBase(gym.Env):
         lidar_points: int = c.LIDAR_POINTS,
         max_lidar_range: float = c.MAX_LIDAR_RANGE,
         camera_size: tuple[int, int] = c.FUSED_SIZE,
-        control_dt: float = c.CONTROL_DT,
-        physics_dt: float = PHYSICS_DT,
-        reward_config: RewardConfig | None = None,
-        render_mode: str | None = None,
-        render_size: tuple[int, int] = RENDER_SIZE,
-        pedestrian_mode: str = "walk",
-        pedestrian_appearance: str = "fixed",
+        **options: Any,
     ) -> None:
+        opts = EnvOptions.of(type(self).__name__, options)
+        render_mode = opts.render_mode
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode {render_mode!r} is not supported; use one of "
@@ -136,31 +181,26 @@ class RoverEnvBase(gym.Env):
             )
         if length < 1:
             raise ValueError(f"length must be >= 1 step, got {length}")
-        if not control_dt > 0:
-            raise ValueError(f"control_dt must be > 0 s, got {control_dt}")
-        if not physics_dt > 0:
-            raise ValueError(f"physics_dt must be > 0 s, got {physics_dt}")
-        if pedestrian_mode not in PEDESTRIAN_MODES:
-            raise ValueError(
-                f"pedestrian_mode must be one of {PEDESTRIAN_MODES}, got {pedestrian_mode!r}"
-            )
-        self.pedestrian_mode = pedestrian_mode
+        self.options = opts
+        self.pedestrian_mode = opts.pedestrian_mode
         self.world_name = canonical_world_name(world_n)
         self.length = int(length)
         self.lidar_points = int(lidar_points)
         self.max_lidar_range = float(max_lidar_range)
-        self.control_dt = float(control_dt)
-        self.reward_config = reward_config if reward_config is not None else RewardConfig()
+        self.control_dt = float(opts.control_dt)
+        self.reward_config = (
+            opts.reward_config if opts.reward_config is not None else self._default_reward_config()
+        )
         self.render_mode = render_mode
-        self.render_size = (int(render_size[0]), int(render_size[1]))
+        self.render_size = (int(opts.render_size[0]), int(opts.render_size[1]))
         self.metadata = {**self.metadata, "render_fps": int(round(1.0 / self.control_dt))}
         # physics_dt is the largest physics step: the one used divides control_dt evenly.
-        self.physics_substeps = max(1, math.ceil(self.control_dt / physics_dt - 1e-9))
+        self.physics_substeps = max(1, math.ceil(self.control_dt / opts.physics_dt - 1e-9))
         self.sim = RoverSim(
             self.world_name,
             camera_size=camera_size,
             physics_dt=self.control_dt / self.physics_substeps,
-            pedestrian_appearance=pedestrian_appearance,
+            pedestrian_appearance=opts.pedestrian_appearance,
         )
         self.world = self.sim.world
         self.pid = HeadingPID(dt=self.control_dt)
@@ -180,6 +220,11 @@ class RoverEnvBase(gym.Env):
         self._closed = False
 
     # --- hooks --------------------------------------------------------------------------------
+    @classmethod
+    def _default_reward_config(cls) -> RewardConfig:
+        """The reward constants when ``reward_config`` is None: ``RewardConfig()``."""
+        return RewardConfig()
+
     def _decode_action(self, action: Any) -> tuple[float, float]:
         """(speed m/s, absolute desired heading rad) from a ``[speed, relative heading]``."""
         a = np.asarray(action, dtype=np.float64).reshape(-1)

@@ -1,4 +1,9 @@
-"""DiscreteRoverEnvFused: RoverEnvFused with the seed's Discrete(60) speed x compass actions."""
+"""DiscreteRoverEnvFused: RoverEnvFused with the seed's Discrete(60) speed x compass actions.
+
+The seed's discrete action table (speed levels x absolute compass headings) is declared
+here once: :class:`SeedActionTable`, :func:`decode_action` and :func:`encode_action`, which
+the gaze env's Discrete(180) (``gaze_discrete_env``) builds on.
+"""
 
 from __future__ import annotations
 
@@ -18,6 +23,7 @@ SPEED_LEVELS = np.array(c.DISCRETE_SPEED_LEVELS, dtype=np.float32)  # m/s, seed 
 N_SPEEDS = len(SPEED_LEVELS)  # 5
 N_DIRECTIONS = c.DISCRETE_N_DIRECTIONS  # 12
 DIRECTION_ANGLES = np.linspace(-np.pi, np.pi, N_DIRECTIONS, endpoint=False)  # absolute, rad
+N_SEED_ACTIONS = N_SPEEDS * N_DIRECTIONS  # 60
 
 
 def action_index(action: Any, n: int) -> int:
@@ -50,11 +56,35 @@ def decode_action(action: Any) -> tuple[int, int]:
     Accepts a Python int, a numpy integer or a 0-d/size-1 integer array; anything else,
     or an index outside ``0..59``, raises ``ValueError``.
     """
-    index = action_index(action, N_SPEEDS * N_DIRECTIONS)
+    index = action_index(action, N_SEED_ACTIONS)
     return index // N_DIRECTIONS, index % N_DIRECTIONS
 
 
-class DiscreteRoverEnvFused(RoverEnvFused):
+def encode_action(speed_idx: int, direction_idx: int) -> int:
+    """The flat action in ``0..59`` of (speed_idx, direction_idx): the inverse of decoding."""
+    if not (0 <= speed_idx < N_SPEEDS and 0 <= direction_idx < N_DIRECTIONS):
+        raise ValueError(
+            f"speed_idx must be in 0..{N_SPEEDS - 1} and direction_idx in "
+            f"0..{N_DIRECTIONS - 1}, got {speed_idx}, {direction_idx}"
+        )
+    return speed_idx * N_DIRECTIONS + direction_idx
+
+
+class SeedActionTable:
+    """The seed's table as env attributes (``n_speeds``, ``n_directions``,
+    ``speed_levels``, ``direction_angles``), mixed into both discrete envs."""
+
+    n_speeds = N_SPEEDS
+    n_directions = N_DIRECTIONS
+    speed_levels = SPEED_LEVELS
+    direction_angles = DIRECTION_ANGLES
+
+    def _seed_command(self, speed_idx: int, direction_idx: int) -> tuple[float, float]:
+        """(speed m/s, absolute heading rad) of a cell of the table."""
+        return float(self.speed_levels[speed_idx]), float(self.direction_angles[direction_idx])
+
+
+class DiscreteRoverEnvFused(SeedActionTable, RoverEnvFused):
     """RoverEnvFused with ``Discrete(60)`` actions: 5 speeds x 12 absolute compass headings.
 
     ## Action space
@@ -78,13 +108,9 @@ class DiscreteRoverEnvFused(RoverEnvFused):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.n_speeds = N_SPEEDS
-        self.n_directions = N_DIRECTIONS
-        self.speed_levels = SPEED_LEVELS
-        self.direction_angles = DIRECTION_ANGLES
-        self.action_space = spaces.Discrete(N_SPEEDS * N_DIRECTIONS)
+        self.action_space = spaces.Discrete(N_SEED_ACTIONS)
 
     def _decode_action(self, action: Any) -> tuple[float, float]:
         speed_idx, direction_idx = decode_action(action)
         log.debug("action %r -> speed_idx %d, direction_idx %d", action, speed_idx, direction_idx)
-        return float(self.speed_levels[speed_idx]), float(self.direction_angles[direction_idx])
+        return self._seed_command(speed_idx, direction_idx)

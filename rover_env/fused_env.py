@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import logging
 import os
+import socket
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -12,9 +15,8 @@ from gymnasium import spaces
 
 from rover_env import constants as c
 from rover_env import reward as rw
-from rover_env.core import RENDER_SIZE, RoverEnvBase, float_box, state_spaces
+from rover_env.core import RoverEnvBase, float_box, state_spaces
 from rover_env.reward import RewardConfig
-from rover_env.simulation import PHYSICS_DT
 from shm_protocol import (
     CHANNEL_HEATMAP,
     FrameReader,
@@ -26,16 +28,67 @@ from shm_protocol import (
     depth_to_channel,
     segment_path,
     slot_name,
+    writer_alive,
 )
 
 log = logging.getLogger(__name__)
 
 FRAME_TIMEOUT = 2.0  # s without a fused frame before FrameTimeoutError
+AUTO_SLOT = "auto"  # slot= value: the first daemon slot no other env holds
+_POLL_S = 0.05  # s between looks for a daemon that is coming up
+_LOCK_GRACE_S = 5.0  # s beyond connection_check_timeout to wait for another env's choice
 # The seed's descriptive message when the segment is missing (it then called exit(1)).
 SEED_MISSING_MESSAGE = (
     "Shared memory segment '{name}' not found. The Active Vision inference pipeline must be "
     "running and writing frames before RoverEnvFused is created."
 )
+
+
+def served_slots(name: str, timeout: float = 0.0) -> int:
+    """How many env slots the live av-daemon serving base name ``name`` has (its
+    ``--slots N``), or 0 when none serves it after waiting up to ``timeout`` s for one.
+
+    The one probe of a daemon's slots (the envs' ``slot="auto"`` and slot checks, and
+    rover-train's start-up check use it). The daemon creates every slot's fused segment
+    before the first camera segment, so once slot 0's camera segment exists the run of
+    fused segments ``name``, ``name_1``, ... is complete.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        if os.path.exists(segment_path(camera_name(name))) and writer_alive(name):
+            served = 1
+            while os.path.exists(segment_path(slot_name(name, served))):
+                served += 1
+            return served
+        if time.monotonic() >= deadline:
+            return 0
+        time.sleep(_POLL_S)
+
+
+@contextmanager
+def _slot_choice_lock(name: str, timeout: float) -> Iterator[None]:
+    """Hold, across processes, the right to choose a free slot of ``name`` (so that envs
+    made at once, e.g. by an async vector env, do not pick the same one). An abstract Unix
+    socket: the kernel releases it however its holder dies, and it leaves no file."""
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    deadline = time.monotonic() + timeout
+    try:
+        while True:
+            try:
+                sock.bind(f"\0roverav-slot-choice:{name}")
+                break
+            except OSError:
+                if time.monotonic() >= deadline:
+                    raise SegmentBusyError(
+                        f"could not choose a slot of '{name}' within {timeout:.0f} s: another "
+                        "env kept choosing one (slot=\"auto\"). Try again, or give each env "
+                        "its own slot= (0..N-1).",
+                        name,
+                    ) from None
+                time.sleep(_POLL_S / 5)
+        yield
+    finally:
+        sock.close()
 
 
 class RoverEnvFused(RoverEnvBase):
@@ -104,13 +157,13 @@ class RoverEnvFused(RoverEnvBase):
 
     RoverEnv's keys (``steps``, ``total_steps``, ``reward``, ``goals_reached``,
     ``is_success``, ``collision``, ``termination_reason``, ``distance_to_goal``,
-    ``min_pedestrian_distance``, the reward terms) plus ``frame_latency_ms`` (camera
-    publish to fused frame received), ``pedestrian_collision``,
+    ``min_pedestrian_distance``, the reward terms) plus ``pedestrian_collision``,
     ``personal_space_intrusion`` (a pedestrian within 1.2 m), ``intimate_space_intrusion``
     (within 0.45 m), ``heatmap_center`` (the centre-column heatmap sum),
     ``pedestrian_in_view`` (some pedestrian stands inside the camera's horizontal field of
     view, within the depth range of 10 m; geometric, occlusion not tested) and
-    ``nearest_pedestrian_in_view`` (the nearest one does).
+    ``nearest_pedestrian_in_view`` (the nearest one does). With ``report_latency=True``
+    also ``frame_latency_ms`` (camera publish to fused frame received, wall clock).
 
     ## Arguments
 
@@ -118,16 +171,21 @@ class RoverEnvFused(RoverEnvBase):
     steps per episode (6000); ``world_n`` ``inspect`` | ``moon`` (``island``) | ``maze``;
     ``connection_check_timeout`` seconds to wait for the daemon's segments at
     construction; ``rl_obs_name`` the daemon's segment base name; ``slot`` which daemon
-    slot (``--slots N``) this env uses; ``frame_timeout`` seconds per fused frame;
-    ``control_dt``; ``reward_config``; ``render_mode`` (``"rgb_array"``: chase camera);
-    ``pedestrian_mode`` ``"walk"`` (default) or ``"crossing"`` (pedestrians walk across the
-    line from the rover's start to its first goal, from the side, timed to meet it);
-    ``pedestrian_appearance`` ``"fixed"`` (default, the seed's figures) or ``"random"``
-    (clothing colours, height, girth and gait phase drawn per episode from the reset seed);
-    ``report_latency`` (default True) puts the measured ``frame_latency_ms`` in ``info``.
-    It is the one wall-clock value in ``info``, so two runs with the same seed and actions
-    differ in it and nothing else; pass ``report_latency=False`` where infos are compared
-    for determinism (Gymnasium's ``check_env`` does).
+    slot (``--slots N``) this env uses: an int in 0..N-1 (default 0), or ``"auto"``, the
+    first slot no other open env holds (what ``gym.make_vec`` needs: every copy gets the
+    same keywords; a daemon with every slot taken raises ``SegmentBusyError`` saying to
+    serve more slots or close an env). The slot taken is ``env.slot``.
+    ``frame_timeout`` seconds per fused frame; ``report_latency`` (default False) puts the
+    measured ``frame_latency_ms`` in ``info``: a wall-clock value, so two runs with the
+    same seed and actions then differ in it (Gymnasium's ``check_env`` compares infos, so
+    leave it off there). The keyword-only options common to every roverav env
+    (:class:`~rover_env.core.EnvOptions`): ``control_dt``, ``physics_dt``,
+    ``reward_config`` (default ``RewardConfig.fused()``), ``render_mode``
+    (``"rgb_array"``: chase camera), ``render_size``, ``pedestrian_mode`` ``"walk"``
+    (default) or ``"crossing"`` (pedestrians walk across the line from the rover's start
+    to its first goal, from the side, timed to meet it), ``pedestrian_appearance``
+    ``"fixed"`` (default, the seed's figures) or ``"random"`` (clothing colours, height,
+    girth and gait phase drawn per episode from the reset seed).
     ``scan_topic``, ``imu_topic``, ``cmd_vel_topic``, ``lidar_points`` and
     ``max_lidar_range`` are accepted for compatibility with the seed and have no effect.
 
@@ -149,29 +207,25 @@ class RoverEnvFused(RoverEnvBase):
         max_lidar_range: float = c.MAX_LIDAR_RANGE,
         rl_obs_name: str = c.RL_OBS_NAME,
         *,
-        slot: int = 0,
+        slot: int | str = 0,
         frame_timeout: float = FRAME_TIMEOUT,
-        control_dt: float = c.CONTROL_DT,
-        physics_dt: float = PHYSICS_DT,
-        reward_config: RewardConfig | None = None,
-        render_mode: str | None = None,
-        render_size: tuple[int, int] = RENDER_SIZE,
-        pedestrian_mode: str = "walk",
-        pedestrian_appearance: str = "fixed",
-        report_latency: bool = True,
+        report_latency: bool = False,
+        **options: Any,
     ) -> None:
         del scan_topic, imu_topic, cmd_vel_topic  # ROS topics: accepted, no effect
         height, width = int(size[0]), int(size[1])
-        if isinstance(slot, bool) or not isinstance(slot, (int, np.integer)) or slot < 0:
+        auto = slot == AUTO_SLOT
+        if not auto and (
+            isinstance(slot, bool) or not isinstance(slot, (int, np.integer)) or slot < 0
+        ):
             raise ValueError(
                 f"slot must be an int >= 0 (the daemon slot this env uses: 0..N-1 with "
-                f"av-daemon --slots N), got {slot!r}"
+                f"av-daemon --slots N) or {AUTO_SLOT!r} (the first free one), got {slot!r}"
             )
-        slot = int(slot)
         if not frame_timeout > 0:
             raise ValueError(f"frame_timeout must be > 0 s, got {frame_timeout}")
-        self.rl_obs_name = slot_name(rl_obs_name, slot)
-        self.slot = slot
+        self._base = rl_obs_name
+        self._set_slot(0 if auto else int(slot))
         self.frame_timeout = float(frame_timeout)
         self.report_latency = bool(report_latency)
         self.connection_check_timeout = float(connection_check_timeout)
@@ -179,7 +233,10 @@ class RoverEnvFused(RoverEnvBase):
         self._fused: FrameReader | None = None
         self._camera: FrameWriter | None = None
         # Attach before building the world: a missing daemon fails fast and cheaply.
-        self._connect(self.connection_check_timeout)
+        if auto:
+            self._connect_first_free(self.connection_check_timeout)
+        else:
+            self._connect(self.connection_check_timeout)
         try:
             super().__init__(
                 world_n=world_n,
@@ -187,13 +244,7 @@ class RoverEnvFused(RoverEnvBase):
                 lidar_points=lidar_points,
                 max_lidar_range=max_lidar_range,
                 camera_size=(height, width),
-                control_dt=control_dt,
-                physics_dt=physics_dt,
-                reward_config=reward_config if reward_config is not None else RewardConfig.fused(),
-                render_mode=render_mode,
-                render_size=render_size,
-                pedestrian_mode=pedestrian_mode,
-                pedestrian_appearance=pedestrian_appearance,
+                **options,
             )
         except BaseException:
             self._disconnect()
@@ -210,12 +261,49 @@ class RoverEnvFused(RoverEnvBase):
         self._heatmap_center = 0.0
         self._pedestrian_collision = False
 
+    @classmethod
+    def _default_reward_config(cls) -> RewardConfig:
+        return RewardConfig.fused()
+
     # --- the daemon link ------------------------------------------------------------------------
+    def _set_slot(self, slot: int) -> None:
+        self.slot = slot
+        self.rl_obs_name = slot_name(self._base, slot)
+
+    def _connect_first_free(self, timeout: float) -> None:
+        """``slot="auto"``: attach to the first slot of the daemon that no open env holds."""
+        base = self._base
+        deadline = time.monotonic() + timeout
+        holders: list[str] = []
+        # Envs made at the same time (an async vector env's workers) choose one at a time.
+        with _slot_choice_lock(base, timeout + _LOCK_GRACE_S):
+            slot, served = 0, 1
+            while slot < served:
+                self._set_slot(slot)
+                try:
+                    # slot 0 waits for a daemon that is not up yet (and, with none, says how
+                    # to start one); the others exist once slot 0 is served
+                    self._connect(max(deadline - time.monotonic(), 0.0 if slot == 0 else 1.0))
+                except SegmentBusyError as exc:
+                    holders.append(f"slot {slot}: pid {exc.pid}")
+                else:
+                    log.info("slot='auto': took slot %d of '%s'", slot, base)
+                    return
+                slot, served = slot + 1, served_slots(base)
+        self._set_slot(0)
+        raise SegmentBusyError(
+            f"slot='auto' found no free slot: every one of the {served} slot(s) of the "
+            f"av-daemon serving '{base}' is held by an open env ({'; '.join(holders)}). "
+            f"Serve more slots (av-daemon --name {base} --slots {served + 1}, or rover-pair "
+            f"--name {base} --slots {served + 1}), or close an env first.",
+            base,
+        )
+
     def _connect(self, timeout: float) -> None:
         """Attach to the fused segment (reader) and its camera segment (as writer)."""
         self._disconnect()
         name, cam = self.rl_obs_name, camera_name(self.rl_obs_name)
-        how = f"av-daemon --name {self._base_name()} --slots {self.slot + 1}"
+        how = f"av-daemon --name {self._base} --slots {self.slot + 1}"
         if not os.path.exists(segment_path(name)):
             self._check_slot_served()
             log.warning(
@@ -231,7 +319,7 @@ class RoverEnvFused(RoverEnvBase):
                 SEED_MISSING_MESSAGE.format(name=name)
                 + f" Waited {timeout:.0f} s (connection_check_timeout). Start the daemon with:"
                 f"\n    {how}\nor run the trainer under the supervisor:\n"
-                f"    rover-pair --name {self._base_name()} --slots {self.slot + 1} -- "
+                f"    rover-pair --name {self._base} --slots {self.slot + 1} -- "
                 f"<trainer command>\n{exc}",
                 name,
                 exc.available,
@@ -277,29 +365,13 @@ class RoverEnvFused(RoverEnvBase):
         will never come)."""
         if self.slot == 0:
             return
-        base = self._base_name()
-        # The daemon creates every fused segment before the first camera segment, so once
-        # slot 0's camera segment exists all of its fused segments do.
-        if not os.path.exists(segment_path(camera_name(base))):
-            return
-        try:
-            probe = FrameReader(base, attach_timeout=0.0)
-        except (SegmentNotFoundError, LayoutError):
-            return
-        try:
-            if not probe.is_writer_alive():
-                return
-            pid = probe.writer_pid
-        finally:
-            probe.close()
-        served = 1
-        while os.path.exists(segment_path(slot_name(base, served))):
-            served += 1
-        if self.slot < served:
+        base = self._base
+        served = served_slots(base)
+        if not served or self.slot < served:
             return
         raise SegmentNotFoundError(
-            f"slot={self.slot} is beyond the slots of the av-daemon serving '{base}' (pid "
-            f"{pid}): it serves {served} slot(s), 0..{served - 1}. Use slot= in "
+            f"slot={self.slot} is beyond the slots of the av-daemon serving '{base}': it "
+            f"serves {served} slot(s), 0..{served - 1}. Use slot= in "
             f"0..{served - 1}, or restart the daemon with more slots: av-daemon --name {base} "
             f"--slots {self.slot + 1} (or rover-pair --name {base} --slots {self.slot + 1} "
             "-- <trainer command>).",
@@ -326,7 +398,7 @@ class RoverEnvFused(RoverEnvBase):
             if pid == os.getpid()
             else f"another process ({command or 'command line unknown'})"
         )
-        base = self._base_name()
+        base = self._base
         return (
             f"daemon slot {self.slot} of '{base}' is already in use: pid {pid}, {who}, holds "
             f"its camera segment '{camera_name(self.rl_obs_name)}'. Each env needs its own "
@@ -334,12 +406,6 @@ class RoverEnvFused(RoverEnvBase):
             f"av-daemon --name {base} --slots N (or rover-pair --slots N), or close the "
             "other env first. (A holder that crashed or closed does not block.)"
         )
-
-    def _base_name(self) -> str:
-        suffix = f"_{self.slot}"
-        if self.slot and self.rl_obs_name.endswith(suffix):
-            return self.rl_obs_name[: -len(suffix)]
-        return self.rl_obs_name
 
     def _disconnect(self) -> None:
         if self._camera is not None:

@@ -9,15 +9,20 @@ from typing import Any
 from gymnasium import spaces
 
 from rover_env import constants as c
-from rover_env.discrete_env import DIRECTION_ANGLES, N_DIRECTIONS, SPEED_LEVELS, action_index
+from rover_env.discrete_env import (
+    N_SEED_ACTIONS,
+    SeedActionTable,
+    action_index,
+    decode_action,
+    encode_action,
+)
 from rover_env.gaze_env import RoverEnvFusedGaze
 
 log = logging.getLogger(__name__)
 
-N_SPEEDS = len(SPEED_LEVELS)  # 5
 PAN_NONE, PAN_LEFT, PAN_RIGHT = 0, 1, 2
 N_PAN_MOVES = 3
-N_GAZE_ACTIONS = N_SPEEDS * N_DIRECTIONS * N_PAN_MOVES  # 180
+N_GAZE_ACTIONS = N_SEED_ACTIONS * N_PAN_MOVES  # 180
 PAN_WINDOWS = tuple(math.radians(d) for d in c.PAN_WINDOWS_DEG)  # rad, index 0 = -60 deg
 CENTRE_WINDOW = PAN_WINDOWS.index(0.0)  # 2
 
@@ -31,23 +36,19 @@ def decode_gaze_action(action: Any) -> tuple[int, int, int]:
     """
     index = action_index(action, N_GAZE_ACTIONS)
     seed_action, pan_move = divmod(index, N_PAN_MOVES)
-    speed_idx, direction_idx = divmod(seed_action, N_DIRECTIONS)
+    speed_idx, direction_idx = decode_action(seed_action)
     return speed_idx, direction_idx, pan_move
 
 
 def encode_gaze_action(speed_idx: int, direction_idx: int, pan_move: int) -> int:
     """The flat action of (speed_idx, direction_idx, pan_move): the inverse of decoding."""
-    if not (0 <= speed_idx < N_SPEEDS and 0 <= direction_idx < N_DIRECTIONS):
-        raise ValueError(
-            f"speed_idx must be in 0..{N_SPEEDS - 1} and direction_idx in "
-            f"0..{N_DIRECTIONS - 1}, got {speed_idx}, {direction_idx}"
-        )
+    seed_action = encode_action(speed_idx, direction_idx)
     if pan_move not in (PAN_NONE, PAN_LEFT, PAN_RIGHT):
         raise ValueError(f"pan_move must be 0 (none), 1 (left) or 2 (right), got {pan_move}")
-    return (speed_idx * N_DIRECTIONS + direction_idx) * N_PAN_MOVES + pan_move
+    return seed_action * N_PAN_MOVES + pan_move
 
 
-class DiscreteRoverEnvFusedGaze(RoverEnvFusedGaze):
+class DiscreteRoverEnvFusedGaze(SeedActionTable, RoverEnvFusedGaze):
     """The original joint gaze policy's action space: 5 speeds x 12 headings x 3 pan moves.
 
     ## Action space
@@ -96,10 +97,6 @@ class DiscreteRoverEnvFusedGaze(RoverEnvFusedGaze):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.n_speeds = N_SPEEDS
-        self.n_directions = N_DIRECTIONS
-        self.speed_levels = SPEED_LEVELS
-        self.direction_angles = DIRECTION_ANGLES
         self.pan_windows = PAN_WINDOWS
         self.pan_window = CENTRE_WINDOW
         self.action_space = spaces.Discrete(N_GAZE_ACTIONS)
@@ -117,7 +114,7 @@ class DiscreteRoverEnvFusedGaze(RoverEnvFusedGaze):
             self.pan_moves += 1
             self._pan_cost_units = 1
         self.pan_target = self.pan_windows[self.pan_window]
-        return float(self.speed_levels[speed_idx]), float(self.direction_angles[direction_idx])
+        return self._seed_command(speed_idx, direction_idx)
 
     def _on_reset(self) -> None:
         super()._on_reset()

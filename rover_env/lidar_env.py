@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from gymnasium import spaces
 
 from rover_env import constants as c
-from rover_env.core import RENDER_SIZE, RoverEnvBase, float_box, state_spaces
-from rover_env.reward import RewardConfig
-from rover_env.simulation import PHYSICS_DT
+from rover_env.core import RoverEnvBase, float_box, state_spaces
 
 
 class RoverEnv(RoverEnvBase):
@@ -134,16 +134,15 @@ class RoverEnv(RoverEnvBase):
     | ``connection_check_timeout`` | 30 | no effect (the simulation is in-process) |
     | ``lidar_points`` | 32 | LIDAR points in the observation |
     | ``max_lidar_range`` | 12.0 | LIDAR range (m) |
-    | ``control_dt`` | 0.05 | simulated seconds per step |
-    | ``physics_dt`` | 0.025 | largest physics step (s); the one used divides |
-    | | | ``control_dt`` evenly |
-    | ``reward_config`` | ``RewardConfig()`` | reward and termination constants |
-    | ``render_mode`` | None | ``"rgb_array"``: ``render()`` returns a chase-camera frame |
-    | ``pedestrian_mode`` | ``"walk"`` | ``"crossing"``: pedestrians walk across the line |
-    | | | from the start to the first goal, from the side |
-    | ``render_size`` | (480, 360) | (width, height) of rendered frames |
-    | ``pedestrian_appearance`` | ``"fixed"`` | ``"random"``: clothing colours, height, |
-    | | | girth and gait phase drawn per episode from the reset seed |
+
+    Keyword-only, common to every roverav env (:class:`~rover_env.core.EnvOptions`):
+    ``control_dt`` (0.05 s simulated per step), ``physics_dt`` (0.025 s, largest physics
+    step), ``reward_config`` (``RewardConfig()``), ``render_mode`` (None or
+    ``"rgb_array"``: chase camera), ``render_size`` ((480, 360), width x height),
+    ``pedestrian_mode`` (``"walk"``, or ``"crossing"``: pedestrians walk across the line
+    from the start to the first goal, from the side), ``pedestrian_appearance``
+    (``"fixed"``, or ``"random"``: clothing colours, height, girth and gait phase drawn
+    per episode from the reset seed).
 
     ## Version history
 
@@ -162,14 +161,7 @@ class RoverEnv(RoverEnvBase):
         connection_check_timeout: float = c.CONNECTION_CHECK_TIMEOUT,
         lidar_points: int = c.LIDAR_POINTS,
         max_lidar_range: float = c.MAX_LIDAR_RANGE,
-        *,
-        control_dt: float = c.CONTROL_DT,
-        physics_dt: float = PHYSICS_DT,
-        reward_config: RewardConfig | None = None,
-        render_mode: str | None = None,
-        render_size: tuple[int, int] = RENDER_SIZE,
-        pedestrian_mode: str = "walk",
-        pedestrian_appearance: str = "fixed",
+        **options: Any,
     ) -> None:
         super().__init__(
             world_n=world_n,
@@ -177,13 +169,7 @@ class RoverEnv(RoverEnvBase):
             lidar_points=lidar_points,
             max_lidar_range=max_lidar_range,
             camera_size=size,
-            control_dt=control_dt,
-            physics_dt=physics_dt,
-            reward_config=reward_config,
-            render_mode=render_mode,
-            render_size=render_size,
-            pedestrian_mode=pedestrian_mode,
-            pedestrian_appearance=pedestrian_appearance,
+            **options,
         )
         # Kept for compatibility and introspection only (no ROS here).
         self.size = tuple(size)

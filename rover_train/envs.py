@@ -23,7 +23,6 @@ ENV_IDS = {
 }
 FUSED_KINDS = ("fused", "discrete", "fused-gaze", "fused-gaze-discrete")
 DISCRETE_KINDS = ("discrete", "fused-gaze-discrete")  # Discrete action spaces
-PEDESTRIAN_MODES = ("walk", "crossing")  # rover_env.pedestrians.PEDESTRIAN_MODES
 
 
 def env_kwargs(
@@ -37,10 +36,12 @@ def env_kwargs(
     pedestrian_mode: str | None = None,
     size: tuple[int, int] | None = None,
     frame_timeout: float | None = None,
+    report_latency: bool = False,
 ) -> dict[str, Any]:
     """Constructor keywords for env ``kind`` (a key of ``ENV_IDS``); ``size`` is the forward
     camera's (height, width); ``frame_timeout`` (fused kinds) the seconds to wait for each
-    fused frame."""
+    fused frame; ``report_latency`` (fused kinds) puts the wall-clock ``frame_latency_ms``
+    in ``info``."""
     if kind not in ENV_IDS:
         raise ValueError(f"unknown env kind {kind!r}; choose one of {sorted(ENV_IDS)}")
     kwargs: dict[str, Any] = {"world_n": world}
@@ -59,6 +60,8 @@ def env_kwargs(
             kwargs["connection_check_timeout"] = connect_timeout
         if frame_timeout is not None:
             kwargs["frame_timeout"] = frame_timeout
+        if report_latency:
+            kwargs["report_latency"] = True
     elif frame_timeout is not None:
         raise ValueError(f"frame_timeout is for the fused env kinds {FUSED_KINDS}, not {kind!r}")
     return kwargs
@@ -135,7 +138,8 @@ def env_factory(
 
     The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``: ``EpisodeRng`` lets a
     resumed run restart each episode in flight from its start. ``append_monitor`` appends
-    to the slot's ``monitor.csv`` (a resumed run) instead of starting it afresh.
+    to the slot's ``monitor.csv`` (a resumed run) instead of starting it afresh. Fused envs
+    are made with ``report_latency=True``: the trainer logs ``charts/frame_latency_ms``.
     """
 
     def _thunk() -> gym.Env:
@@ -148,7 +152,9 @@ def env_factory(
             # daemon is down at that moment, which DaemonRecovery retries): its first step
             # then fails unpacking the reset data it never got. The envs' own tests run the
             # full check_env.
-            env = DaemonRecovery(make_env(kind, env_checker=False, **kwargs))
+            env = DaemonRecovery(
+                make_env(kind, env_checker=False, **{"report_latency": True, **kwargs})
+            )
         else:
             env = make_env(kind, **kwargs)
         env = EpisodeRng(env)

@@ -34,9 +34,10 @@ from typing import Any
 import numpy as np
 
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
+from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_env.worlds import WORLD_CHOICES
 from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
-from rover_train.envs import ENV_IDS, PEDESTRIAN_MODES, make_env
+from rover_train.envs import ENV_IDS, make_env
 from shm_protocol.names import default_name, default_slots
 
 VIDEO_PANEL = 256  # pixels per side of each video panel

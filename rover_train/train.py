@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
+from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_env.worlds import WORLD_CHOICES
 from rover_train.checkpoint import (
     Checkpointer,
@@ -44,7 +45,7 @@ from rover_train.checkpoint import (
     restore_rng_states,
 )
 from rover_train.cli import LOG_LEVELS, build_parser, default_log_level, parse_into, plain
-from rover_train.envs import DISCRETE_KINDS, ENV_IDS, FUSED_KINDS, PEDESTRIAN_MODES, env_factory
+from rover_train.envs import DISCRETE_KINDS, ENV_IDS, FUSED_KINDS, env_factory
 from shm_protocol.names import default_name, default_slots
 
 log = logging.getLogger("rover_train")
@@ -307,25 +308,25 @@ def _validate_device(args: TrainArgs) -> str | None:
 
 
 def check_daemon(args: TrainArgs) -> str | None:
-    """For fused envs: None when every slot's segments exist, else what to do about it."""
+    """For fused envs: None when a live daemon serves every slot, else what to do about it."""
     if args.env not in FUSED_KINDS or args.ray is not None:  # Ray workers run their own
         return None
-    from shm_protocol import FrameReader, slot_name
-    from shm_protocol.errors import ShmError
+    from rover_env import served_slots
 
-    for i in range(args.slots):
-        name = slot_name(args.name, i)
-        try:
-            FrameReader(name, attach_timeout=args.connect_timeout).close()
-        except ShmError as exc:
-            return (
-                f"{exc}\n\nrover-train --env {args.env} needs the Active Vision daemon serving "
-                f"'{args.name}' with at least {args.slots} slot(s). Either start it in "
-                f"another terminal:\n    av-daemon --name {args.name} --slots {args.slots}\n"
-                f"or let rover-pair run both:\n    rover-pair --name {args.name} "
-                f"--slots {args.slots} -- rover-train {' '.join(sys.argv[1:])}"
-            )
-    return None
+    served = served_slots(args.name, timeout=args.connect_timeout)
+    if served >= args.slots:
+        return None
+    found = (
+        f"the av-daemon serving '{args.name}' has {served} slot(s)"
+        if served
+        else f"no live av-daemon serves '{args.name}' (waited {args.connect_timeout:g} s)"
+    )
+    return (
+        f"{found}, and rover-train --env {args.env} needs at least {args.slots}. Either start "
+        f"it in another terminal:\n    av-daemon --name {args.name} --slots {args.slots}\n"
+        f"or let rover-pair run both:\n    rover-pair --name {args.name} "
+        f"--slots {args.slots} -- rover-train {' '.join(sys.argv[1:])}"
+    )
 
 
 def _in_worker(thunk: Any) -> Any:
@@ -350,7 +351,7 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
             world=args.world,
             pedestrian_mode=args.pedestrian_mode,
             slot=i,
-            shm_name=args.name,
+            name=args.name,
             length=args.length,
             connect_timeout=args.connect_timeout,
             append_monitor=append_monitor,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import rover_env  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
-from rover_env import RoverSim, rover
+from rover_env import WORLD_NAMES, RoverSim, rover
 from rover_env.pedestrians import SPEED_RANGE
 
 # maze: outer walls are 0.2 m thick centred on +-6 m, so the inner face is at 5.9 m.
@@ -151,7 +151,7 @@ def test_pedestrians_walk_at_walking_speed() -> None:
     sim.close()
 
 
-@pytest.mark.parametrize("world", ["inspect", "moon", "maze"])
+@pytest.mark.parametrize("world", WORLD_NAMES)
 def test_pedestrians_are_randomised_per_episode_and_reproducible(world: str) -> None:
     sim = RoverSim(world)
     assert sim.pedestrians.n >= 2
