@@ -65,10 +65,9 @@ from types import FrameType
 import numpy as np
 
 from active_vision.launcher import READY_MARKER
+from fused_image import CHANNEL_HEATMAP, FUSED_SIZE
 from shm_protocol import (
-    CHANNEL_HEATMAP,
     DEFAULT_NAME,
-    FUSED_SHAPE,
     FrameReader,
     FrameWriter,
     LayoutError,
@@ -97,7 +96,7 @@ class DaemonConfig:
     """Base segment name; slot i uses ``slot_name(name, i)``."""
     slots: int = 1
     """Number of slots (one per env of a vector env)."""
-    size: int = FUSED_SHAPE[0]
+    size: int = FUSED_SIZE[0]
     """Side of the square camera and fused frames (a multiple of 16; the seed's 96)."""
     depth: str = "model"
     """``model``: depth channel from the network; ``render``: from the camera frame's 4th

@@ -53,7 +53,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from shm_protocol import DEPTH_MAX_M
+from fused_image import DEPTH_MAX_M
 
 logger = logging.getLogger(__name__)
 

@@ -40,6 +40,7 @@ import torch
 from torch import nn
 
 from active_vision.models import DEFAULT_WEIGHTS, load_model
+from fused_image import FUSED_SIZE
 
 logger = logging.getLogger(__name__)
 
@@ -153,7 +154,7 @@ def avnet_example_inputs(size: int) -> tuple[torch.Tensor]:
     return (torch.rand(1, 3, size, size),)
 
 
-def onnx_file_for(weights: Path | None = None, size: int = 96, *, export: bool = True,
+def onnx_file_for(weights: Path | None = None, size: int = FUSED_SIZE[0], *, export: bool = True,
                   cache_dir: Path | None = None) -> Path:
     """The ONNX file of ``weights`` (default: the shipped ones) at frame side ``size``.
 
@@ -192,7 +193,8 @@ __all__ = [
 ]
 
 
-def write_export_beside(weights: Path, size: int = 96, out_dir: Path | None = None) -> Path:
+def write_export_beside(weights: Path, size: int = FUSED_SIZE[0],
+                        out_dir: Path | None = None) -> Path:
     """Export ``weights`` into ``out_dir`` (default: beside them) under its versioned name
     and remove older exports of the same stem and size there (what ships with the package).
 
@@ -215,7 +217,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         description="Export AVNet weights to ONNX, named for the weights' sha256 (see the "
                     "module docstring). Default: the shipped weights, written next to them.")
     p.add_argument("--weights", type=Path, default=DEFAULT_WEIGHTS)
-    p.add_argument("--size", type=int, default=96, help="frame side (a multiple of 16)")
+    p.add_argument("--size", type=int, default=FUSED_SIZE[0], help="frame side (a multiple of 16)")
     p.add_argument("--out-dir", type=Path, default=None,
                    help="directory (default: the weights file's own)")
     a = p.parse_args(argv)

@@ -3,7 +3,7 @@
 :class:`Perception` turns a batch of uint8 camera frames ``(N, H, W, 3)`` (RGB) or
 ``(N, H, W, 4)`` (RGB + the renderer's depth channel, see the camera segment convention in
 ``docs/architecture.md``) into fused frames ``(N, S, S, 3)`` float32 in [0, 1], channels
-indexed by ``shm_protocol.CHANNEL_GRAY`` / ``CHANNEL_HEATMAP`` / ``CHANNEL_DEPTH``:
+indexed by ``fused_image.CHANNEL_GRAY`` / ``CHANNEL_HEATMAP`` / ``CHANNEL_DEPTH``:
 
 - gray: ITU-R BT.601 luminance ``0.299 R + 0.587 G + 0.114 B`` (what OpenCV's
   ``COLOR_RGB2GRAY`` computes), divided by 255;
@@ -42,7 +42,7 @@ from active_vision.models import (
     load_model,
     log_depth_to_channel,
 )
-from shm_protocol import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
+from fused_image import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP, FUSED_SIZE
 
 logger = logging.getLogger(__name__)
 
@@ -55,7 +55,7 @@ _LUMA = (0.299 / 255.0, 0.587 / 255.0, 0.114 / 255.0)
 class PerceptionConfig:
     """How :class:`Perception` runs."""
 
-    size: int = 96
+    size: int = FUSED_SIZE[0]
     """Side of the fused frame; input frames of another size are resized (INTER_AREA)."""
     depth: DepthSource = "model"
     """``model``: depth from the network; ``render``: from the input frame's 4th channel."""

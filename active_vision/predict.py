@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from active_vision.models import WEIGHTS_DIR, WeightsError, fold_batch_norm, half_state_dict
-from shm_protocol import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
+from fused_image import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
 
 logger = logging.getLogger(__name__)
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from active_vision.perception import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
+from fused_image import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
 
 logger = logging.getLogger(__name__)
 

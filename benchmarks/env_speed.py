@@ -34,6 +34,7 @@ if __package__ in (None, ""):
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
+from fused_image import FUSED_SIZE  # noqa: E402
 from rover_env import WORLD_NAMES, RoverEnv  # noqa: E402  (sets MUJOCO_GL=egl first)
 
 SEED_RESET_S = 100 * 0.1 + 1.0  # the seed's reset: 100 spins of 0.1 s, then sleep(1)
@@ -113,7 +114,7 @@ def main(argv: list[str] | None = None) -> None:
 
     rows, cams = [], []
     for world in WORLD_NAMES:
-        env = RoverEnv(world_n=world, size=(96, 96))
+        env = RoverEnv(world_n=world, size=FUSED_SIZE)
         sps = time_steps(env, args.steps, args.seed)
         resets = time_resets(env, args.resets, args.seed)
         cams.append((world, *time_camera(env, args.frames)))

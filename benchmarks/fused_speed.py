@@ -43,6 +43,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from active_vision.launcher import spawn_daemon  # noqa: E402
+from fused_image import FUSED_SHAPE, FUSED_SIZE  # noqa: E402
 
 SEED_STEPS_PER_S = 20.0  # the seed steps in real time at 0.05 s control
 
@@ -109,7 +110,7 @@ def perception_alone(threads: int, backend: str, n: int = 300,
 
     torch.set_num_threads(threads)
     perc = Perception(PerceptionConfig(threads=threads, backend=backend, weights=weights))
-    frame = np.random.default_rng(0).integers(0, 255, (1, 96, 96, 3), dtype=np.uint8)
+    frame = np.random.default_rng(0).integers(0, 255, (1, *FUSED_SIZE, 3), dtype=np.uint8)
     for _ in range(20):
         perc(frame)
     t0 = time.perf_counter()
@@ -123,13 +124,13 @@ def ipc_handoff(n: int = 2000) -> float:
     from shm_protocol import FrameWriter
 
     name = f"bench_fused_ipc_{os.getpid()}"
-    w = FrameWriter(name, shape=(96, 96, 3), dtype=np.float32)
+    w = FrameWriter(name, shape=FUSED_SHAPE, dtype=np.float32)
     ctx = mp.get_context("spawn")
     q: mp.Queue = ctx.Queue()
     child = ctx.Process(target=_ipc_child, args=(name, n, q))
     child.start()
     time.sleep(1.0)
-    frame = np.zeros((96, 96, 3), np.float32)
+    frame = np.zeros(FUSED_SHAPE, np.float32)
     for i in range(n):
         frame[0, 0, 0] = i
         w.publish(frame, source_seq=i)
@@ -146,7 +147,7 @@ def _ipc_child(name: str, n: int, q: mp.Queue) -> None:
 
     r = FrameReader(name)
     lat = []
-    out = np.empty((96, 96, 3), np.float32)
+    out = np.empty(FUSED_SHAPE, np.float32)
     while len(lat) < n:
         try:
             f = r.wait_next(timeout=1.0, out=out)

@@ -38,8 +38,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from fused_image import DEPTH_MAX_M as VIEW_RANGE_M  # noqa: E402  (in view: within depth range)
 from rover_env.constants import INTIMATE_SPACE_M, PERSONAL_SPACE_M  # noqa: E402
-from shm_protocol import DEPTH_MAX_M as VIEW_RANGE_M  # noqa: E402  (in view: within depth range)
 
 FIXED_HALF_FOV = math.radians(45.0)  # the forward camera's half field of view, unpanned
 

@@ -44,9 +44,10 @@ if __package__ in (None, ""):
 
 import numpy as np  # noqa: E402
 
+from fused_image import FUSED_SHAPE  # noqa: E402
 from shm_protocol import FrameReader, FrameTimeoutError, FrameWriter  # noqa: E402
 
-SHAPE = (96, 96, 3)
+SHAPE = FUSED_SHAPE
 READERS = ("FrameReader", "seed 1 ms poll", "spin", "FrameReader, checksum mode")
 STOP = -1.0  # payload value of the frame that ends a phase
 

@@ -54,6 +54,7 @@ sys.path.insert(0, str(ROOT))
 
 from active_vision.launcher import spawn_daemon  # noqa: E402
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
+from fused_image import FUSED_SHAPE, FUSED_SIZE  # noqa: E402
 
 YOLO11N_PARAMS = 2_624_080  # ultralytics yolo11.yaml, scale n (80 classes)
 
@@ -85,7 +86,7 @@ def bench_perception(threads: int, batch: int, args: Args,
                      weights: Path | None = None) -> dict[str, float]:
     p = Perception(PerceptionConfig(threads=threads, max_batch=batch, backend=args.backend,
                                     weights=weights))
-    frames = np.random.default_rng(0).integers(0, 256, (batch, 96, 96, 3), dtype=np.uint8)
+    frames = np.random.default_rng(0).integers(0, 256, (batch, *FUSED_SIZE, 3), dtype=np.uint8)
     iters = max(10, args.iters // (4 if batch > 1 else 1))
     for _ in range(20):
         p(frames)
@@ -113,8 +114,8 @@ def bench_daemon(slots: int, args: Args) -> dict[str, float]:
                                                "--log-level", "WARNING"]):
         cams = [FrameWriter(camera_name(slot_name(name, i)), create=False) for i in range(slots)]
         fused = [FrameReader(slot_name(name, i)) for i in range(slots)]
-        frame = np.random.default_rng(1).integers(0, 256, (96, 96, 3), dtype=np.uint8)
-        out = np.empty((96, 96, 3), np.float32)
+        frame = np.random.default_rng(1).integers(0, 256, (*FUSED_SIZE, 3), dtype=np.uint8)
+        out = np.empty(FUSED_SHAPE, np.float32)
         rounds = max(20, args.daemon_frames // slots)
         lat = []
         for k in range(rounds + 10):

@@ -31,11 +31,12 @@ sys.path.insert(0, str(ROOT))
 from active_vision.history import SlotHistory  # noqa: E402
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
 from active_vision.predict import K, Predictor  # noqa: E402
+from fused_image import FUSED_SHAPE, FUSED_SIZE  # noqa: E402
 
 
 def _run(perception: Perception, predictor: Predictor | None, frames: np.ndarray) -> float:
-    history = SlotHistory(1, K, (96, 96, 3))
-    window = np.empty((1, K, 96, 96, 3), np.float32)
+    history = SlotHistory(1, K, FUSED_SHAPE)
+    window = np.empty((1, K, *FUSED_SHAPE), np.float32)
     t0 = time.perf_counter()
     for f in frames:
         out = perception(f[None])
@@ -53,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     torch.set_num_threads(1)
     rng = np.random.default_rng(0)
-    frames = rng.integers(0, 256, (a.iters, 96, 96, 3), dtype=np.uint8)
+    frames = rng.integers(0, 256, (a.iters, *FUSED_SIZE, 3), dtype=np.uint8)
     perception = Perception(PerceptionConfig(threads=1, max_batch=1))
     predictor = Predictor()
     rows = {}

@@ -15,10 +15,9 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
-from rover_env.constants import FUSED_SIZE
+from fused_image import CHANNEL_DEPTH, FUSED_SIZE
 from rover_train.imitation.dagger import SCAN_BANDS, FusedView, make_training_env
 from rover_train.zoo.agent import depth_scan
-from shm_protocol import CHANNEL_DEPTH
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -29,7 +28,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     torch.set_num_threads(1)  # stage 1 drives on one thread (distill --threads 1)
     env = make_training_env("lidar", args.world, size=FUSED_SIZE)
-    sim = env.unwrapped.sim
+    rover_env = env.unwrapped
     view = FusedView()
     action = np.array([0.3, 0.0], np.float32)
 
@@ -42,14 +41,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return (time.perf_counter() - t) / args.steps * 1e3
 
     env.reset(seed=1)
-    view(sim)  # the perception is made on first use
+    view(rover_env)  # the perception is made on first use
     print("| repeat | RoverEnv step (ms) | + FusedView and scan (ms) | added (ms) |")
     print("|---|---|---|---|")
     try:
         for r in range(args.repeats):
             base = ms_per_step(lambda: None)
             with_view = ms_per_step(
-                lambda: depth_scan(view(sim)[:, :, CHANNEL_DEPTH], SCAN_BANDS)
+                lambda: depth_scan(view(rover_env)[:, :, CHANNEL_DEPTH], SCAN_BANDS)
             )
             print(f"| {r + 1} | {base:.2f} | {with_view:.2f} | {with_view - base:.2f} |")
     finally:

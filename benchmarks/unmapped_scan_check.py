@@ -18,8 +18,7 @@ import math
 
 import numpy as np
 
-from rover_env import rover
-from rover_env.simulation import PHYSICS_DT
+from rover_env import LIDAR_SCAN_LAG, lidar_ray_angles, obstacle_map
 from rover_train.envs import make_env
 from rover_train.zoo.agent import (
     LIDAR_CLIP,
@@ -33,12 +32,12 @@ WAYS = ("from obs pose", "one step back", "one step back, +-spread (shipped)")
 
 def mapped(world, obs: dict, back: bool, spread: float) -> np.ndarray:
     lidar = obs["lidar"]
-    angles, per_point = rover.lidar_ray_angles(len(lidar))
+    angles, per_point = lidar_ray_angles(len(lidar))
     x, y, yaw = float(obs["pose"][0]), float(obs["pose"][1]), float(obs["imu"][2])
     if back:
         v, w = float(obs["velocities"][0]), float(obs["velocities"][1])
-        x, y = x - v * math.cos(yaw) * PHYSICS_DT, y - v * math.sin(yaw) * PHYSICS_DT
-        yaw -= w * PHYSICS_DT
+        x, y = x - v * math.cos(yaw) * LIDAR_SCAN_LAG, y - v * math.sin(yaw) * LIDAR_SCAN_LAG
+        yaw -= w * LIDAR_SCAN_LAG
     reach = LIDAR_CLIP + UNMAPPED_MARGIN
     offsets = (-spread, 0.0, spread) if spread else (0.0,)
     casts = [world.ray_distances(x, y, yaw + d + angles, reach) for d in offsets]
@@ -56,14 +55,12 @@ def main() -> None:
     print("|---|---|---|---|")
     for name in a.worlds:
         env = make_env("lidar", world=name)
-        world = env.unwrapped.world
+        world = obstacle_map(name)
         counts = {w: [0, 0, 0, 0] for w in WAYS}
         rng = np.random.default_rng(a.seed)
         for ep in range(a.episodes):
             obs, _ = env.reset(seed=a.seed + ep)
             sim = env.unwrapped.sim
-            scenery = rover.Lidar(sim.model, sim.data, len(obs["lidar"]), LIDAR_CLIP + 1.0)
-            scenery._GEOMGROUP = np.array([1, 0, 0, 0, 0, 0], np.uint8)  # no pedestrians
             for t in range(a.steps):
                 if t % 10 == 0:
                     low, high = env.action_space.low, env.action_space.high
@@ -71,7 +68,7 @@ def main() -> None:
                 obs, _, terminated, truncated, _ = env.step(action)
                 lidar = obs["lidar"]
                 near = lidar < LIDAR_CLIP
-                person = lidar < scenery.scan() - 0.05
+                person = lidar < sim.lidar(len(lidar), LIDAR_CLIP + 1.0, pedestrians=False) - 0.05
                 shipped = unmapped_scan(obs, name) < 1.0
                 for way, back, spread in zip(WAYS, (False, True, True),
                                              (0.0, 0.0, UNMAPPED_YAW_SPREAD), strict=True):

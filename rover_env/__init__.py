@@ -30,6 +30,14 @@ from rover_env.gaze_discrete_env import DiscreteRoverEnvFusedGaze  # noqa: E402
 from rover_env.gaze_env import RoverEnvFusedGaze  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
 from rover_env.pedestrians import PEDESTRIAN_MODES, Appearance  # noqa: E402
+from rover_env.readouts import (  # noqa: E402
+    FORWARD_CAMERA,
+    LIDAR_SCAN_LAG,
+    CameraGeometry,
+    ObstacleMap,
+    lidar_ray_angles,
+    obstacle_map,
+)
 from rover_env.rendering import CameraFrame  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
 from rover_env.simulation import Contacts, Lighting, RoverSim  # noqa: E402
@@ -51,14 +59,18 @@ for _env_id, (_entry_point, _kwargs) in _ENVS.items():
 __all__ = [
     "AUTO_SLOT",
     "PEDESTRIAN_MODES",
+    "FORWARD_CAMERA",
+    "LIDAR_SCAN_LAG",
     "WORLD_NAMES",
     "Appearance",
     "CameraFrame",
+    "CameraGeometry",
     "Contacts",
     "DiscreteRoverEnvFused",
     "DiscreteRoverEnvFusedGaze",
     "EnvClosedError",
     "Lighting",
+    "ObstacleMap",
     "RewardConfig",
     "RoverEnv",
     "RoverEnvBase",
@@ -66,6 +78,8 @@ __all__ = [
     "RoverEnvFusedGaze",
     "RoverSim",
     "WorldSpec",
+    "lidar_ray_angles",
     "make_world",
+    "obstacle_map",
     "served_slots",
 ]

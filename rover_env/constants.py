@@ -14,7 +14,6 @@ from shm_protocol.names import DEFAULT_NAME
 LENGTH = 2000  # seed: RoverEnv(length=2000), maximum steps per episode
 FUSED_LENGTH = 6000  # seed: RoverEnvFused(length=6000)
 SIZE = (64, 64)  # seed: RoverEnv(size=(64, 64)), reserved image buffer (unused by RoverEnv)
-FUSED_SIZE = (96, 96)  # seed: RoverEnvFused(size=(96, 96))
 CONNECTION_CHECK_TIMEOUT = 30  # seed: connection_check_timeout (no effect without ROS)
 CONTROL_DT = 0.05  # s of simulated time per env step (DESIGN 4; the seed ran at wall clock)
 

@@ -21,6 +21,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from fused_image import FUSED_SIZE
 from rover_env import constants as c
 from rover_env import reward as rw
 from rover_env.controller import HeadingPID, wrap_angle
@@ -169,7 +170,7 @@ class RoverEnvBase(gym.Env):
         length: int = c.LENGTH,
         lidar_points: int = c.LIDAR_POINTS,
         max_lidar_range: float = c.MAX_LIDAR_RANGE,
-        camera_size: tuple[int, int] = c.FUSED_SIZE,
+        camera_size: tuple[int, int] = FUSED_SIZE,
         **options: Any,
     ) -> None:
         opts = EnvOptions.of(type(self).__name__, options)
@@ -497,6 +498,18 @@ class RoverEnvBase(gym.Env):
                 )
             return None
         return self.sim.render_chase(*self.render_size)
+
+    @property
+    def camera_size(self) -> tuple[int, int]:
+        """(height, width) of the forward camera's frames (the ``camera_size`` keyword)."""
+        return self.sim.camera_size
+
+    def camera_frame(self) -> np.ndarray:
+        """The forward camera's RGB frame now: (height, width, 3) uint8, a new array. The
+        frame a fused env hands the av-daemon; for perception run in this process
+        (``rover_train.imitation.dagger.FusedView``)."""
+        self._check_open("camera_frame")
+        return self.sim.render_camera().rgb
 
     @property
     def closed(self) -> bool:

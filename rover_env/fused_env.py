@@ -13,19 +13,18 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from fused_image import CHANNEL_HEATMAP, FUSED_SIZE, depth_to_channel
 from rover_env import constants as c
 from rover_env import reward as rw
 from rover_env.core import RoverEnvBase, float_box, state_spaces
 from rover_env.reward import RewardConfig
 from shm_protocol import (
-    CHANNEL_HEATMAP,
     FrameReader,
     FrameWriter,
     LayoutError,
     SegmentBusyError,
     SegmentNotFoundError,
     camera_name,
-    depth_to_channel,
     segment_path,
     slot_name,
     writer_alive,
@@ -127,7 +126,7 @@ class RoverEnvFused(RoverEnvBase):
     | ``target`` | (2,) | [0, 100], [-pi, pi] | goal distance (m), bearing from heading (rad) |
     | ``velocities`` | (2,) | [-10, 10] | wheel-odometry linear (m/s), angular (rad/s) |
 
-    Depth: ``1 - d / 10 m`` clipped to [0, 1] (``shm_protocol.depth_to_channel``).
+    Depth: ``1 - d / 10 m`` clipped to [0, 1] (``fused_image.depth_to_channel``).
 
     ## Rewards
 
@@ -196,7 +195,7 @@ class RoverEnvFused(RoverEnvBase):
 
     def __init__(
         self,
-        size: tuple[int, int] = c.FUSED_SIZE,
+        size: tuple[int, int] = FUSED_SIZE,
         length: int = c.FUSED_LENGTH,
         scan_topic: str = "/scan",
         imu_topic: str = "/imu/data",

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fused_image import FUSED_SIZE
 from rover_env import constants as c
 
 # termination_reason values (info["termination_reason"]; "" while the episode runs)
@@ -113,7 +114,7 @@ def heatmap_center_sum(heatmap: np.ndarray, columns: int = c.HEATMAP_CENTER_COLU
     """Sum of the centre columns of an (H, W) heatmap: ``columns`` of the seed's 96, scaled
     to the width W (``max(1, round(columns * W / 96))`` columns, centred)."""
     width = heatmap.shape[1]
-    n = max(1, round(columns * width / c.FUSED_SIZE[1]))
+    n = max(1, round(columns * width / FUSED_SIZE[1]))
     lo = (width - n) // 2
     return float(heatmap[:, lo : lo + n].sum())
 

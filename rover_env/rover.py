@@ -177,20 +177,20 @@ class Lidar:
     point ``i`` is the minimum over its ``k`` consecutive rays, so the scan's middle
     point looks forward. Misses and ranges beyond ``max_range`` read ``max_range`` (the
     seed's handling of inf/NaN/out-of-range returns). Rays see geom groups 0 (scenery)
-    and 1 (pedestrians); the rover's own geoms are in groups 2 and 3.
-    All buffers are allocated once.
+    and 1 (pedestrians; with ``pedestrians=False`` group 0 only, the scenery's scan); the
+    rover's own geoms are in groups 2 and 3. All buffers are allocated once.
     """
 
-    _GEOMGROUP = np.array([1, 1, 0, 0, 0, 0], dtype=np.uint8)
-
     def __init__(
-        self, model: mujoco.MjModel, data: mujoco.MjData, n_points: int, max_range: float
+        self, model: mujoco.MjModel, data: mujoco.MjData, n_points: int, max_range: float,
+        pedestrians: bool = True,
     ) -> None:
         if n_points < 1:
             raise ValueError(f"lidar_points must be >= 1, got {n_points}")
         if not max_range > 0:
             raise ValueError(f"max_lidar_range must be > 0, got {max_range}")
         self._model, self._data = model, data
+        self._geomgroup = np.array([1, int(pedestrians), 0, 0, 0, 0], dtype=np.uint8)
         self.n_points = int(n_points)
         self.max_range = float(max_range)
         angles, self.rays_per_point = lidar_ray_angles(self.n_points)
@@ -212,7 +212,7 @@ class Lidar:
             self._data,
             self._pnt,
             self._vec.reshape(-1),
-            self._GEOMGROUP,
+            self._geomgroup,
             1,
             -1,
             self._geomid,

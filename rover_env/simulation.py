@@ -15,6 +15,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from fused_image import DEPTH_MAX_M, FUSED_SIZE
 from rover_env import rover
 from rover_env.pedestrians import Appearance, Pedestrians, pedestrians_xml
 from rover_env.rendering import CameraFrame, GLRenderer
@@ -26,7 +27,6 @@ from rover_env.worlds.spec import (
     OBSTACLE_FRICTION,
     OBSTACLE_PRIORITY,
 )
-from shm_protocol import DEPTH_MAX_M
 
 log = logging.getLogger(__name__)
 
@@ -135,7 +135,7 @@ class RoverSim:
     def __init__(
         self,
         world: str = "inspect",
-        camera_size: tuple[int, int] = (96, 96),
+        camera_size: tuple[int, int] = FUSED_SIZE,
         physics_dt: float = PHYSICS_DT,
         seed_rng: np.random.Generator | None = None,
         pedestrian_appearance: str = "fixed",
@@ -185,7 +185,7 @@ class RoverSim:
         codes = np.where(self._pedestrian_geoms, _PEDESTRIAN, _OBSTACLE)
         codes[ground | self._rover_geoms] = 0
         self._contact_codes: list[int] = codes.tolist()
-        self._lidars: dict[tuple[int, float], rover.Lidar] = {}
+        self._lidars: dict[tuple[int, float, bool], rover.Lidar] = {}
         self._contacts: Contacts | None = None
         self._renderer: GLRenderer | None = None
         self._camera = mujoco.MjvCamera()
@@ -358,17 +358,25 @@ class RoverSim:
         np.take(self.data.qvel, self._wheel_dofs, out=self._wheel_speeds)
         return np.array(rover.wheel_odometry(self._wheel_speeds))
 
-    def lidar(self, n_points: int, max_range: float) -> np.ndarray:
+    def lidar(self, n_points: int, max_range: float, pedestrians: bool = True) -> np.ndarray:
         """Planar LIDAR scan: (n_points,) float32 in [0, max_range], min per segment.
 
-        See :class:`rover_env.rover.Lidar` for the ray layout. Returns a new array.
+        See :class:`rover_env.rover.Lidar` for the ray layout. ``pedestrians=False``: the
+        same scan of the scenery alone (the pedestrians let the rays through), to tell
+        which returns are the pedestrians'. Returns a new array.
         """
-        key = (int(n_points), float(max_range))
+        key = (int(n_points), float(max_range), bool(pedestrians))
         lidar = self._lidars.get(key)
         if lidar is None:
-            lidar = rover.Lidar(self.model, self.data, n_points, max_range)
+            lidar = rover.Lidar(self.model, self.data, n_points, max_range, pedestrians)
             self._lidars[key] = lidar
         return lidar.scan().copy()
+
+    @property
+    def camera_up(self) -> np.ndarray:
+        """The world's up direction in the forward camera's frame (x right, y up, z back:
+        MuJoCo's camera axes), (3,) (new array): how the camera is tilted and rolled."""
+        return self.data.cam_xmat[self._camera_id].reshape(3, 3)[2].copy()
 
     @property
     def camera_fov(self) -> float:

@@ -22,16 +22,6 @@ from .errors import (
     ShmError,
     WriterGoneError,
 )
-from .layout import (
-    CHANNEL_DEPTH,
-    CHANNEL_GRAY,
-    CHANNEL_HEATMAP,
-    DEPTH_MAX_M,
-    FUSED_DTYPE,
-    FUSED_SHAPE,
-    channel_to_depth,
-    depth_to_channel,
-)
 from .multiwait import AVAILABLE as MULTIWAIT_AVAILABLE
 from .multiwait import MultiWaiter
 from .names import (
@@ -51,13 +41,7 @@ from .reader import Frame, FrameReader, writer_alive
 from .writer import FrameWriter
 
 __all__ = [
-    "CHANNEL_DEPTH",
-    "CHANNEL_GRAY",
-    "CHANNEL_HEATMAP",
     "DEFAULT_NAME",
-    "DEPTH_MAX_M",
-    "FUSED_DTYPE",
-    "FUSED_SHAPE",
     "Frame",
     "FrameReader",
     "FrameTimeoutError",
@@ -73,10 +57,8 @@ __all__ = [
     "ShmError",
     "WriterGoneError",
     "camera_name",
-    "channel_to_depth",
     "default_name",
     "default_slots",
-    "depth_to_channel",
     "existing_segments",
     "remove_segments",
     "segment_path",

@@ -1,4 +1,7 @@
-"""Bytes and offsets of a segment, the trailer's encoding, and the fused channel constants.
+"""Bytes and offsets of a segment and the trailer's encoding.
+
+What the fused image's channels mean (and its default size) is not the wire format's
+business: see the top-level ``fused_image`` package.
 
 A segment is ``header | payload | trailer``::
 
@@ -261,57 +264,11 @@ def decode_trailer(raw: bytes | bytearray | memoryview) -> TrailerInfo:
     return TrailerInfo(layout, pid, seq, src, hb, flags, wake, crc)
 
 
-# --- the fused observation -------------------------------------------------------------
-
-FUSED_SHAPE: tuple[int, int, int] = (96, 96, 3)
-"""Seed: ``96 * 96 * 3 float32`` at offset 12 of the fused segment."""
-FUSED_DTYPE: np.dtype[Any] = np.dtype("<f4")
-
-CHANNEL_GRAY = 0
-"""Luminance of the camera frame, in [0, 1]."""
-CHANNEL_HEATMAP = 1
-"""Pedestrian heatmap, in [0, 1] (the reward reads this channel). Seed 001 calls channel 1
-depth; seeds 000 and 002 and the reward's use of it as the heatmap settle it."""
-CHANNEL_DEPTH = 2
-"""Depth as ``depth_to_channel(metres)``: near is bright, see below."""
-
-DEPTH_MAX_M = 10.0
-"""Far limit of the depth channel in metres: depth at or beyond it encodes as 0.0."""
-
-
-def depth_to_channel(metres: Any) -> np.ndarray:
-    """Metric depth to the depth channel: ``clip(1 - d / DEPTH_MAX_M, 0, 1)`` as float32.
-
-    1.0 is at the camera, 0.0 at or beyond ``DEPTH_MAX_M`` (10 m); negative depths clip to
-    1.0. NaN (no return) and +inf encode as 0.0, "far", so no NaN reaches an observation.
-    Vectorised: returns an array of the input's shape (0-d for a scalar).
-    """
-    d = np.asarray(metres, dtype=np.float32)
-    out = np.clip(np.float32(1.0) - d / np.float32(DEPTH_MAX_M), 0.0, 1.0)
-    return np.asarray(np.where(np.isnan(out), np.float32(0.0), out), dtype=np.float32)
-
-
-def channel_to_depth(value: Any) -> np.ndarray:
-    """Depth channel back to metres: ``(1 - v) * DEPTH_MAX_M`` as float32.
-
-    Values are clipped to [0, 1] first, so 0.0 reads as ``DEPTH_MAX_M`` ("at or beyond the
-    far limit"): the encoding cannot tell 10 m from 50 m.
-    """
-    v = np.clip(np.asarray(value, dtype=np.float32), 0.0, 1.0)
-    return np.asarray((np.float32(1.0) - v) * np.float32(DEPTH_MAX_M), dtype=np.float32)
-
-
 __all__ = [
-    "CHANNEL_DEPTH",
-    "CHANNEL_GRAY",
-    "CHANNEL_HEATMAP",
-    "DEPTH_MAX_M",
     "DTYPE_CODES",
     "FLAG_CHECKSUM",
     "FLAG_EPISODE_START",
     "FLAG_SHUTTING_DOWN",
-    "FUSED_DTYPE",
-    "FUSED_SHAPE",
     "HEADER_SIZE",
     "Header",
     "Layout",
@@ -321,9 +278,7 @@ __all__ = [
     "Trailer",
     "TrailerInfo",
     "VERSION",
-    "channel_to_depth",
     "decode_trailer",
-    "depth_to_channel",
     "describe",
     "encode_trailer",
 ]

@@ -25,7 +25,7 @@ from active_vision.onnx_export import (  # noqa: E402
 )
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
 from active_vision.training import dataset as ds  # noqa: E402
-from shm_protocol import CHANNEL_HEATMAP  # noqa: E402
+from fused_image import CHANNEL_HEATMAP  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES_SEED = 515_151  # neither the training nor the evaluation split

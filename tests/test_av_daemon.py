@@ -20,10 +20,8 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from active_vision.perception import gray_of  # noqa: E402
+from fused_image import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP  # noqa: E402
 from shm_protocol import (  # noqa: E402
-    CHANNEL_DEPTH,
-    CHANNEL_GRAY,
-    CHANNEL_HEATMAP,
     FrameReader,
     FrameWriter,
     camera_name,

@@ -16,7 +16,7 @@ from active_vision.models import (
     save_weights,
 )
 from active_vision.perception import Perception, PerceptionConfig, gray_of
-from shm_protocol import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
+from fused_image import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP
 
 
 @pytest.fixture(scope="module")
@@ -175,7 +175,7 @@ def test_bad_frames_are_rejected(random_model: AVNet, bad: np.ndarray) -> None:
 
 def test_log_depth_head_maps_to_the_shm_depth_convention() -> None:
     from active_vision.models import log_depth_to_channel
-    from shm_protocol import depth_to_channel
+    from fused_image import depth_to_channel
 
     metres = torch.tensor([0.1, 0.5, 2.0, 9.99, 10.0, 50.0])
     got = log_depth_to_channel(torch.log(metres))

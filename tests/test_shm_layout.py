@@ -1,4 +1,5 @@
-"""shm_protocol layout, names and channel conventions (no shared memory needed)."""
+"""shm_protocol layout and names (no shared memory needed); the fused image's channels and
+depth encoding are tests/test_fused_image.py's."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import shm_protocol
+from fused_image import FUSED_SHAPE
 from shm_protocol import layout
 from shm_protocol.errors import InvalidNameError, LayoutError
 from shm_protocol.layout import Layout, TrailerInfo, decode_trailer, encode_trailer
@@ -25,16 +27,16 @@ wire_dtypes = st.sampled_from([np.float32, np.uint8, "<f4", "u1", np.dtype("floa
 def test_public_api_is_exported() -> None:
     for name in ["FrameWriter", "FrameReader", "Frame", "slot_name", "camera_name",
                  "SegmentNotFoundError", "LayoutError", "FrameTimeoutError", "WriterGoneError",
-                 "ShmError", "FUSED_SHAPE", "CHANNEL_GRAY", "CHANNEL_HEATMAP", "CHANNEL_DEPTH",
-                 "DEPTH_MAX_M", "depth_to_channel", "channel_to_depth"]:
+                 "ShmError"]:
         assert hasattr(shm_protocol, name), name
-    assert shm_protocol.FUSED_SHAPE == (96, 96, 3)
-    assert (shm_protocol.CHANNEL_GRAY, shm_protocol.CHANNEL_HEATMAP,
-            shm_protocol.CHANNEL_DEPTH) == (0, 1, 2)
+    # the wire format knows bytes, not what the fused image's channels mean (fused_image)
+    for name in ["FUSED_SHAPE", "CHANNEL_GRAY", "CHANNEL_HEATMAP", "CHANNEL_DEPTH",
+                 "DEPTH_MAX_M", "depth_to_channel", "channel_to_depth"]:
+        assert not hasattr(shm_protocol, name) and not hasattr(layout, name), name
 
 
 def test_fused_layout_matches_the_seed_and_design() -> None:
-    lay = Layout.of(shm_protocol.FUSED_SHAPE, np.float32)
+    lay = Layout.of(FUSED_SHAPE, np.float32)
     assert lay.payload_nbytes == 96 * 96 * 3 * 4 == 110_592  # seed: data_size
     assert layout.HEADER_SIZE == 12 and layout.PAYLOAD_OFFSET == 12  # seed: header_size
     assert lay.trailer_offset == 12 + 110_592
@@ -156,21 +158,3 @@ def test_validation_never_accepts_a_path(name: str) -> None:
         return
     assert "/" not in name and "\0" not in name and not name.startswith(".")
     assert 1 <= len(name) <= MAX_NAME_LENGTH
-
-
-# --- depth channel ---------------------------------------------------------------------
-
-
-def test_depth_convention() -> None:
-    d = np.array([0.0, 2.5, 5.0, 10.0, 25.0, -1.0, np.inf, np.nan], dtype=np.float32)
-    c = shm_protocol.depth_to_channel(d)
-    assert c.dtype == np.float32
-    np.testing.assert_allclose(c, [1.0, 0.75, 0.5, 0.0, 0.0, 1.0, 0.0, 0.0])
-    assert shm_protocol.DEPTH_MAX_M == 10.0
-    np.testing.assert_allclose(shm_protocol.channel_to_depth([1.0, 0.5, 0.0]), [0.0, 5.0, 10.0])
-
-
-@given(st.floats(min_value=0.0, max_value=10.0))
-def test_depth_round_trip(metres: float) -> None:
-    back = float(shm_protocol.channel_to_depth(shm_protocol.depth_to_channel(metres)))
-    assert abs(back - metres) < 1e-5 * 10

@@ -36,8 +36,9 @@ which vary per frame:
 
 Both kinds randomise the lighting (every light's diffuse/ambient/specular and the headlight
 scaled by random factors, dim dusk to bright noon, with a random colour cast:
-:func:`random_lighting`) and, with ``appearance="random"`` (the default), the pedestrians'
-clothing colours, height, girth and gait phase (``RoverSim(pedestrian_appearance=...)``).
+:func:`active_vision.training.lighting.random_lighting`) and, with ``appearance="random"``
+(the default), the pedestrians' clothing colours, height, girth and gait phase
+(``RoverSim(pedestrian_appearance=...)``).
 
 The held-out split (``evaluate.heldout``) is ``drive_fraction=1``: driving frames only,
 from ``HELDOUT_SEED`` (seeds, appearances and lighting never used in training), reported by
@@ -55,9 +56,12 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
+
+from active_vision.training.driving import DriveRecorder
+from active_vision.training.lighting import random_lighting
+from fused_image import FUSED_SIZE
 
 logger = logging.getLogger(__name__)
 
@@ -95,7 +99,7 @@ class DatasetConfig:
     """Base seed; frame i uses ``np.random.default_rng([seed, i])``."""
     worlds: tuple[str, ...] = WORLDS
     """Worlds to render from."""
-    size: int = 96
+    size: int = FUSED_SIZE[0]
     """Camera resolution (square) - the fused resolution."""
     p_empty: float = 0.3
     """Probability of a frame with no pedestrian placed in view."""
@@ -185,22 +189,6 @@ def dataset_path(out_dir: Path, config: DatasetConfig) -> Path:
         "" if config.appearance == "random" else f"_{config.appearance}")
     return Path(out_dir) / (f"av_{tag}_s{config.seed}_n{config.frames}_{config.size}px"
                             f"{drive}_v{DATASET_VERSION}.npz")
-
-
-def random_lighting(sim: Any, rng: np.random.Generator) -> Any:
-    """The world's default lights scaled by random factors (dim dusk to bright noon) with a
-    random colour cast: a :class:`rover_env.simulation.Lighting` for ``sim.set_lighting``."""
-    base = sim.default_lighting
-    level = rng.uniform(0.35, 1.35)
-    tint = 1.0 + rng.uniform(-0.15, 0.15, size=3)
-    amb = rng.uniform(0.5, 1.6)
-    return type(base)(
-        diffuse=base.diffuse * level * tint,
-        ambient=base.ambient * amb * tint,
-        specular=base.specular * rng.uniform(0.3, 1.2),
-        head_diffuse=base.head_diffuse * level * tint,
-        head_ambient=base.head_ambient * amb * tint,
-    )
 
 
 class FrameRenderer:
@@ -358,8 +346,6 @@ def render_dataset(config: DatasetConfig, progress_every: int = 500) -> Dataset:
     ``round(frames * drive_fraction)`` driving frames (episode e in world ``e % W``, from
     ``np.random.default_rng([seed, 1, e])``), then posed frames (frame i in world ``i % W``,
     from ``np.random.default_rng([seed, i])``)."""
-    from active_vision.training.driving import DriveRecorder
-
     n, s = config.frames, config.size
     if not 0.0 <= config.drive_fraction <= 1.0:
         raise ValueError(f"drive_fraction must be in [0, 1], got {config.drive_fraction}")
@@ -433,7 +419,7 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
                    help=f"base seed (training {TRAIN_SEED}, held-out {HELDOUT_SEED})")
     p.add_argument("--worlds", default=",".join(WORLDS),
                    help="comma-separated worlds (default: all three)")
-    p.add_argument("--size", type=int, default=96)
+    p.add_argument("--size", type=int, default=FUSED_SIZE[0])
     p.add_argument("--drive-fraction", type=float, default=DatasetConfig.drive_fraction,
                    help="share of frames recorded while driving (held-out split: 1)")
     p.add_argument("--force", action="store_true", help="re-render even if the file exists")

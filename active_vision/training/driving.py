@@ -8,7 +8,7 @@ metric depth and pedestrian mask. Each episode draws everything from its own gen
 
 - the pedestrians' paths and, with ``appearance="random"``, their clothes, height, girth
   and gait phase (``RoverSim.reset``);
-- the lighting (as the posed frames: :func:`active_vision.training.dataset.random_lighting`);
+- the lighting (as the posed frames: :func:`active_vision.training.lighting.random_lighting`);
 - the start: the world's spawn, or a free pose near the pedestrian area;
 - the driver, one of :data:`DRIVERS`:
 
@@ -33,6 +33,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from active_vision.training.lighting import random_lighting
 
 logger = logging.getLogger(__name__)
 
@@ -152,8 +154,6 @@ class DriveRecorder:
         return driver, self._steps(rng, driver, target)
 
     def _steps(self, rng: np.random.Generator, driver: str, target: int) -> Iterator[int]:
-        from active_vision.training.dataset import random_lighting
-
         cfg, sim, r = self.config, self.sim, self.r
         sim.set_lighting(random_lighting(sim, rng))
         # OU state (speed, turn), aim offset, cruise speed

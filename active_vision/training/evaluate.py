@@ -75,7 +75,7 @@ from active_vision.training.dataset import (
     DatasetConfig,
     build,
 )
-from shm_protocol import DEPTH_MAX_M, channel_to_depth
+from fused_image import DEPTH_MAX_M, channel_to_depth
 
 logger = logging.getLogger(__name__)
 
@@ -96,7 +96,10 @@ TARGETS = {"iou": 0.6, "recall": 0.95, "false_positive_rate": 0.02, "abs_rel": 0
 
 
 @dataclass
-class _Counts:
+class FrameCounts:
+    """Sums over frames that the figures are ratios of (:func:`frame_counts` of one frame;
+    :meth:`add` another's, :func:`figures_of` the figures)."""
+
     inter: int = 0
     union: int = 0
     peds: int = 0
@@ -110,7 +113,7 @@ class _Counts:
     near_px: int = 0
     near_abs_rel_sum: float = 0.0
 
-    def add(self, other: _Counts) -> None:
+    def add(self, other: FrameCounts) -> None:
         for k in asdict(self):
             setattr(self, k, getattr(self, k) + getattr(other, k))
 
@@ -163,11 +166,11 @@ def _blobs(binary: np.ndarray, min_px: int) -> np.ndarray:
 
 
 def frame_counts(heat: np.ndarray, depth_ch: np.ndarray | None, gt_mask: np.ndarray,
-                 gt_depth: np.ndarray, threshold: float = THRESHOLD) -> _Counts:
+                 gt_depth: np.ndarray, threshold: float = THRESHOLD) -> FrameCounts:
     """Counts for one frame (heatmap and depth channel predicted; mask and metres true); a
     heatmap pixel is a detection at ``threshold`` or above. Without ``depth_ch``, the
     heatmap's counts only."""
-    c = _Counts(frames=1)
+    c = FrameCounts(frames=1)
     pred = heat >= threshold
     c.inter = int(np.count_nonzero(pred & gt_mask))
     c.union = int(np.count_nonzero(pred | gt_mask))
@@ -201,7 +204,9 @@ def frame_counts(heat: np.ndarray, depth_ch: np.ndarray | None, gt_mask: np.ndar
     return c
 
 
-def _figures(c: _Counts) -> dict[str, float]:
+def figures_of(c: FrameCounts) -> dict[str, float]:
+    """The figures of summed counts (NaN where a figure has nothing to count), with the
+    frames, pedestrians and empty frames they were counted on."""
     nan = float("nan")
     return {
         "iou": c.inter / c.union if c.union else nan,
@@ -228,10 +233,10 @@ def _fused_frames(model: AVNet, data: Dataset, batch: int,
             yield start + j, fused[j]
 
 
-def episode_intervals(units: Sequence[_Counts], resamples: int = BOOTSTRAP_RESAMPLES,
+def episode_intervals(units: Sequence[FrameCounts], resamples: int = BOOTSTRAP_RESAMPLES,
                       seed: int = 0) -> dict[str, list[float]]:
     """Per target figure, the 5th and 95th percentiles over ``resamples`` bootstrap draws of
-    ``units`` (one :class:`_Counts` per driving episode): how far the figure could move on
+    ``units`` (one :class:`FrameCounts` per driving episode): how far the figure could move on
     other episodes like these. An episode's frames are not independent (the same figure
     seen from the same place for seconds), so episodes are the unit drawn."""
     nan = [float("nan"), float("nan")]
@@ -241,7 +246,7 @@ def episode_intervals(units: Sequence[_Counts], resamples: int = BOOTSTRAP_RESAM
     table = np.array([[getattr(u, k) for k in keys] for u in units], np.float64)
     draws = np.random.default_rng(seed).integers(0, len(units), size=(resamples, len(units)))
     totals = table[draws].sum(axis=1)  # (resamples, fields): each draw's summed counts
-    figures = [_figures(_Counts(**dict(zip(keys, row, strict=True)))) for row in totals]
+    figures = [figures_of(FrameCounts(**dict(zip(keys, row, strict=True)))) for row in totals]
     out = {}
     for k in TARGETS:
         v = np.array([f[k] for f in figures])
@@ -253,9 +258,9 @@ def episode_intervals(units: Sequence[_Counts], resamples: int = BOOTSTRAP_RESAM
 def evaluate(model: AVNet, data: Dataset, *, batch: int = 32, threads: int | None = None
              ) -> Metrics:
     """Run ``model`` through :class:`Perception` on ``data`` and compute :class:`Metrics`."""
-    total = _Counts()
-    per_world = {w: _Counts() for w in data.worlds}
-    units: dict[tuple[str, int, int], _Counts] = {}
+    total = FrameCounts()
+    per_world = {w: FrameCounts() for w in data.worlds}
+    units: dict[tuple[str, int, int], FrameCounts] = {}
     episode = np.asarray(data.episode)
     for i, fused in _fused_frames(model, data, batch, threads):
         c = frame_counts(fused[:, :, CHANNEL_HEATMAP], fused[:, :, CHANNEL_DEPTH],
@@ -265,11 +270,11 @@ def evaluate(model: AVNet, data: Dataset, *, batch: int = 32, threads: int | Non
         per_world[world].add(c)
         # a driving episode is one unit of the bootstrap; a posed frame is its own
         key = (world, int(episode[i]), i if episode[i] < 0 else -1)
-        units.setdefault(key, _Counts()).add(c)
-    f = {k: v for k, v in _figures(total).items() if k in TARGETS or k == "abs_rel_near"}
+        units.setdefault(key, FrameCounts()).add(c)
+    f = {k: v for k, v in figures_of(total).items() if k in TARGETS or k == "abs_rel_near"}
     return Metrics(**f, frames=len(data), pedestrians=total.peds,
                    empty_frames=total.empty_frames,
-                   per_world={w: _figures(c) for w, c in per_world.items() if c.frames},
+                   per_world={w: figures_of(c) for w, c in per_world.items() if c.frames},
                    intervals={w: episode_intervals([u for k, u in units.items() if k[0] == w])
                               for w, c in per_world.items() if c.frames})
 
@@ -282,13 +287,13 @@ def threshold_sweep(model: AVNet, data: Dataset, thresholds: Sequence[float], *,
                     ) -> dict[float, dict[str, dict[str, float]]]:
     """The heatmap figures (``SWEEP_KEYS``) per world at each detection threshold, from one
     pass of ``model`` over ``data``: ``{threshold: {world: {figure: value}}}``."""
-    counts = {t: {w: _Counts() for w in data.worlds} for t in thresholds}
+    counts = {t: {w: FrameCounts() for w in data.worlds} for t in thresholds}
     for i, fused in _fused_frames(model, data, batch, threads):
         world = data.worlds[int(data.world[i])]
         for t in thresholds:
             counts[t][world].add(frame_counts(fused[:, :, CHANNEL_HEATMAP], None,
                                               data.mask[i], data.depth[i], t))
-    return {t: {w: {k: _figures(c)[k] for k in SWEEP_KEYS} for w, c in per.items() if c.frames}
+    return {t: {w: {k: figures_of(c)[k] for k in SWEEP_KEYS} for w, c in per.items() if c.frames}
             for t, per in counts.items()}
 
 

@@ -151,10 +151,11 @@ class Dataset:
 class FusedView:
     """The fused image the av-daemon computes from an env's forward camera frame
     (``env.camera_frame()``), computed in this process: the same network (the shipped AVNet,
-    the daemon's default backend) on the same rendered frame, so the same image. Stage 1 of a fused entry drives RoverEnv
-    with no daemon; with this its student's depth scan (``FeatureSpec.depth_scan``) is the
-    one it will read in stage 2, errors of the network's depth included. The perception is
-    made on first use (a renderer-side object, like the sim's GL context)."""
+    the daemon's default backend) on the same rendered frame, so the same image. Stage 1 of
+    a fused entry drives RoverEnv with no daemon; with this its student's depth scan
+    (``FeatureSpec.depth_scan``) is the one it will read in stage 2, errors of the network's
+    depth included. The perception is made on first use (a renderer-side object, like the
+    sim's GL context)."""
 
     def __init__(self) -> None:
         self._perception: Any = None

@@ -60,16 +60,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from rover_env.rover import (
-    CAMERA_FOVY,
-    CAMERA_PITCH,
-    CAMERA_Z,
-    WHEEL_RADIUS,
-    lidar_ray_angles,
-)
-from rover_env.simulation import PHYSICS_DT
-from rover_env.worlds import make_world
-from shm_protocol import CHANNEL_DEPTH, CHANNEL_HEATMAP, DEPTH_MAX_M
+from fused_image import CHANNEL_DEPTH, CHANNEL_HEATMAP, DEPTH_MAX_M
+from rover_env import FORWARD_CAMERA, LIDAR_SCAN_LAG, lidar_ray_angles, obstacle_map
 
 LIDAR_CLIP = 4.0  # m
 FREQUENCIES = (0.5, 1.0, 2.0)  # cycles per world half-size, for position features
@@ -84,7 +76,6 @@ HISTORY_STEPS = 40  # 2 s at the 0.05 s control period
 LIDAR_LAG = 5  # 0.25 s
 SCAN_BOTTOM = 0.12  # m above the ground: lower points are ground (or depth error on it)
 SCAN_TOP = 1.2  # m above the ground: higher points cannot touch the rover
-CAMERA_HEIGHT = WHEEL_RADIUS + CAMERA_Z  # m above flat ground
 PEDESTRIAN_LEVEL = 0.5  # heatmap value above which a pixel is a pedestrian's
 UNMAPPED_MARGIN = 0.15  # m: a return this much nearer than the map's is not the scenery
 UNMAPPED_YAW_SPREAD = 0.03  # rad: the map is cast this far either side of the heading too
@@ -151,11 +142,12 @@ class FeatureSpec:
 def _scan_geometry(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     """Per pixel of a (height, width) frame of the forward camera: the horizontal range and
     the height above the camera of a point at unit z-depth (MuJoCo's depth is along the
-    optical axis), with the camera pitched ``CAMERA_PITCH`` down on a level rover."""
-    f = (height / 2) / math.tan(math.radians(CAMERA_FOVY) / 2)
+    optical axis), with the forward camera pitched down on a level rover
+    (``rover_env.FORWARD_CAMERA``)."""
+    f = (height / 2) / math.tan(math.radians(FORWARD_CAMERA.fovy_deg) / 2)
     xn = (np.arange(width) + 0.5 - width / 2) / f  # right
     yn = (np.arange(height) + 0.5 - height / 2) / f  # down
-    p = math.radians(CAMERA_PITCH)
+    p = math.radians(FORWARD_CAMERA.pitch_deg)
     forward = math.cos(p) - yn * math.sin(p)
     horizontal = np.sqrt(forward[:, None] ** 2 + xn[None, :] ** 2)
     up = -(yn * math.cos(p) + math.sin(p))
@@ -184,7 +176,7 @@ def depth_scan(depth_channel: np.ndarray, bands: int,
         raise ValueError(f"{bands} scan bands do not divide a {width}-pixel-wide frame")
     horizontal, up = _scan_geometry(height, width)
     z = (1.0 - v) * DEPTH_MAX_M
-    elevation = CAMERA_HEIGHT + z * up
+    elevation = FORWARD_CAMERA.height_m + z * up
     keep = (v > 0.0) & (elevation > SCAN_BOTTOM) & (elevation < SCAN_TOP)
     if only is not None:
         keep &= only
@@ -199,9 +191,9 @@ def unmapped_scan(obs: dict[str, np.ndarray], world: str) -> np.ndarray:
     (a pedestrian, or anything else not in the map), else 1 (scaled like the ranges).
 
     The map's scan is cast against the world's obstacle footprints
-    (:meth:`rover_env.worlds.WorldSpec.ray_distances`) with the env's ray layout. The env's
-    scan is cast from the pose MuJoCo's kinematics computed at the start of the last physics
-    step, ``PHYSICS_DT`` before ``obs["pose"]`` (up to 0.1 rad behind when turning fast), so
+    (:func:`rover_env.obstacle_map`) with the env's ray layout. The env's scan is cast from
+    the pose MuJoCo's kinematics computed at the start of the last physics step,
+    ``rover_env.LIDAR_SCAN_LAG`` before ``obs["pose"]`` (up to 0.1 rad behind when turning fast), so
     the map is cast from there, dead-reckoned back with the odometry, and at
     ``UNMAPPED_YAW_SPREAD`` either side (the nearest kept): on random driving 0.4 % of the
     scenery's returns within ``LIDAR_CLIP`` are then marked in the maze (8.9 % cast from
@@ -212,13 +204,13 @@ def unmapped_scan(obs: dict[str, np.ndarray], world: str) -> np.ndarray:
     angles, per_point = lidar_ray_angles(len(lidar))
     speed, turn = float(obs["velocities"][0]), float(obs["velocities"][1])
     yaw = float(obs["imu"][2])
-    x = float(obs["pose"][0]) - speed * math.cos(yaw) * PHYSICS_DT
-    y = float(obs["pose"][1]) - speed * math.sin(yaw) * PHYSICS_DT
-    yaw -= turn * PHYSICS_DT
-    spec = make_world(world)
+    x = float(obs["pose"][0]) - speed * math.cos(yaw) * LIDAR_SCAN_LAG
+    y = float(obs["pose"][1]) - speed * math.sin(yaw) * LIDAR_SCAN_LAG
+    yaw -= turn * LIDAR_SCAN_LAG
+    world_map = obstacle_map(world)
     reach = LIDAR_CLIP + UNMAPPED_MARGIN
     casts = [
-        spec.ray_distances(x, y, yaw + d + angles, reach)
+        world_map.ray_distances(x, y, yaw + d + angles, reach)
         for d in (-UNMAPPED_YAW_SPREAD, 0.0, UNMAPPED_YAW_SPREAD)
     ]
     mapped = np.minimum.reduce(casts).reshape(len(lidar), per_point).min(axis=1)
