@@ -35,11 +35,11 @@ measured for it (benchmarks/RESULTS.md, 2026-11-26):
 
 from __future__ import annotations
 
-import argparse
 import logging
 import math
 import sys
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +54,7 @@ from active_vision.training.evaluate import (
     heldout,
     threshold_sweep,
 )
+from rover_train.cli import build_parser, instance_from, setup_logging
 
 logger = logging.getLogger(__name__)
 
@@ -113,36 +114,48 @@ def calibrate(model: AVNet, data: Dataset, *, thresholds: Sequence[float] = CALI
 
 def calibrated_meta(meta: dict[str, Any], threshold: float, shift: float) -> dict[str, Any]:
     """A weights file's ``meta`` after a calibration: ``heat_threshold`` set,
-    ``heat_logit_shift`` summed over calibrations, and the held-out figures (``heldout_*``,
-    measured with the old head) dropped."""
+    ``heat_logit_shift`` summed over calibrations, the stored recipe's ``calibrate`` on, and
+    the held-out figures (``heldout_*``, measured with the old head) dropped."""
     out = {k: v for k, v in meta.items() if not k.startswith("heldout_")}
+    if isinstance(out.get("recipe"), dict):  # the recipe now includes the calibration
+        out["recipe"] = {**out["recipe"], "calibrate": True}
     out["heat_threshold"] = threshold
     out["heat_logit_shift"] = float(meta.get("heat_logit_shift", 0.0)) + shift
     return out
 
 
-def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(prog="python -m active_vision.training.calibrate",
-                                description="Fold the heatmap threshold chosen on the "
-                                "validation split into a weights file.")
-    p.add_argument("--weights", type=Path, required=True, help="the weights to calibrate")
-    p.add_argument("--out", type=Path, default=None,
-                   help="where to write the result (default: overwrite --weights)")
-    p.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR)
-    p.add_argument("--data", type=Path, default=None,
-                   help="a dataset .npz to choose on (default: the validation split, rendered "
-                   "into --data-dir on first use; never the held-out split, which reports)")
-    p.add_argument("--no-export", action="store_true",
-                   help="do not write the ONNX export beside the result")
-    p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--log-level", default="INFO")
+@dataclass(frozen=True)
+class CalibrateRun:
+    """What ``python -m active_vision.training.calibrate`` calibrates, on what, and where it
+    writes."""
+
+    weights: Path | None = None
+    """The weights to calibrate (required)."""
+    out: Path | None = None
+    """Where to write the result (default: overwrite ``weights``)."""
+    data_dir: Path = DEFAULT_DATA_DIR
+    """Where the validation split is rendered on first use."""
+    data: Path | None = None
+    """A dataset ``.npz`` to choose on (default: the validation split; never the held-out
+    split, which reports)."""
+    export: bool = True
+    """Write the ONNX export beside the result."""
+    threads: int = 2
+    """torch threads."""
+
+
+def _parse(argv: Sequence[str] | None) -> CalibrateRun:
+    p = build_parser(CalibrateRun, "python -m active_vision.training.calibrate",
+                     "Fold the heatmap threshold chosen on the validation split into a "
+                     "weights file.")  # fmt: skip
     a = p.parse_args(argv)
-    if not a.weights.is_file():
-        p.error(f"--weights {a.weights}: no such file")
-    if a.data is not None and not a.data.is_file():
-        p.error(f"--data {a.data}: no such file")
-    logging.basicConfig(level=a.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
-    return a
+    run = instance_from(CalibrateRun, a)
+    if run.weights is None or not run.weights.is_file():
+        p.error(f"--weights {run.weights}: give an existing weights file to calibrate")
+    if run.data is not None and not run.data.is_file():
+        p.error(f"--data {run.data}: no such file")
+    setup_logging(a.log_level)
+    return run
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -150,6 +163,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from active_vision.onnx_export import OnnxExportError, write_export_beside
 
     a = _parse(argv)
+    assert a.weights is not None  # _parse refuses a run without it
     torch.set_num_threads(a.threads)
     model = load_model(a.weights, fuse=False)
     meta = weights_meta(a.weights)
@@ -159,7 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"chosen threshold {t:.2f}: logit shift {shift:+.4f}")
     out = save_weights(model, a.out or a.weights, calibrated_meta(meta, t, shift))
     print(f"wrote {out}")
-    if a.no_export:
+    if not a.export:
         return 0
     try:
         print(f"wrote {write_export_beside(out)}")
