@@ -58,9 +58,9 @@ for _env_id, (_entry_point, _kwargs) in _ENVS.items():
 
 __all__ = [
     "AUTO_SLOT",
-    "PEDESTRIAN_MODES",
     "FORWARD_CAMERA",
     "LIDAR_SCAN_LAG",
+    "PEDESTRIAN_MODES",
     "WORLD_NAMES",
     "Appearance",
     "CameraFrame",
