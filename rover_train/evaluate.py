@@ -35,12 +35,18 @@ import numpy as np
 
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
 from rover_env.pedestrians import PEDESTRIAN_MODES
+from rover_env.reward import STUCK_IN_COLLISION
 from rover_env.worlds import WORLD_CHOICES
 from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
 from rover_train.envs import ENV_IDS, make_env
 from shm_protocol.names import default_name, default_slots
 
 VIDEO_PANEL = 256  # pixels per side of each video panel
+VIDEO_PANEL_NAMES = ("chase", "gray", "heatmap", "depth")  # left to right
+OUTCOME_HOLD_S = 1.0  # videos hold an episode's last frame, with its outcome, this long
+_GOAL_RGB = (25, 230, 50)  # the sim's goal marker's green
+_OUTCOME_RGB = {"success": (0, 140, 0), "timeout": (200, 110, 0)}  # else red: a failure
+_FAILURE_RGB = (190, 0, 0)
 
 
 @dataclass
@@ -142,9 +148,111 @@ def _video_frame(env: Any, obs: Any) -> np.ndarray:
     return np.concatenate(panels, axis=1)
 
 
+def _labelled_frame(
+    env: Any, obs: Any, info: dict[str, Any], step: int, goal: Any
+) -> np.ndarray:
+    """This step's video frame with its labels; on the step that reaches the goal the
+    distance and arrow are the reached goal's (the env has already drawn the next one)."""
+    distance, bearing = float(obs["target"][0]), float(obs["target"][1])
+    if info.get("goals_reached", 0) > 0 and goal is not None:
+        x, y, yaw = float(obs["pose"][0]), float(obs["pose"][1]), float(obs["imu"][2])
+        distance = float(np.hypot(goal[0] - x, goal[1] - y))
+        bearing = float(np.arctan2(goal[1] - y, goal[0] - x)) - yaw
+    return label_frame(
+        _video_frame(env, obs), step, distance, bearing,
+        collision=bool(info.get("collision", False)),
+    )  # fmt: skip
+
+
+def _put_text(
+    frame: np.ndarray, text: str, org: tuple[int, int], scale: float = 0.45,
+    rgb: tuple[int, int, int] = (255, 255, 255), box: tuple[int, int, int] | None = (0, 0, 0),
+    thickness: int = 1,
+) -> None:  # fmt: skip
+    """``text`` with its baseline-left corner at ``org``, on a filled ``box`` (legible on
+    any panel), or outlined in black when ``box`` is None."""
+    import cv2
+
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    (w, h), base = cv2.getTextSize(text, font, scale, thickness)
+    x, y = org
+    if box is not None:
+        cv2.rectangle(frame, (x - 3, y - h - 3), (x + w + 2, y + base), box, cv2.FILLED)
+    else:
+        cv2.putText(frame, text, org, font, scale, (0, 0, 0), thickness + 2, cv2.LINE_AA)
+    cv2.putText(frame, text, org, font, scale, rgb, thickness, cv2.LINE_AA)
+
+
+def label_frame(
+    frame: np.ndarray, step: int, distance: float, bearing: float, *, collision: bool = False
+) -> np.ndarray:
+    """Draw on a composed video frame (RGB, in place, and returned): each panel's name
+    (``VIDEO_PANEL_NAMES``), the step and the distance to the goal (m) under the chase view,
+    ``collision`` on steps with one, and an arrow towards the goal (up: the rover's heading;
+    ``bearing`` in rad, positive to the left) in the chase view's top right corner, where
+    the goal marker itself is often off screen or behind a wall.
+    """
+    import cv2
+
+    for i, name in enumerate(VIDEO_PANEL_NAMES[: frame.shape[1] // VIDEO_PANEL]):
+        _put_text(frame, name, (i * VIDEO_PANEL + 6, 17))
+    bottom = VIDEO_PANEL - 7
+    _put_text(frame, f"step {step}   goal {distance:.1f} m", (6, bottom))
+    if collision:
+        _put_text(frame, "collision", (6, bottom - 20), rgb=(255, 60, 60))
+    r = 17
+    cx, cy = VIDEO_PANEL - r - 6, r + 22
+    _put_text(frame, "goal", (cx - 14, 16), rgb=_GOAL_RGB)
+    cv2.circle(frame, (cx, cy), r, (0, 0, 0), cv2.FILLED, cv2.LINE_AA)
+    cv2.circle(frame, (cx, cy), r, (255, 255, 255), 1, cv2.LINE_AA)
+    tip = (round(cx - 0.85 * r * np.sin(bearing)), round(cy - 0.85 * r * np.cos(bearing)))
+    tail = (round(cx + 0.5 * r * np.sin(bearing)), round(cy + 0.5 * r * np.cos(bearing)))
+    cv2.arrowedLine(frame, tail, tip, _GOAL_RGB, 2, cv2.LINE_AA, tipLength=0.45)
+    return frame
+
+
+def episode_outcome(result: EpisodeResult) -> str:
+    """How an episode ended, in a video's words: ``success``, ``timeout``, ``collision``
+    (stuck in a collision) or the termination (``flipped``, ``stuck``, ``out of bounds``),
+    with ``(collided)`` added when a collision step happened on the way."""
+    if result.success:
+        word = "success"
+    elif result.timeout:
+        word = "timeout"
+    elif result.termination == STUCK_IN_COLLISION:
+        word = "collision"
+    else:
+        word = result.termination.replace("_", " ")
+    return f"{word} (collided)" if result.collided and word != "collision" else word
+
+
+def draw_outcome(frame: np.ndarray, outcome: str) -> np.ndarray:
+    """A copy of ``frame`` with ``outcome`` (:func:`episode_outcome`) in a banner across the
+    chase view's middle: green for success, orange for a timeout, red otherwise."""
+    import cv2
+
+    out = frame.copy()
+    head = outcome.split(" (")[0]
+    rgb = _OUTCOME_RGB.get(head, _FAILURE_RGB)
+    text = outcome.upper()
+    scale = 0.8
+    while scale > 0.4 and cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 2)[0][0] > (
+        VIDEO_PANEL - 20
+    ):
+        scale -= 0.05
+    (w, _h), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 2)
+    cv2.rectangle(out, (0, VIDEO_PANEL // 2 - 24), (VIDEO_PANEL - 1, VIDEO_PANEL // 2 + 12), rgb,
+                  cv2.FILLED)  # fmt: skip
+    _put_text(out, text, ((VIDEO_PANEL - w) // 2, VIDEO_PANEL // 2), scale, box=None, thickness=2)
+    return out
+
+
 def run_episode(
     env: Any, act: Any, seed: int, max_steps: int, frames: list | None
 ) -> EpisodeResult:
+    """One evaluation episode of ``act`` from ``reset(seed=seed)``. ``frames``, when given,
+    gets a labelled video frame per step (:func:`label_frame`) and then the last one again
+    with the outcome (:func:`draw_outcome`), held ``OUTCOME_HOLD_S``."""
     obs, info = env.reset(seed=seed)
     base = env.unwrapped
     pos = np.array(obs["pose"][:2], dtype=np.float64)
@@ -160,9 +268,10 @@ def run_episode(
     steps = 0
     while steps < max_steps:
         steps += 1
+        goal = info.get("goal")  # this step's goal (a reached one is replaced at once)
         obs, reward, terminated, truncated, info = env.step(act(obs))
         if frames is not None:
-            frames.append(_video_frame(env, obs))
+            frames.append(_labelled_frame(env, obs, info, steps, goal))
         ret += float(reward)
         new = np.array(obs["pose"][:2], dtype=np.float64)
         path += float(np.linalg.norm(new - pos))
@@ -180,7 +289,7 @@ def run_episode(
         if truncated:
             termination = "length"
             break
-    return EpisodeResult(
+    result = EpisodeResult(
         success=success,
         collided=collided,
         timeout=termination in ("timeout", "length"),
@@ -193,6 +302,11 @@ def run_episode(
         min_ped_distance=min_ped,
         ret=ret,
     )
+    if frames is not None and steps > 0:
+        hold = max(1, round(OUTCOME_HOLD_S / control_dt))
+        frames[-1] = draw_outcome(frames[-1], episode_outcome(result))
+        frames.extend(frames[-1].copy() for _ in range(hold - 1))
+    return result
 
 
 def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
@@ -226,11 +340,13 @@ def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
     }
 
 
-def format_table(summary: dict[str, Any], title: str) -> str:
+def _table_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
+    """(metric, value) rows of a :func:`summarise` summary, in the tables' order."""
+
     def fmt(v: Any, spec: str) -> str:
         return "n/a" if v is None else format(v, spec)
 
-    rows = [
+    return [
         ("episodes", str(summary["episodes"])),
         ("success rate", fmt(summary["success_rate"], ".0%")),
         ("collision rate", fmt(summary["collision_rate"], ".0%")),
@@ -247,10 +363,30 @@ def format_table(summary: dict[str, Any], title: str) -> str:
         ("mean return", fmt(summary["mean_return"], ".1f")),
         ("endings", ", ".join(f"{k} {v}" for k, v in summary["terminations"].items())),
     ]
+
+
+def format_table(summary: dict[str, Any], title: str) -> str:
+    rows = _table_rows(summary)
     width = max(len(k) for k, _ in rows)
     lines = [title, "-" * len(title)]
     lines += [f"| {k.ljust(width)} | {v} |" for k, v in rows]
     return "\n".join(lines)
+
+
+def format_comparison(columns: Sequence[tuple[str, dict[str, Any]]], title: str) -> str:
+    """One table of several policies' summaries side by side: a row per metric, a column
+    per ``(heading, summary)``, in the order given (a Markdown table under ``title``)."""
+    tables = [dict(_table_rows(summary)) for _, summary in columns]
+    metrics = list(tables[0])
+    cells = [["", *(heading for heading, _ in columns)]]
+    cells += [[m, *(t[m] for t in tables)] for m in metrics]
+    widths = [max(len(row[i]) for row in cells) for i in range(len(cells[0]))]
+
+    def line(row: list[str]) -> str:
+        return "| " + " | ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)) + " |"
+
+    rule = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
+    return "\n".join([title, "-" * len(title), line(cells[0]), rule, *map(line, cells[1:])])
 
 
 def write_video(frames: list[np.ndarray], path: Path, fps: float) -> None:
@@ -311,7 +447,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--slot", type=int, default=0, help=argparse.SUPPRESS)  # old: first slot
     p.add_argument("--log-level", type=str.upper, choices=LOG_LEVELS,
                    default=default_log_level("WARNING"))
-    p.add_argument("--video", type=Path, help="write an MP4: chase view beside the fused channels")
+    p.add_argument("--video", type=Path,
+                   help="write an MP4: chase view beside the fused channels, labelled")
     p.add_argument("--video-episodes", type=int, default=1, help="episodes recorded in the video")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on the last line")
     args = p.parse_args(argv)

@@ -1,7 +1,7 @@
 """The main job (`make demo` runs ``rover_train.imitation.demo`` under rover-pair): a short
 run against a
-real daemon writes its outputs, prints the same random row twice, and its table describes
-the student file it leaves behind."""
+real daemon writes its outputs, prints the same random row twice, and its table puts the
+zoo entry before fine-tuning beside the student file it leaves behind and random."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
+import cv2
 import pytest
 from helpers.daemon import Daemon
 
@@ -51,14 +52,30 @@ def test_demo_writes_its_outputs_and_a_reproducible_random_row(daemon: Daemon,
     assert first["random"]["episodes"] == EPISODES
     # the random policy is seeded: two runs print the same row
     assert first["random"] == second["random"]
+    # one table, three policies side by side, each on the same episodes
     table = (tmp_path / "a" / "eval.txt").read_text()
-    assert "random policy (seed 0)" in table and "fused-maze" in table
+    header = next(line for line in table.splitlines() if line.startswith("| "))
+    for column in ("zoo fused-maze (before)", "fine-tuned (0 steps)", "random policy (seed 0)"):
+        assert column in header, table
+    episodes = next(line for line in table.splitlines() if line.startswith("| episodes"))
+    assert [c.strip() for c in episodes.strip("|").split("|")] == ["episodes"] + [
+        str(EPISODES)] * 3  # fmt: skip
+    assert first["before"]["episodes"] == first["trained"]["episodes"] == EPISODES
 
-    # the trained row is the saved student's own performance on the same seeds
+    # the video keeps its 1024x256 frames (four labelled panels)
+    cap = cv2.VideoCapture(str(tmp_path / "a" / "eval.mp4"))
+    ok, frame = cap.read()
+    cap.release()
+    assert ok and frame.shape == (256, 1024, 3)
+
+    # the rows are the shipped entry's and the saved student's own performance on the seeds
     saved = zoo.StudentAgent.load(tmp_path / "a" / "student.pt")
     env = zoo.make_env("fused-maze", rl_obs_name=daemon.name)
     try:
         again = summarise(evaluate_agent(env, saved, EPISODES, zoo.EVAL_SEED_BASE, MAX_STEPS))
+        shipped = summarise(evaluate_agent(env, zoo.load("fused-maze"), EPISODES,
+                                           zoo.EVAL_SEED_BASE, MAX_STEPS))  # fmt: skip
     finally:
         env.close()
     assert again == first["trained"]
+    assert shipped == first["before"]
