@@ -1,7 +1,7 @@
 """av-daemon: camera frames in, fused 96x96x3 observations out, over shared memory.
 
     av-daemon [--name rl_observation] [--slots N] [--size 96] [--depth model|render]
-              [--backend auto|onnx|torch] [--threads 1]
+              [--backend auto|onnx|torch] [--precision int8|fp32] [--threads 1]
               [--source camera|video:PATH|device:N] [--preview PATH]
               [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
               [--heatmap detect|predict] [--predict-weights FILE]
@@ -19,7 +19,9 @@ Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flu
    as one batch, in ONNX Runtime or eager torch (``--backend``: ``auto``, the default, is
    ONNX Runtime when it is installed, else torch with one log line saying so; the ONNX file
    ships with the weights, or is exported once into the user cache for other weights, see
-   :mod:`active_vision.onnx_export`);
+   :mod:`active_vision.onnx_export`; ``--precision int8``, the default, runs the shipped
+   int8 model where this CPU has int8 dot-product instructions, else the fp32 export with one
+   log line, see :mod:`active_vision.backends`);
 3. publishes each fused frame into its slot's segment with ``source_seq`` = the camera
    frame's ``seq`` (the env waits on that with ``FrameReader.wait_for``);
 4. refreshes the fused segments' heartbeat while idle, and logs per-stage timings (gray,
@@ -105,6 +107,9 @@ class DaemonConfig:
     """Threads of the perception network (torch threads / ONNX Runtime intra-op threads)."""
     backend: str = "auto"
     """``auto`` (ONNX Runtime when installed, else torch), ``onnx`` or ``torch``."""
+    precision: str = "int8"
+    """``int8`` (the shipped int8 model in ONNX Runtime where it runs here, else fp32 with one
+    log line) or ``fp32``; ``active_vision.backends.DEFAULT_PRECISION``."""
     source: str = "camera"
     """``camera`` (segments written by envs), ``video:PATH`` or ``device:N``."""
     preview: Path | None = None
@@ -207,7 +212,8 @@ class Daemon:
         try:
             self.perception = Perception(PerceptionConfig(
                 size=cfg.size, depth=cfg.depth, threads=cfg.threads, weights=cfg.weights,
-                max_batch=cfg.slots, backend=cfg.backend))  # type: ignore[arg-type]
+                max_batch=cfg.slots, backend=cfg.backend,
+                precision=cfg.precision))  # type: ignore[arg-type]
             if cfg.heatmap == "predict":
                 from active_vision.predict import Predictor
 
@@ -392,7 +398,8 @@ def _source(text: str) -> str:
 
 
 def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
-    from active_vision.backends import BACKENDS  # imports torch, which serving needs anyway
+    # imports torch, which serving needs anyway
+    from active_vision.backends import BACKENDS, PRECISIONS
 
     d = DaemonConfig()
     p = argparse.ArgumentParser(
@@ -411,6 +418,10 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         "Runtime when onnxruntime is installed, else torch, with one log "
                         "line), onnx (ONNX Runtime; the .onnx file ships with the weights or "
                         "is exported once into ~/.cache/roverav) or torch (eager)")
+    p.add_argument("--precision", choices=PRECISIONS, default=d.precision,
+                   help="int8 (default): the shipped int8 model in ONNX Runtime, where the "
+                        "file is there and the CPU has VNNI/dot-product instructions, else "
+                        "fp32 with one log line; fp32: the fp32 export (torch: always fp32)")
     p.add_argument("--threads", type=_positive_int, default=d.threads,
                    help="threads of the perception network (torch / ONNX Runtime intra-op)")
     p.add_argument("--source", type=_source, default=d.source,
@@ -439,7 +450,8 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     if not a.stale_after > 0:
         p.error("--stale-after must be > 0")
     return DaemonConfig(name=a.name, slots=a.slots, size=a.size, depth=a.depth,
-                        threads=a.threads, backend=a.backend, source=a.source, preview=a.preview,
+                        threads=a.threads, backend=a.backend, precision=a.precision,
+                        source=a.source, preview=a.preview,
                         log_every=max(0, a.log_every), stale_after=a.stale_after,
                         weights=a.weights, log_level=a.log_level.upper(),
                         heatmap=a.heatmap, predict_weights=a.predict_weights)
@@ -462,6 +474,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             names = daemon.segment_names()
             print(f"{READY_MARKER}: name={cfg.name} slots={cfg.slots} size={cfg.size} "
                   f"depth={cfg.depth} backend={daemon.perception.backend} "
+                  f"precision={daemon.perception.precision} "
                   f"heatmap={cfg.heatmap} source={cfg.source} pid={os.getpid()} "
                   f"segments={','.join(names)}", flush=True)
             daemon.serve()

@@ -83,6 +83,33 @@ def onnx_file_name(weights: Path, size: int) -> str:
     return f"{weights.stem}-{weights_digest(weights)}-s{size}-x{EXPORT_VERSION}.onnx"
 
 
+INT8_SUFFIX = ".int8.onnx"
+"""Ending of the int8 (quantized) model's file name in place of ``.onnx``."""
+
+
+def int8_file_name(weights: Path, size: int) -> str:
+    """The file name of the int8 model quantized from the export of ``weights``
+    (``<export name without .onnx>.int8.onnx``; made by ``python -m
+    active_vision.training.quantize``)."""
+    return onnx_file_name(weights, size).removesuffix(".onnx") + INT8_SUFFIX
+
+
+def int8_file_for(weights: Path | None = None, size: int = 96,
+                  cache_dir: Path | None = None) -> Path | None:
+    """The int8 model of ``weights`` (default: the shipped ones) next to them or in
+    ``cache_dir`` (default :data:`ONNX_CACHE_DIR`), or None: it is never made on the fly
+    (its calibration needs rendered validation frames)."""
+    weights = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+    if not weights.is_file():
+        return None
+    name = int8_file_name(weights, size)
+    cache_dir = Path(cache_dir) if cache_dir is not None else ONNX_CACHE_DIR
+    for candidate in (weights.parent / name, cache_dir / name):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
 def _output_names(model: nn.Module, n_out: int) -> list[str]:
     names = getattr(model, "onnx_output_names", None)
     if names:
@@ -185,7 +212,10 @@ __all__ = [
     "ONNX_CACHE_DIR",
     "OnnxExportError",
     "avnet_example_inputs",
+    "INT8_SUFFIX",
     "export_onnx",
+    "int8_file_for",
+    "int8_file_name",
     "onnx_file_for",
     "onnx_file_name",
     "weights_digest",
@@ -205,7 +235,7 @@ def write_export_beside(weights: Path, size: int = FUSED_SIZE[0],
     path = out_dir / onnx_file_name(weights, size)
     export_onnx(load_model(weights), avnet_example_inputs(size), path)
     for old in out_dir.glob(f"{weights.stem}-*-s{size}-x*.onnx"):
-        if old != path:
+        if old != path and not old.name.endswith(INT8_SUFFIX):  # those: quantize's to tend
             old.unlink()
             logger.info("removed stale export %s", old)
     return path

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from active_vision.backends import (
+    DEFAULT_PRECISION,
     BackendError,
     Network,
     OnnxNetwork,
@@ -70,6 +71,10 @@ class PerceptionConfig:
     """``auto`` | ``onnx`` | ``torch`` (:mod:`active_vision.backends`): ``auto`` is ONNX
     Runtime when it imports (and the export is available), else torch. A ``model`` passed to
     :class:`Perception` runs in torch unless ``onnx`` is asked for explicitly."""
+    precision: str = DEFAULT_PRECISION
+    """``int8`` | ``fp32``: ``int8`` runs the shipped int8 model in ONNX Runtime where it is
+    there and this CPU has int8 dot-product instructions, else the fp32 export (one log line
+    says why); the torch backend always runs fp32 (:mod:`active_vision.backends`)."""
 
 
 @dataclass
@@ -134,22 +139,40 @@ class Perception:
                 "save the model (active_vision.save_weights) and pass its path as "
                 "PerceptionConfig.weights, or use backend 'torch' with model=."
             )
-        backend, onnx_path = resolve_backend(requested, self.config.weights, self.config.size)
+        backend, onnx_path, precision = resolve_backend(
+            requested, self.config.weights, self.config.size, self.config.precision)
         capacity = max(1, self.config.max_batch)
         if backend == "onnx":
             assert onnx_path is not None
             self.model: AVNet | None = None
-            self.net: Network = OnnxNetwork(onnx_path, self.config.size,
-                                            threads=self.config.threads or 1, capacity=capacity)
+            onnx_net = self._onnx_network(onnx_path, precision, capacity)
+            onnx_path = onnx_net.path
+            self.net: Network = onnx_net
         else:
             self.model = model if model is not None else load_model(self.config.weights)
             self.net = TorchNetwork(self.model, self.config.size, capacity=capacity)
-        logger.info("perception backend: %s%s", backend,
+        logger.info("perception backend: %s, %s%s", backend, self.net.precision,
                     f" ({onnx_path.name})" if onnx_path is not None else "")
         self.timings = StageTimes()
         self._capacity = 0
         self._views: dict[int, _Views] = {}
         self._allocate(capacity)
+
+    def _onnx_network(self, path: Path, precision: str, capacity: int) -> OnnxNetwork:
+        """The ONNX network of ``path``; an int8 file that ONNX Runtime cannot load (a build
+        without its quantized kernels) falls back to the fp32 export with one log line."""
+        threads = self.config.threads or 1
+        try:
+            return OnnxNetwork(path, self.config.size, threads=threads, capacity=capacity,
+                               precision=precision)  # type: ignore[arg-type]
+        except BackendError as exc:
+            if precision != "int8":
+                raise
+            logger.warning("the int8 model does not load here, perception runs the fp32 "
+                           "export: %s", exc)
+        _, fp32, _ = resolve_backend("onnx", self.config.weights, self.config.size, "fp32")
+        assert fp32 is not None
+        return OnnxNetwork(fp32, self.config.size, threads=threads, capacity=capacity)
 
     @property
     def size(self) -> int:
@@ -159,6 +182,11 @@ class Perception:
     def backend(self) -> str:
         """The backend that runs the network: ``onnx`` or ``torch``."""
         return self.net.name
+
+    @property
+    def precision(self) -> str:
+        """What the network computes in: ``fp32`` or ``int8`` (after any fallback)."""
+        return self.net.precision
 
     def _allocate(self, n: int) -> None:
         s = self.config.size

@@ -14,6 +14,8 @@ and ``margin_interval``: the 90 % interval of predict - detect over bootstrap dr
 episodes. ``--sweep 0.5,0.3,0.1`` also prints the heatmap figures (IoU, recall,
 false-positive frames) per world at each of those detection thresholds, from the same pass
 of the network: where a threshold other than 0.5 would put the operating point.
+``--precision int8`` evaluates the int8 model (:mod:`active_vision.training.quantize`) in
+ONNX Runtime instead of the fp32 network in torch (the JSON line says which: ``precision``).
 ``--depth-bands`` also prints, per world, the depth figures by true depth and by image row
 (:func:`depth_bands`): where the depth channel goes wrong.
 
@@ -60,6 +62,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from active_vision.backends import PRECISIONS, BackendError
 from active_vision.models import MIN_DEPTH_M, AVNet, load_model
 from active_vision.perception import (
     CHANNEL_DEPTH,
@@ -221,12 +224,27 @@ def figures_of(c: FrameCounts) -> dict[str, float]:
     }
 
 
-def _fused_frames(model: AVNet, data: Dataset, batch: int,
-                  threads: int | None) -> Iterator[tuple[int, np.ndarray]]:
+def _fused_frames(model: AVNet, data: Dataset, batch: int, threads: int | None,
+                  precision: str = "fp32", weights: Path | None = None
+                  ) -> Iterator[tuple[int, np.ndarray]]:
     """(index, fused frame) of every frame of ``data``, through :class:`Perception` as the
-    daemon runs it."""
-    perception = Perception(PerceptionConfig(size=data.rgb.shape[1], threads=threads,
-                                             max_batch=batch), model=model)
+    daemon runs it: ``model`` in torch for ``fp32``; for ``int8``, the int8 ONNX model of
+    ``weights`` (default: the shipped ones), which ``model`` must be loaded from."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "int8":
+        perception = Perception(PerceptionConfig(
+            size=data.rgb.shape[1], threads=threads, max_batch=batch, weights=weights,
+            backend="onnx", precision="int8"))
+        if perception.precision != "int8":  # the fallback logged why
+            raise BackendError(
+                f"no int8 model of {weights or 'the shipped weights'} runs here (see the log "
+                "line above); make it with `python -m active_vision.training.quantize`, or "
+                "evaluate --precision fp32")
+    else:
+        perception = Perception(PerceptionConfig(size=data.rgb.shape[1], threads=threads,
+                                                 max_batch=batch, precision="fp32"),
+                                model=model)
     for start in range(0, len(data), batch):
         fused = perception(data.rgb[start:start + batch])
         for j in range(fused.shape[0]):
@@ -255,14 +273,15 @@ def episode_intervals(units: Sequence[FrameCounts], resamples: int = BOOTSTRAP_R
     return out
 
 
-def evaluate(model: AVNet, data: Dataset, *, batch: int = 32, threads: int | None = None
-             ) -> Metrics:
-    """Run ``model`` through :class:`Perception` on ``data`` and compute :class:`Metrics`."""
+def evaluate(model: AVNet, data: Dataset, *, batch: int = 32, threads: int | None = None,
+             precision: str = "fp32", weights: Path | None = None) -> Metrics:
+    """Run ``model`` through :class:`Perception` on ``data`` and compute :class:`Metrics`
+    (``precision="int8"``: the int8 model of ``weights`` instead, see :func:`_fused_frames`)."""
     total = FrameCounts()
     per_world = {w: FrameCounts() for w in data.worlds}
     units: dict[tuple[str, int, int], FrameCounts] = {}
     episode = np.asarray(data.episode)
-    for i, fused in _fused_frames(model, data, batch, threads):
+    for i, fused in _fused_frames(model, data, batch, threads, precision, weights):
         c = frame_counts(fused[:, :, CHANNEL_HEATMAP], fused[:, :, CHANNEL_DEPTH],
                          data.mask[i], data.depth[i])
         total.add(c)
@@ -451,6 +470,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                    "held-out split (the figures reported) or the validation split (to choose "
                    "between networks on)")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--precision", choices=PRECISIONS, default="fp32",
+                   help="fp32: the torch network; int8: its int8 ONNX model (made by "
+                   "active_vision.training.quantize; an error when it does not run here)")
     p.add_argument("--json", action="store_true", help="end with one JSON line of the figures")
     p.add_argument("--heatmap", choices=("detect", "predict"), default="detect",
                    help="predict: also evaluate the predictive heatmap (future occupancy)")
@@ -468,13 +490,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     data = (Dataset.load(args.data) if args.data
             else heldout(args.data_dir, args.frames, split=args.split))
     model = load_model(args.weights)
-    m = evaluate(model, data, threads=args.threads)
+    m = evaluate(model, data, threads=args.threads, precision=args.precision,
+                 weights=args.weights)
     print(format_metrics(m))
     if args.sweep:
         print(format_sweep(threshold_sweep(model, data, args.sweep, threads=args.threads)))
     if args.depth_bands:
         print(format_depth_bands(depth_bands(model, data, threads=args.threads)))
-    out: dict[str, object] = {**m.summary(), "frames": m.frames, "pedestrians": m.pedestrians,
+    out: dict[str, object] = {**m.summary(), "precision": args.precision,
+                              "frames": m.frames, "pedestrians": m.pedestrians,
                               "empty_frames": m.empty_frames, "abs_rel_near": m.abs_rel_near,
                               "worst": m.worst(),
                               "per_world": {w: dict(f) for w, f in m.per_world.items()},
