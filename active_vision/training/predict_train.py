@@ -30,13 +30,12 @@ target pixels, like ``evaluate``'s IoU) of:
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +60,15 @@ from active_vision.training.dataset import (
 )
 from active_vision.training.driving import DriveRecorder
 from fused_image import CHANNEL_HEATMAP, FUSED_SIZE
+from rover_train.cli import (
+    add_recipe_option,
+    build_parser,
+    instance_from,
+    recipe_defaults,
+    recipe_dict,
+    recipe_from_dict,
+    setup_logging,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -192,9 +200,11 @@ def windows(data: SequenceData, weights: Path | None = None, threads: int = 2) -
     return fused_frames(data, weights, threads)[window_rows(data)]
 
 
-@dataclass
-class PredictTrainConfig:
-    """Options of :func:`train_predictor` (CLI flags of the same names)."""
+@dataclass(frozen=True)
+class PredictRecipe:
+    """Everything that decides what a predictor weights file holds. The file stores it
+    (``meta["recipe"]``); ``--recipe FILE`` remakes the file from it, and the command line
+    is generated from these fields."""
 
     episodes: int = 900
     """Training driving episodes (seed ``TRAIN_SEED``): 900 give 20,373 targets, rendered in
@@ -204,17 +214,40 @@ class PredictTrainConfig:
     450 used until 2026-11-26, which scored 0.02 / 0.01 / 0.01 lower IoU in inspect / moon /
     maze on the validation episodes (benchmarks/RESULTS.md)."""
     epochs: int = 10
+    """Passes over the training targets."""
     batch: int = 32
+    """Targets per optimiser step."""
     lr: float = 3e-3
+    """Peak learning rate (one-cycle schedule)."""
     threads: int = 2
+    """torch threads (the float order of the kernels, so the weights, depend on it)."""
     seed: int = 0
-    data_dir: Path = DEFAULT_DATA_DIR
-    weights: Path | None = None
-    """Detection weights (default: the shipped AVNet)."""
-    out: Path = DEFAULT_PREDICT_WEIGHTS
+    """torch seed (initial weights, batch order, flips)."""
     max_minutes: float = 60.0
+    """Stop early when training takes longer than this."""
+    weights: Path | None = None
+    """Detection weights whose fused frames the predictor reads (default: the shipped
+    AVNet)."""
     init: Path | None = None
     """Start from these predictor weights (fine-tuning) instead of random ones."""
+
+
+@dataclass(frozen=True)
+class PredictRun:
+    """Where a predictor run reads and writes, and what it reports: not part of the
+    recipe."""
+
+    data_dir: Path = DEFAULT_DATA_DIR
+    """Where rendered episodes are cached."""
+    out: Path = DEFAULT_PREDICT_WEIGHTS
+    """Predictor weights to write (or, with ``evaluate_only``, to evaluate)."""
+    evaluate_only: bool = False
+    """Evaluate ``out`` on the episodes of ``split``; no training."""
+    split: str = field(default="heldout", metadata={"choices": tuple(sorted(SPLIT_SEEDS))})
+    """Episodes to evaluate on: the reported held-out ones, or the validation ones to
+    choose between predictors."""
+    json: bool = False
+    """End with one JSON line of the figures."""
 
 
 def _loss(logit: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -224,11 +257,13 @@ def _loss(logit: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return bce + 0.5 * dice
 
 
-def train_predictor(cfg: PredictTrainConfig) -> tuple[PredictNet, dict[str, float]]:
-    """Train a fresh :class:`PredictNet` on the training episodes."""
+def train_predictor(cfg: PredictRecipe, data_dir: Path = DEFAULT_DATA_DIR
+                    ) -> tuple[PredictNet, dict[str, float]]:  # fmt: skip
+    """Train a :class:`PredictNet` by recipe ``cfg`` on the training episodes (rendered
+    into, or reused from, ``data_dir``)."""
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
-    data = build_sequences(cfg.data_dir, TRAIN_SEED, cfg.episodes)
+    data = build_sequences(data_dir, TRAIN_SEED, cfg.episodes)
     # windows are gathered per batch: all of them at once took 5.6 GB for 900 episodes
     fused = torch.from_numpy(fused_frames(data, cfg.weights, cfg.threads))
     rows = torch.from_numpy(window_rows(data))
@@ -358,43 +393,37 @@ def evaluate_heldout(predict_weights: Path | None = None, weights: Path | None =
     return evaluate_predictor(Predictor(weights=predict_weights), data, win)
 
 
+RECIPE_KEY = "recipe"
+"""The key of a predictor file's ``meta`` that holds its :class:`PredictRecipe`."""
+
+
+def read_recipe(path: Path) -> PredictRecipe:
+    """The recipe stored in the predictor weights file ``path``."""
+    meta = torch.load(path, map_location="cpu", weights_only=True).get("meta", {})
+    if RECIPE_KEY not in meta:
+        raise ValueError(f"{path} holds no recipe (weights written before recipes were "
+                         "stored)")  # fmt: skip
+    return recipe_from_dict(PredictRecipe, meta[RECIPE_KEY])
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    d = PredictTrainConfig()
-    p = argparse.ArgumentParser(prog="python -m active_vision.training.predict_train",
-                                description="Train/evaluate the predictive heatmap.")
-    p.add_argument("--episodes", type=int, default=d.episodes)
-    p.add_argument("--epochs", type=int, default=d.epochs)
-    p.add_argument("--batch", type=int, default=d.batch)
-    p.add_argument("--lr", type=float, default=d.lr)
-    p.add_argument("--threads", type=int, default=d.threads)
-    p.add_argument("--seed", type=int, default=d.seed)
-    p.add_argument("--max-minutes", type=float, default=d.max_minutes)
-    p.add_argument("--data-dir", type=Path, default=d.data_dir)
-    p.add_argument("--weights", type=Path, default=None, help="detection weights")
-    p.add_argument("--out", type=Path, default=d.out, help="predictor weights to write")
-    p.add_argument("--init", type=Path, default=None,
-                   help="fine-tune from these predictor weights instead of training afresh")
-    p.add_argument("--evaluate-only", action="store_true",
-                   help="evaluate --out on the held-out episodes, no training")
-    p.add_argument("--split", choices=sorted(SPLIT_SEEDS), default="heldout",
-                   help="episodes to evaluate on: the reported held-out ones, or the "
-                        "validation ones to choose between predictors")
-    p.add_argument("--json", action="store_true", help="end with one JSON line")
-    p.add_argument("--log-level", default="INFO")
-    a = p.parse_args(argv)
-    logging.basicConfig(level=a.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
-    if not a.evaluate_only:
-        cfg = PredictTrainConfig(episodes=a.episodes, epochs=a.epochs, batch=a.batch, lr=a.lr,
-                                 threads=a.threads, seed=a.seed, data_dir=a.data_dir,
-                                 weights=a.weights, out=a.out, max_minutes=a.max_minutes,
-                                 init=a.init)
-        model, facts = train_predictor(cfg)
-        save_predictor(model, a.out, facts)
-        print(f"wrote {a.out} after {facts['epochs']:.0f} epochs in {facts['seconds']:.0f} s")
-    m = evaluate_heldout(a.out, a.weights, a.data_dir, threads=a.threads, split=a.split)
-    print(f"{a.split} episodes ({SPLIT_SEEDS[a.split]}):")
+    stored, rest = recipe_defaults(argv, read_recipe)
+    p = build_parser((PredictRecipe, PredictRun), "python -m active_vision.training.predict_train",
+                     "Train/evaluate the predictive heatmap.",
+                     defaults={PredictRecipe: stored} if stored else None)  # fmt: skip
+    add_recipe_option(p, "a predictor weights file")
+    ns = p.parse_args(rest)
+    cfg, run = instance_from(PredictRecipe, ns), instance_from(PredictRun, ns)
+    setup_logging(ns.log_level)
+    if not run.evaluate_only:
+        model, facts = train_predictor(cfg, run.data_dir)
+        save_predictor(model, run.out, {**facts, RECIPE_KEY: recipe_dict(cfg)})
+        print(f"wrote {run.out} after {facts['epochs']:.0f} epochs in {facts['seconds']:.0f} s")
+    m = evaluate_heldout(run.out, cfg.weights, run.data_dir, threads=cfg.threads,
+                         split=run.split)  # fmt: skip
+    print(f"{run.split} episodes ({SPLIT_SEEDS[run.split]}):")
     print("\n".join(figure_rows(m)))
-    if a.json:
+    if run.json:
         print(json.dumps(m))
     return 0
 
