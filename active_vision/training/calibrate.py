@@ -179,6 +179,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"wrote {write_export_beside(out)}")
     except OnnxExportError as exc:
         print(f"no ONNX export written beside the weights ({exc})", file=sys.stderr)
+        return 0
+    from active_vision.training.quantize import QuantizeError, write_int8_beside
+
+    try:
+        print(f"wrote {write_int8_beside(out, data_dir=a.data_dir)}")
+    except QuantizeError as exc:
+        print(f"no int8 model written beside the weights ({exc})", file=sys.stderr)
     return 0
 
 

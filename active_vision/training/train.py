@@ -529,6 +529,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OnnxExportError as exc:
         print(f"no ONNX export written beside the weights ({exc}); the daemon exports it "
               "on first use, or run `python -m active_vision.onnx_export`", file=sys.stderr)
+        return 0
+    # and its int8 model (calibrated on the validation split), which the daemon prefers
+    from active_vision.training.quantize import QuantizeError, write_int8_beside
+
+    try:
+        print(f"wrote {write_int8_beside(path)}")
+    except QuantizeError as exc:
+        print(f"no int8 model written beside the weights ({exc}); the daemon runs fp32 "
+              "until `python -m active_vision.training.quantize` makes it", file=sys.stderr)
     return 0
 
 
