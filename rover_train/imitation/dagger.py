@@ -219,7 +219,6 @@ def feature_spec(kind: str, env: Any, history: bool = True, depth_scan: int = 0,
         image=kind == "fused",
         max_speed=float(high[0]),
         min_speed=float(low[0]),
-        head="bins",
         history=history,
         depth_scan=depth_scan,
         unmapped_scan=unmapped_scan and kind == "lidar",
@@ -347,18 +346,15 @@ def synthetic_samples(
 
 def fit(net: StudentNet | EnsembleNet, data: Dataset, cfg: DAggerConfig,
         gen: torch.Generator) -> float:
-    """Refit ``net`` on ``data`` (``bins`` head: cross-entropy on the expert action's class;
-    ``regress``: MSE on speed, cos and sin of the heading). Returns the last epoch's mean
+    """Refit ``net`` on ``data`` (cross-entropy on the class of the expert's action, samples
+    weighted). Returns the last epoch's mean
     loss. An ensemble's members are refit one after the other, each on its own sample
     order (mean of their losses)."""
     if isinstance(net, EnsembleNet):
         return float(np.mean([fit(m, data, cfg, gen) for m in net.members]))
     states, images, targets, weights = data.tensors()
-    if net.spec.head == "bins":
-        targets = action_classes(targets)
-        loss_fn: nn.Module = nn.CrossEntropyLoss(reduction="none")
-    else:
-        loss_fn = nn.MSELoss(reduction="none")
+    targets = action_classes(targets)
+    loss_fn = nn.CrossEntropyLoss(reduction="none")
     if cfg.image_only and net.spec.image:
         params = list(net.cnn.parameters()) + list(net.img_proj.parameters())
     else:
@@ -379,8 +375,6 @@ def fit(net: StudentNet | EnsembleNet, data: Dataset, cfg: DAggerConfig,
                 img = torch.roll(img, shifts=(dy, dx), dims=(2, 3))
             pred = net(states[idx], img)
             per_sample = loss_fn(pred, targets[idx])
-            if per_sample.dim() > 1:
-                per_sample = per_sample.mean(dim=1)
             w = weights[idx]
             loss = (per_sample * w).sum() / w.sum()
             opt.zero_grad()

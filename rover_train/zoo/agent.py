@@ -24,8 +24,7 @@ and its weights. Its features:
   image's depth channel, the LIDAR the fused env does not have: each pixel is lifted to 3D
   with the camera's pose on the rover, the ground and anything above ``SCAN_TOP`` dropped,
   and the nearest horizontal range kept per column band (:func:`depth_scan`); with history,
-  its change over ``LIDAR_LAG`` steps too; with ``pedestrian_scan``, a second scan of the
-  pixels the heatmap marks as a pedestrian. Stage 1 of a fused entry (RoverEnv, no daemon)
+  its change over ``LIDAR_LAG`` steps too. Stage 1 of a fused entry (RoverEnv, no daemon)
   reads the same scan off the same fused image computed in-process
   (:class:`rover_train.imitation.dagger.FusedView`), so the state network learns walls and
   pedestrians ahead from its 190,000 samples instead of the image branch learning them
@@ -34,18 +33,13 @@ and its weights. Its features:
   small CNN whose features are added into the MLP's first hidden layer through a
   projection that starts at zero, so a fused student can start as a state-only one.
 
-Two output heads (``FeatureSpec.head``):
-
-- ``bins`` (the current entries): a softmax over joint (speed level, heading bin) classes,
-  ``SPEED_LEVELS`` x ``HEADING_BINS``, trained with cross-entropy on the expert's action's
-  nearest class. The expert's labels are multimodal (turn left or right round a panel, wait
-  or back off for a pedestrian); a regression averages the modes into an action that does
-  neither, which left the regression students stuck against obstacles in most of their
-  failed episodes. Decoding takes the most likely class and refines it with the
-  probabilities of its neighbours (a circular mean over the adjacent heading bins, a mean
-  over the adjacent speed levels).
-- ``regress`` (the first entries): ``(speed / max speed, cos heading, sin heading)`` by
-  mean squared error; the heading is decoded with ``atan2``.
+The output head: a softmax over joint (speed level, heading bin) classes, ``SPEED_LEVELS`` x
+``HEADING_BINS``, trained with cross-entropy on the expert's action's nearest class. The
+expert's labels are multimodal (turn left or right round a panel, wait or back off for a
+pedestrian); a regression averages the modes into an action that does neither (the first
+students regressed and were left stuck against obstacles). Decoding takes the most likely
+class and refines it with the probabilities of its neighbours (a circular mean over the
+adjacent heading bins, a mean over the adjacent speed levels).
 """
 
 from __future__ import annotations
@@ -60,7 +54,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from fused_image import CHANNEL_DEPTH, CHANNEL_HEATMAP, DEPTH_MAX_M
+from fused_image import CHANNEL_DEPTH, DEPTH_MAX_M
 from rover_env import FORWARD_CAMERA, LIDAR_SCAN_LAG, lidar_ray_angles, obstacle_map
 
 LIDAR_CLIP = 4.0  # m
@@ -71,12 +65,10 @@ HEADING_BINS = 32  # heading classes of the ``bins`` head (11.25 degrees each)
 SPEED_LEVELS = (-0.6, -0.36, 0.0, 0.175, 0.35, 0.525, 0.7, 0.85, 1.0)
 """Speeds of the ``bins`` head's classes as fractions of ``max_speed`` (the expert's local
 planner uses 0, 0.35, 0.7, 1 and reverses at -0.36; its pursuit speed is continuous)."""
-HEADS = ("bins", "regress")
 HISTORY_STEPS = 40  # 2 s at the 0.05 s control period
 LIDAR_LAG = 5  # 0.25 s
 SCAN_BOTTOM = 0.12  # m above the ground: lower points are ground (or depth error on it)
 SCAN_TOP = 1.2  # m above the ground: higher points cannot touch the rover
-PEDESTRIAN_LEVEL = 0.5  # heatmap value above which a pixel is a pedestrian's
 UNMAPPED_MARGIN = 0.15  # m: a return this much nearer than the map's is not the scenery
 UNMAPPED_YAW_SPREAD = 0.03  # rad: the map is cast this far either side of the heading too
 
@@ -95,17 +87,11 @@ class FeatureSpec:
     """Whether the fused image goes through the CNN."""
     max_speed: float = 1.0
     min_speed: float = -0.6
-    head: str = "regress"
-    """Output head: ``bins`` (classes of speed and heading) or ``regress`` (see the module
-    docstring); files written before heads existed are ``regress``."""
     history: bool = False
     """Add the :class:`ObsHistory` features (files written before it existed: off)."""
     depth_scan: int = 0
     """Bands of the forward range scan read off the depth channel (0: none; see
     :func:`depth_scan`)."""
-    pedestrian_scan: bool = False
-    """With ``depth_scan``: a second scan of the same bands, of the pixels the heatmap marks
-    as a pedestrian only (see :func:`depth_scan`)."""
     unmapped_scan: bool = False
     """With ``lidar_points``: a second scan of the LIDAR returns that ``world``'s map does
     not explain, the pedestrians (see :func:`unmapped_scan`)."""
@@ -121,7 +107,7 @@ class FeatureSpec:
         """Range features derived from the observation: the fused image's scans and the
         LIDAR's unmapped returns."""
         unmapped = self.lidar_points if self.unmapped_scan else 0
-        return self.depth_scan * (2 if self.pedestrian_scan else 1) + unmapped
+        return self.depth_scan + unmapped
 
     @property
     def range_points(self) -> int:
@@ -130,7 +116,7 @@ class FeatureSpec:
 
     @property
     def n_outputs(self) -> int:
-        return len(SPEED_LEVELS) * HEADING_BINS if self.head == "bins" else 3
+        return len(SPEED_LEVELS) * HEADING_BINS
 
     @property
     def state_dim(self) -> int:
@@ -157,8 +143,7 @@ def _scan_geometry(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
     )
 
 
-def depth_scan(depth_channel: np.ndarray, bands: int,
-               only: np.ndarray | None = None) -> np.ndarray:
+def depth_scan(depth_channel: np.ndarray, bands: int) -> np.ndarray:
     """A forward range scan from the fused image's depth channel: ``(bands,)`` in [0, 1].
 
     Each pixel's depth (``(1 - v) * DEPTH_MAX_M``; 0 is "far") is lifted to a point in the
@@ -166,9 +151,7 @@ def depth_scan(depth_channel: np.ndarray, bands: int,
     ``SCAN_TOP`` above flat ground, and far ones, are dropped; each of ``bands`` equal
     column bands (left to right across the 90-degree view) keeps its nearest horizontal
     range, clipped to ``LIDAR_CLIP`` and scaled to [0, 1] (1: nothing within reach), like
-    the LIDAR students' ranges. Assumes level ground (the zoo's worlds). ``only`` (bool, the
-    frame's shape) keeps only those pixels (the pedestrian scan: heatmap above
-    ``PEDESTRIAN_LEVEL``).
+    the LIDAR students' ranges. Assumes level ground (the zoo's worlds).
     """
     v = np.asarray(depth_channel, dtype=np.float32)
     height, width = v.shape
@@ -178,8 +161,6 @@ def depth_scan(depth_channel: np.ndarray, bands: int,
     z = (1.0 - v) * DEPTH_MAX_M
     elevation = FORWARD_CAMERA.height_m + z * up
     keep = (v > 0.0) & (elevation > SCAN_BOTTOM) & (elevation < SCAN_TOP)
-    if only is not None:
-        keep &= only
     ranges = np.where(keep, z * horizontal, LIDAR_CLIP)
     nearest = ranges.reshape(height, bands, width // bands).min(axis=(0, 2))
     return np.clip(nearest, 0.0, LIDAR_CLIP) / LIDAR_CLIP
@@ -230,9 +211,6 @@ def range_features(obs: dict[str, np.ndarray], spec: FeatureSpec) -> np.ndarray:
     if spec.depth_scan:
         image = obs["fused_image"]
         parts.append(depth_scan(image[:, :, CHANNEL_DEPTH], spec.depth_scan))
-        if spec.pedestrian_scan:
-            seen = image[:, :, CHANNEL_HEATMAP] > PEDESTRIAN_LEVEL
-            parts.append(depth_scan(image[:, :, CHANNEL_DEPTH], spec.depth_scan, seen))
     return np.concatenate(parts) if parts else np.zeros(0, np.float32)
 
 
@@ -340,7 +318,8 @@ def image_features(obs: dict[str, np.ndarray]) -> np.ndarray:
 
 
 def encode_action(action: np.ndarray, spec: FeatureSpec) -> np.ndarray:
-    """``[speed, heading]`` -> the network's target ``(speed / max, cos, sin)``."""
+    """``[speed, heading]`` -> the stored target ``(speed / max, cos, sin)`` (its class:
+    :func:`action_classes`)."""
     speed, heading = float(action[0]), float(action[1])
     return np.array([speed / spec.max_speed, math.cos(heading), math.sin(heading)], np.float32)
 
@@ -360,21 +339,18 @@ def action_classes(targets: torch.Tensor) -> torch.Tensor:
 
 
 def decode_action(out: np.ndarray, spec: FeatureSpec) -> np.ndarray:
-    """The network's output (one row) -> ``[speed, relative heading]``."""
-    if spec.head == "bins":
-        logits = np.asarray(out, dtype=np.float64).reshape(len(SPEED_LEVELS), HEADING_BINS)
-        p = np.exp(logits - logits.max())
-        s, h = np.unravel_index(int(np.argmax(p)), p.shape)
-        hs = [(h + k) % HEADING_BINS for k in (-1, 0, 1)]
-        w = p[s, hs]
-        heading = math.atan2(float(w @ np.sin(_BIN_ANGLES[hs])),
-                             float(w @ np.cos(_BIN_ANGLES[hs])))
-        ss = [k for k in (s - 1, s, s + 1) if 0 <= k < len(SPEED_LEVELS)]
-        frac = float(p[ss, h] @ _LEVELS[ss] / p[ss, h].sum())
-        speed = float(np.clip(frac * spec.max_speed, spec.min_speed, spec.max_speed))
-        return np.array([speed, heading], dtype=np.float32)
-    speed = float(np.clip(out[0] * spec.max_speed, spec.min_speed, spec.max_speed))
-    return np.array([speed, math.atan2(float(out[2]), float(out[1]))], dtype=np.float32)
+    """The network's output (one row of class logits) -> ``[speed, relative heading]``."""
+    logits = np.asarray(out, dtype=np.float64).reshape(len(SPEED_LEVELS), HEADING_BINS)
+    p = np.exp(logits - logits.max())
+    s, h = np.unravel_index(int(np.argmax(p)), p.shape)
+    hs = [(h + k) % HEADING_BINS for k in (-1, 0, 1)]
+    w = p[s, hs]
+    heading = math.atan2(float(w @ np.sin(_BIN_ANGLES[hs])),
+                         float(w @ np.cos(_BIN_ANGLES[hs])))  # fmt: skip
+    ss = [k for k in (s - 1, s, s + 1) if 0 <= k < len(SPEED_LEVELS)]
+    frac = float(p[ss, h] @ _LEVELS[ss] / p[ss, h].sum())
+    speed = float(np.clip(frac * spec.max_speed, spec.min_speed, spec.max_speed))
+    return np.array([speed, heading], dtype=np.float32)
 
 
 class StudentNet(nn.Module):
@@ -387,8 +363,6 @@ class StudentNet(nn.Module):
         self.body = nn.Sequential(
             nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
         )
-        if spec.head not in HEADS:
-            raise ValueError(f"unknown student head {spec.head!r}: use one of {HEADS}")
         self.out = nn.Linear(hidden, spec.n_outputs)
         if spec.image:
             self.cnn = nn.Sequential(
@@ -419,9 +393,9 @@ class EnsembleNet(nn.Module):
     """Several students of one feature spec, each trained by its own DAgger run (another
     seed: its own initialisation, episodes and sample order), acting as one.
 
-    Output: the mean of the members' log-probabilities (``bins`` head; the decoding's
-    softmax of it is their normalised geometric mean, so a class wins only where the
-    members agree on it) or of their outputs (``regress``). One run of the recipe is one
+    Output: the mean of the members' log-probabilities (the decoding's softmax of it is
+    their normalised geometric mean, so a class wins only where the members agree on it).
+    One run of the recipe is one
     draw of a noisy process (two runs of lidar-inspect's recipe reached 82 and 89 % of the
     same 100 episodes); averaging draws cuts the variance that one draw carries.
     """
@@ -441,9 +415,7 @@ class EnsembleNet(nn.Module):
         self.members = nn.ModuleList(members)
 
     def forward(self, state: torch.Tensor, image: torch.Tensor | None = None) -> torch.Tensor:
-        outs = torch.stack([m(state, image) for m in self.members])
-        if self.spec.head == "bins":
-            outs = outs.log_softmax(dim=-1)
+        outs = torch.stack([m(state, image) for m in self.members]).log_softmax(dim=-1)
         return outs.mean(dim=0)
 
 
@@ -500,6 +472,12 @@ class StudentAgent:
     def from_state_dict(cls, blob: dict[str, Any]) -> StudentAgent:
         spec_d = dict(blob["spec"])
         spec_d["centre"] = tuple(spec_d["centre"])
+        # keys of options that are gone: refused unless they hold what is now the only way
+        for key, only in (("head", "bins"), ("pedestrian_scan", False)):
+            if spec_d.pop(key, only) != only:
+                raise ValueError(f"this student was made with {key}={blob['spec'][key]!r}, "
+                                 f"which roverav no longer runs (only {only!r}); remake it "
+                                 "with its entry's command (rover_train.zoo.command)")
         spec = FeatureSpec(**spec_d)
         members = int(blob.get("members", 1))  # files before ensembles: one student
         net: StudentNet | EnsembleNet = (
