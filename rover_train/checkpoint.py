@@ -15,6 +15,17 @@ flight), the learning-curve episode log, SB3's episode-info buffers and the Tens
 name. ``rover-train --resume RUN_DIR`` loads the newest complete checkpoint and trains on,
 in the same directory, to the run's requested total (``--timesteps`` given again extends it).
 
+**Crashes and damaged files.** Every file here is written under a temporary name, synced to
+disk, renamed into place and its directory synced (:func:`durable_path`), so a crash, a
+power loss or a full disk leaves the old file or the whole new one, never a torn one under
+the real name. The state file records the sizes of the checkpoint's other files. Resume
+takes the newest checkpoint that loads: one whose state file is missing or unreadable,
+whose ``.zip`` is short of its recorded size, not a zip or fails its CRCs, or that SB3
+cannot load, is skipped with one warning line saying why, and the one before it is tried
+(an off-policy run that falls back past its one replay buffer resumes with an empty one,
+and says so). A ``run.json`` that is not JSON, lacks a field or has one of the wrong type
+is a usage error (:class:`ResumeError`) naming the file, the problem and the repair.
+
 **Boundaries.** Checkpoints are taken at rollout boundaries (the start of a rollout:
 between PPO's update and its next collection; every ``train_freq`` steps off-policy), where
 the model, the RNGs and the step counter agree. A stop in the middle of a PPO rollout
@@ -44,10 +55,12 @@ import logging
 import os
 import pickle
 import random
+import re
 import signal
 import time
+import zipfile
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import MISSING, dataclass, field
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -69,7 +82,8 @@ EPISODE_RNG_KEY = "episode_rng_state"
 
 
 class ResumeError(RuntimeError):
-    """A run cannot be resumed as asked (no checkpoint, or a flag that would change it)."""
+    """A run cannot be resumed as asked (no run.json or a damaged one, no checkpoint that
+    loads, or a flag that would change the run); rover-train reports it as a usage error."""
 
 
 class TrainingInterrupted(Exception):
@@ -158,10 +172,36 @@ def checkpoint_stem(algo: str, steps: int) -> str:
     return f"{algo}_{steps}_steps"
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
+# --- files a crash cannot leave half-written ---------------------------------------------------
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def durable_path(path: Path) -> Iterator[Path]:
+    """A temporary name beside ``path`` for the block to write; when the block ends without
+    an error the file is flushed to disk (fsync), renamed to ``path`` and the directory
+    synced, so ``path`` holds either its old contents or all of the new ones, whatever a
+    crash, a power loss or a full disk cuts short. On an error the temporary file goes."""
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    try:
+        yield tmp
+        _fsync(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync(path.parent)
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` through :func:`durable_path`."""
+    with durable_path(path) as tmp:
+        tmp.write_bytes(data)
 
 
 @dataclass
@@ -187,9 +227,12 @@ class RunRecord:
 
     @classmethod
     def load(cls, run_dir: Path) -> RunRecord:
+        """The run's record; :class:`ResumeError` naming the file, what is wrong and the fix
+        when it is missing, not JSON, or lacks a field or has one of the wrong type."""
         path = run_dir / RUN_FILE
         try:
-            data = json.loads(path.read_text())
+            text = path.read_text()
+            data = json.loads(text)
         except FileNotFoundError:
             raise ResumeError(
                 f"--resume {run_dir}: no {RUN_FILE} there. --resume takes the --logdir of a run "
@@ -197,57 +240,222 @@ class RunRecord:
                 f"{STATE_SUFFIX} beside each .zip); to train on from a bare model .zip, start a "
                 "new run instead."
             ) from None
+        except ValueError as exc:  # JSONDecodeError, or bytes that are not text
+            found = "is empty" if not path.stat().st_size else f"is not valid JSON ({exc})"
+            raise ResumeError(f"{path} {found}: the file was damaged. "
+                              + _record_fix(run_dir)) from None  # fmt: skip
+        problem = _record_problem(data)
+        if problem:
+            raise ResumeError(f"{path} {problem}. " + _record_fix(run_dir))
         return cls(**data)
 
     def save(self, run_dir: Path) -> None:
         from dataclasses import asdict
 
-        _atomic_write(run_dir / RUN_FILE, json.dumps(asdict(self), indent=2).encode())
+        atomic_write(run_dir / RUN_FILE, json.dumps(asdict(self), indent=2).encode())
+
+
+_RECORD_FIELDS: dict[str, tuple[tuple[type, ...], str]] = {
+    "args": ((dict,), "the run's arguments, an object"),
+    "timesteps": ((int,), "the total steps requested, an integer"),
+    "status": ((str,), "a string"),
+    "latest_checkpoint": ((str, type(None)), "a checkpoint stem or null"),
+    "num_timesteps": ((int,), "an integer"),
+    "resumes": ((int,), "an integer"),
+    "tb_log_name": ((str,), "a string"),
+    "history": ((list,), "a list"),
+}
+"""What :meth:`RunRecord.load` accepts for each field of ``run.json``."""
+
+
+def _record_problem(data: Any) -> str | None:
+    """What is wrong with ``run.json``'s parsed contents, or None."""
+    if not isinstance(data, dict):
+        return (f"holds {type(data).__name__}, expected an object with the fields "
+                f"{list(_RECORD_FIELDS)}")  # fmt: skip
+    required = [n for n, f in RunRecord.__dataclass_fields__.items()
+                if f.default is MISSING and f.default_factory is MISSING]  # fmt: skip
+    missing = [n for n in required if n not in data]
+    if missing:
+        return "lacks " + ", ".join(f'"{n}" ({_RECORD_FIELDS[n][1]})' for n in missing)
+    unknown = sorted(set(data) - set(_RECORD_FIELDS))
+    if unknown:
+        return f"has unknown field(s) {unknown} (a run.json holds {list(_RECORD_FIELDS)})"
+    for name, value in data.items():
+        types, what = _RECORD_FIELDS[name]
+        if not isinstance(value, types) or (isinstance(value, bool) and bool not in types):
+            return f'has "{name}": {json.dumps(value)}, expected {what}'
+    return None
+
+
+def _record_fix(run_dir: Path) -> str:
+    """How to repair ``run.json``: by hand (from the copy in ``metrics.json`` when a part of
+    the run finished), or by starting a new run."""
+    metrics = run_dir / "metrics.json"
+    copy_from = (f' ("args" and "timesteps_requested" in {metrics} hold the arguments and the '
+                 "total of the part that last finished)" if metrics.is_file() else "")  # fmt: skip
+    return (f"Repair it by hand{copy_from}, then run rover-train --resume {run_dir} again; or "
+            "start a new run with another --logdir.")
 
 
 def save_checkpoint(model: Any, run_dir: Path, algo: str, extra: dict[str, Any]) -> str:
     """Write model, replay buffer (off-policy) and state; returns the checkpoint's stem.
 
-    ``extra`` holds what the trainer adds to the state (episode log, env RNGs, ...); the
-    state file is written last and atomically, so a checkpoint without one is incomplete.
+    ``extra`` holds what the trainer adds to the state (episode log, env RNGs, ...). Each file
+    is written through :func:`durable_path` (on disk before it takes its name), the state
+    file last, with the sizes of the others: a checkpoint without a state file is
+    incomplete, and one whose files differ from those sizes was cut short afterwards.
     """
     ckdir = run_dir / CHECKPOINT_DIR
     ckdir.mkdir(parents=True, exist_ok=True)
     stem = checkpoint_stem(algo, int(model.num_timesteps))
-    model.save(ckdir / f"{stem}.zip")
+    zip_path = ckdir / f"{stem}.zip"
+    with durable_path(zip_path) as tmp:
+        model.save(tmp)
     state = {"version": STATE_VERSION, "num_timesteps": int(model.num_timesteps),
              "saved_at": time.time(), **extra}  # fmt: skip
+    files = {zip_path.name: zip_path.stat().st_size}
+    replay = ckdir / f"{stem}{REPLAY_SUFFIX}"
     if is_off_policy(model):
-        replay = ckdir / f"{stem}{REPLAY_SUFFIX}"
-        model.save_replay_buffer(replay)
+        with durable_path(replay) as tmp:
+            model.save_replay_buffer(tmp)
         state["replay_buffer"] = replay.name
-        for old in ckdir.glob(f"*{REPLAY_SUFFIX}"):  # one replay buffer on disk is enough
-            if old != replay:
-                old.unlink(missing_ok=True)
-    _atomic_write(ckdir / f"{stem}{STATE_SUFFIX}", pickle.dumps(state))
+        files[replay.name] = replay.stat().st_size
+    state["files"] = files
+    atomic_write(ckdir / f"{stem}{STATE_SUFFIX}", pickle.dumps(state))
+    for old in ckdir.glob(f"*{REPLAY_SUFFIX}"):  # one replay buffer on disk is enough, and
+        if old != replay:  # the one before goes only once this checkpoint is complete
+            old.unlink(missing_ok=True)
     return stem
 
 
-def latest_checkpoint(run_dir: Path) -> tuple[Path, dict[str, Any]]:
-    """The newest complete checkpoint's model path and state; :class:`ResumeError` if none."""
+@dataclass(frozen=True)
+class Checkpoint:
+    """A checkpoint whose files passed :func:`find_checkpoints`' checks."""
+
+    model_path: Path
+    state: dict[str, Any]
+    replay_problem: str | None = None
+    """Why the replay buffer the state names cannot be used (None: it can, or none named)."""
+
+    @property
+    def stem(self) -> str:
+        return self.model_path.stem
+
+
+@dataclass(frozen=True)
+class SkippedCheckpoint:
+    """A checkpoint that cannot be resumed from, and why."""
+
+    stem: str
+    why: str
+
+    def __str__(self) -> str:
+        return f"skipping checkpoint {self.stem}: {self.why}"
+
+
+_STEM_STEPS = re.compile(r"_(\d+)_steps$")
+_MODEL_MEMBERS = ("data", "policy.pth")
+"""What SB3's ``load`` needs from a model ``.zip``."""
+
+
+def find_checkpoints(run_dir: Path) -> Iterator[Checkpoint | SkippedCheckpoint]:
+    """The run's checkpoints, newest first (by the step count in their names), each either a
+    :class:`Checkpoint` that passed the checks (state file readable, model ``.zip`` of the
+    size the state recorded and whole: its CRCs hold) or a :class:`SkippedCheckpoint`
+    saying why not. Lazy: the checks stop where the caller stops."""
     ckdir = run_dir / CHECKPOINT_DIR
-    complete = []
-    for state_path in ckdir.glob(f"*{STATE_SUFFIX}"):
-        zip_path = state_path.with_name(state_path.name[: -len(STATE_SUFFIX)] + ".zip")
-        if zip_path.is_file():
-            complete.append((state_path, zip_path))
-    if not complete:
+    stems: dict[str, int] = {}
+    for path in ckdir.glob("*.zip"):
+        stems[path.stem] = 0
+    for path in ckdir.glob(f"*{STATE_SUFFIX}"):
+        stems[path.name[: -len(STATE_SUFFIX)]] = 0
+    for stem in list(stems):
+        match = _STEM_STEPS.search(stem)
+        if match is None or stem.startswith("."):
+            del stems[stem]
+        else:
+            stems[stem] = int(match.group(1))
+    for stem in sorted(stems, key=lambda s: stems[s], reverse=True):
+        yield _check_checkpoint(ckdir, stem)
+
+
+def _check_checkpoint(ckdir: Path, stem: str) -> Checkpoint | SkippedCheckpoint:
+    zip_path, state_path = ckdir / f"{stem}.zip", ckdir / f"{stem}{STATE_SUFFIX}"
+    if not state_path.is_file():
+        return SkippedCheckpoint(stem, f"no {state_path.name}: the run stopped while writing "
+                                       "this checkpoint")  # fmt: skip
+    if not zip_path.is_file():
+        return SkippedCheckpoint(stem, f"{zip_path.name} is missing")
+    try:
+        state = pickle.loads(state_path.read_bytes())
+    except Exception as exc:  # a damaged pickle raises almost anything
+        return SkippedCheckpoint(stem, f"{state_path.name} cannot be read ({type(exc).__name__}: "
+                                       f"{exc}): damaged")  # fmt: skip
+    if not isinstance(state, dict) or state.get("version") != STATE_VERSION:
+        version = state.get("version") if isinstance(state, dict) else None
+        return SkippedCheckpoint(stem, f"{state_path.name} is state version {version}, this "
+                                       f"rover-train reads version {STATE_VERSION}")  # fmt: skip
+    files = state.get("files", {})  # sizes at saving (older checkpoints lack them)
+    problem = _file_problem(zip_path, files.get(zip_path.name)) or _zip_problem(zip_path)
+    if problem:
+        return SkippedCheckpoint(stem, problem)
+    replay_problem = None
+    if state.get("replay_buffer"):
+        replay = ckdir / state["replay_buffer"]
+        replay_problem = _file_problem(replay, files.get(replay.name))
+        if replay_problem and not replay.exists():
+            replay_problem += " (only the newest checkpoint keeps its replay buffer)"
+    return Checkpoint(zip_path, state, replay_problem)
+
+
+def _file_problem(path: Path, size: int | None) -> str | None:
+    """Missing, or not the size the state file recorded for it."""
+    if not path.is_file():
+        return f"{path.name} is missing"
+    found = path.stat().st_size
+    if size is not None and found != size:
+        return (f"{path.name} is {found} bytes, {size} were written: cut short (a crash, a "
+                "power loss or a full disk)")  # fmt: skip
+    return None
+
+
+def _zip_problem(path: Path) -> str | None:
+    """Why ``path`` is not a whole SB3 model archive, or None."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+            names = set(archive.namelist())
+    except Exception as exc:  # BadZipFile, zlib.error, EOFError, ...
+        return (f"{path.name} is not a readable zip file ({exc}; {path.stat().st_size} bytes): "
+                "cut short or damaged")  # fmt: skip
+    if bad is not None:
+        return f"{path.name}: {bad} fails its CRC check: damaged"
+    missing = [m for m in _MODEL_MEMBERS if m not in names]
+    if missing:
+        return f"{path.name} lacks {missing}: not a Stable-Baselines3 model"
+    return None
+
+
+def latest_checkpoint(run_dir: Path) -> tuple[Checkpoint, list[SkippedCheckpoint]]:
+    """The newest checkpoint that passes :func:`find_checkpoints`' checks, and the newer
+    ones skipped to reach it; :class:`ResumeError` naming each one's problem if none does."""
+    skipped: list[SkippedCheckpoint] = []
+    for found in find_checkpoints(run_dir):
+        if isinstance(found, Checkpoint):
+            return found, skipped
+        skipped.append(found)
+    ckdir = run_dir / CHECKPOINT_DIR
+    if not skipped:
         raise ResumeError(
             f"--resume {run_dir}: no complete checkpoint in {ckdir} (a .zip with its "
             f"{STATE_SUFFIX}). The run stopped before its first checkpoint: start it again."
         )
-    states = [(pickle.loads(s.read_bytes()), z) for s, z in complete]
-    states.sort(key=lambda item: (item[0]["num_timesteps"], item[0]["saved_at"]))
-    state, zip_path = states[-1]
-    if state.get("version") != STATE_VERSION:
-        raise ResumeError(f"{zip_path}: checkpoint state version {state.get('version')}, this "
-                          f"rover-train reads version {STATE_VERSION}")  # fmt: skip
-    return zip_path, state
+    raise ResumeError(
+        f"--resume {run_dir}: no checkpoint in {ckdir} can be resumed from: "
+        + "; ".join(f"{s.stem}: {s.why}" for s in skipped)
+        + ". Start the run again (with another --logdir, or after moving this one aside)."
+    )
 
 
 class Checkpointer:
@@ -468,12 +676,17 @@ __all__ = [
     "RUN_FILE",
     "STATE_SUFFIX",
     "Boundary",
+    "Checkpoint",
     "Checkpointer",
     "EpisodeRng",
     "GracefulStop",
     "ResumeError",
     "RunRecord",
+    "SkippedCheckpoint",
     "TrainingInterrupted",
+    "atomic_write",
+    "durable_path",
+    "find_checkpoints",
     "ignore_stop_signals",
     "is_off_policy",
     "latest_checkpoint",

@@ -33,11 +33,17 @@ from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
 from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_env.worlds import WORLD_CHOICES
 from rover_train.checkpoint import (
+    Checkpoint,
     Checkpointer,
     GracefulStop,
     ResumeError,
     RunRecord,
+    SkippedCheckpoint,
     TrainingInterrupted,
+    atomic_write,
+    checkpoint_stem,
+    durable_path,
+    find_checkpoints,
     ignore_stop_signals,
     is_off_policy,
     latest_checkpoint,
@@ -395,13 +401,35 @@ def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
 def resume_model(args: TrainArgs, venv: Any, tb_dir: Path) -> tuple[Any, dict[str, Any]]:
     """The newest checkpoint of run ``args.logdir``, loaded onto ``venv`` with its RNGs, replay
     buffer and env episode RNGs restored; returns the model and the checkpoint's state."""
-    path, state = latest_checkpoint(args.logdir)
-    log.info("resuming from %s (%d steps)", path, state["num_timesteps"])
     cls = _algo_class(args.algo)
-    # seed=None: loading must not reseed the RNGs and envs; their saved states go back below
-    model = cls.load(path, env=venv, device=args.device, tensorboard_log=str(tb_dir), seed=None)
+    model, found, skipped = None, None, 0
+    for found in find_checkpoints(args.logdir):  # newest first; say why each newer one is not
+        if isinstance(found, SkippedCheckpoint):
+            log.warning("resume: %s", found)
+            skipped += 1
+            continue
+        try:  # seed=None: loading must not reseed the RNGs and envs; their states go back below
+            model = cls.load(found.model_path, env=venv, device=args.device,
+                             tensorboard_log=str(tb_dir), seed=None)  # fmt: skip
+            break
+        except Exception as exc:
+            skipped += 1
+            log.warning("resume: %s", SkippedCheckpoint(found.stem, f"Stable-Baselines3 cannot "
+                        f"load {found.model_path.name} ({type(exc).__name__}: {exc})"))  # fmt: skip
+    if model is None or not isinstance(found, Checkpoint):
+        latest_checkpoint(args.logdir)  # raises the ResumeError that lists what is wrong
+        raise ResumeError(f"--resume {args.logdir}: no checkpoint there loads (see above)")
+    path, state = found.model_path, found.state
+    log.info("resuming from %s (%d steps)%s", path, state["num_timesteps"],
+             f": the newest checkpoint that loads ({skipped} skipped)" if skipped else "")
     if is_off_policy(model) and state.get("replay_buffer"):
-        model.load_replay_buffer(path.parent / state["replay_buffer"])
+        try:
+            if found.replay_problem:
+                raise FileNotFoundError(found.replay_problem)
+            model.load_replay_buffer(path.parent / state["replay_buffer"])
+        except Exception as exc:
+            log.warning("resume: replay buffer not loaded (%s): resuming with an empty one, "
+                        "refilled from here on", exc)  # fmt: skip
     restore_rng_states(model, state["rng"])
     env_rng = state["env_rng"]
     if len(env_rng) == venv.num_envs and all(r is not None for r in env_rng):
@@ -536,6 +564,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
         try:
             if resuming:
                 model, state = resume_model(args, venv, run_dir / "tb")
+                record.num_timesteps = int(state["num_timesteps"])  # the one that loaded
+                record.latest_checkpoint = checkpoint_stem(args.algo, record.num_timesteps)
                 metrics_cb.episodes.extend(state["episode_log"])
                 env_rng = state["env_rng"]
             else:
@@ -572,7 +602,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
                             model.num_timesteps, args.timesteps, dropped, run_dir)  # fmt: skip
             else:
                 checkpointer.save("final", status="complete")
-                model.save(run_dir / "model.zip")
+                with durable_path(run_dir / "model.zip") as tmp:
+                    model.save(tmp)
         except BaseException:
             record.status = "failed"
             record.save(run_dir)
@@ -615,7 +646,7 @@ def train(args: TrainArgs) -> dict[str, Any]:
         "args": plain(args),
         "episode_log": episodes,
     }
-    (run_dir / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    atomic_write(run_dir / "metrics.json", json.dumps(metrics, indent=2).encode())
     save_learning_curve(
         episodes,
         run_dir / "learning_curve.png",
@@ -644,7 +675,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problem:
         print(problem, file=sys.stderr)
         return EXIT_NO_DAEMON
-    metrics = train(args)
+    try:
+        metrics = train(args)
+    except ResumeError as exc:  # every checkpoint failed to load (their files looked whole)
+        print(f"rover-train: error: {exc}", file=sys.stderr)
+        return 2
     if metrics["status"] == "interrupted":
         print(
             f"stopped {metrics['algo']} on {metrics['env_id']} at {metrics['timesteps']} of "
