@@ -7,8 +7,9 @@ writes it beside the export as ``<weights stem>-<sha256, 16 hex>-s<side>-x<versi
 stem and side there. The daemon runs it with ``--precision int8``
 (:mod:`active_vision.backends`).
 
-The recipe (:class:`QuantizeConfig`), chosen on the validation split on a 2-core Xeon with
-AVX-512 VNNI and AMX (2026-11-26, machine shared, ratios in one run):
+The recipe (:class:`QuantizeRecipe`, stored in the int8 file's ONNX metadata under
+``RECIPE_KEY``; ``--recipe FILE`` remakes a file from it), chosen on the validation split on
+a 2-core Xeon with AVX-512 VNNI and AMX (machine shared, ratios in one run):
 
 - **QDQ format**, uint8 activations, int8 weights **per output channel**: ONNX Runtime fuses
   the QuantizeLinear/DequantizeLinear pairs into its int8 convolution kernels. The QOperator
@@ -20,7 +21,8 @@ AVX-512 VNNI and AMX (2026-11-26, machine shared, ratios in one run):
   1x1 convolution to 2 channels).
 - **Percentile calibration** (99.999) on ``calibration_frames`` validation frames: against
   MinMax, the same heatmap figures and AbsRel nearer fp32's; Entropy gave MinMax's model.
-  ``reduce_range`` (7-bit weights, for CPUs without VNNI) cost AbsRel for no speed here.
+  ``reduce_range`` (7-bit weights, for CPUs without VNNI) cost AbsRel for no speed here; it
+  stays an option for such CPUs.
 - No ``quant_pre_process``: ORT's symbolic shape inference does not complete on this graph,
   and with ONNX shape inference alone it changed neither speed nor quality.
 
@@ -31,12 +33,12 @@ rendered on first use), never from the held-out split the figures are reported o
 
 from __future__ import annotations
 
-import argparse
+import json
 import logging
 import os
 import sys
 from collections.abc import Iterator, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -49,30 +51,89 @@ from active_vision.onnx_export import (
     onnx_file_for,
 )
 from active_vision.training.dataset import DEFAULT_DATA_DIR
+from fused_image import FUSED_SIZE
+from rover_train.cli import (
+    add_recipe_option,
+    build_parser,
+    instance_from,
+    recipe_defaults,
+    recipe_dict,
+    recipe_from_dict,
+    setup_logging,
+)
 
 logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class QuantizeConfig:
-    """How the int8 model is made (see the module docstring for why each value)."""
+class QuantizeRecipe:
+    """How the int8 model is made (see the module docstring for why each value); stored in
+    the file it makes, and the command line is generated from these fields."""
 
     calibration_frames: int = 256
     """Validation frames the activation ranges are measured on (drawn without replacement)."""
     batch: int = 8
     """Frames per calibration batch."""
-    method: str = "percentile"
-    """``minmax`` | ``entropy`` | ``percentile``: ONNX Runtime's calibration method."""
+    method: str = field(default="percentile",
+                        metadata={"choices": ("minmax", "entropy", "percentile")})
+    """ONNX Runtime's calibration method."""
     percentile: float = 99.999
     """For ``percentile``: the share of each activation's values its range covers."""
-    per_channel: bool = True
-    """One weight scale per output channel (per tensor when False)."""
     reduce_range: bool = False
     """7-bit weights (for CPUs without VNNI, whose u8s8 kernels can saturate)."""
-    fp32_head: bool = True
-    """Keep the last convolution and what follows it in fp32."""
     seed: int = 0
     """Seed of the draw of calibration frames."""
+
+    def problem(self) -> str | None:
+        """What is wrong with this recipe (named by its option), or None."""
+        if self.calibration_frames < 1:
+            return f"--calibration-frames must be at least 1, got {self.calibration_frames}"
+        if self.batch < 1:
+            return f"--batch must be at least 1, got {self.batch}"
+        if not 50.0 < self.percentile <= 100.0:
+            return f"--percentile must be in (50, 100], got {self.percentile}"
+        return None
+
+
+@dataclass(frozen=True)
+class QuantizeRun:
+    """What ``python -m active_vision.training.quantize`` quantizes and where it writes."""
+
+    weights: Path = DEFAULT_WEIGHTS
+    """The AVNet weights whose ONNX export is quantized."""
+    size: int = FUSED_SIZE[0]
+    """Frame side (a multiple of 16)."""
+    out_dir: Path | None = None
+    """Directory to write to (default: the weights file's own)."""
+    data_dir: Path = DEFAULT_DATA_DIR
+    """Where the validation split is rendered or reused."""
+
+
+RECIPE_KEY = "roverav.recipe"
+"""The ONNX metadata key of an int8 file's :class:`QuantizeRecipe` (JSON)."""
+
+
+def read_recipe(path: Path) -> QuantizeRecipe:
+    """The recipe stored in the int8 ONNX file ``path``."""
+    import onnx
+
+    props = {p.key: p.value for p in onnx.load(str(path), load_external_data=False)
+             .metadata_props}  # fmt: skip
+    if RECIPE_KEY not in props:
+        raise ValueError(f"{path} holds no recipe (an int8 file written before recipes were "
+                         "stored)")  # fmt: skip
+    return recipe_from_dict(QuantizeRecipe, json.loads(props[RECIPE_KEY]))
+
+
+def _store_recipe(path: Path, recipe: QuantizeRecipe) -> None:
+    import onnx
+
+    model = onnx.load(str(path))
+    for prop in list(model.metadata_props):
+        if prop.key == RECIPE_KEY:
+            model.metadata_props.remove(prop)
+    onnx.helper.set_model_props(model, {RECIPE_KEY: json.dumps(recipe_dict(recipe))})
+    onnx.save(model, str(path))
 
 
 class QuantizeError(RuntimeError):
@@ -100,7 +161,7 @@ def calibration_frames(rgb: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
 
 def head_nodes(model_path: Path) -> list[str]:
     """Names of the last Conv feeding the graph's output and of every node after it on the
-    way to the output (what :attr:`QuantizeConfig.fp32_head` keeps in fp32)."""
+    way to the output (kept in fp32: quantizing the log-depth output costs AbsRel)."""
     import onnx
 
     graph = onnx.load(str(model_path)).graph
@@ -118,13 +179,13 @@ def head_nodes(model_path: Path) -> list[str]:
 
 
 def quantize_file(fp32: Path, out: Path, frames: np.ndarray,
-                  config: QuantizeConfig | None = None) -> Path:
+                  config: QuantizeRecipe | None = None) -> Path:
     """Quantize the fp32 ONNX file ``fp32`` into ``out`` (written atomically), calibrated on
-    ``frames`` (float32 ``(n, 3, S, S)`` in [0, 1]).
+    ``frames`` (float32 ``(n, 3, S, S)`` in [0, 1]), with the recipe in its metadata.
 
     :raises QuantizeError: onnxruntime's quantization tools are missing or failed.
     """
-    cfg = config or QuantizeConfig()
+    cfg = config or QuantizeRecipe()
     try:
         from onnxruntime.quantization import (
             CalibrationMethod,
@@ -140,18 +201,19 @@ def quantize_file(fp32: Path, out: Path, frames: np.ndarray,
                "percentile": CalibrationMethod.Percentile}
     if cfg.method not in methods:
         raise QuantizeError(f"method must be one of {', '.join(methods)}, got {cfg.method!r}")
-    exclude = head_nodes(fp32) if cfg.fp32_head else []
+    exclude = head_nodes(fp32)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
     try:
         quantize_static(
             str(fp32), str(tmp), _Frames(frames, cfg.batch),
-            quant_format=QuantFormat.QDQ, per_channel=cfg.per_channel,
+            quant_format=QuantFormat.QDQ, per_channel=True,
             reduce_range=cfg.reduce_range, activation_type=QuantType.QUInt8,
             weight_type=QuantType.QInt8, calibrate_method=methods[cfg.method],
             nodes_to_exclude=exclude, extra_options={"CalibPercentile": cfg.percentile},
         )  # fmt: skip
+        _store_recipe(tmp, cfg)
         tmp.replace(out)
     except Exception as exc:  # the quantizer raises many types
         tmp.unlink(missing_ok=True)
@@ -160,15 +222,15 @@ def quantize_file(fp32: Path, out: Path, frames: np.ndarray,
     return out
 
 
-def write_int8_beside(weights: Path = DEFAULT_WEIGHTS, size: int = 96,
+def write_int8_beside(weights: Path = DEFAULT_WEIGHTS, size: int = FUSED_SIZE[0],
                       out_dir: Path | None = None, data_dir: Path = DEFAULT_DATA_DIR,
-                      config: QuantizeConfig | None = None) -> Path:
+                      config: QuantizeRecipe | None = None) -> Path:
     """Quantize the export of ``weights`` (exported first if needed), calibrated on the
     validation split, into ``out_dir`` (default: beside the weights) under its versioned
     name, and remove older int8 files of the same stem and side there."""
     from active_vision.training.evaluate import heldout
 
-    cfg = config or QuantizeConfig()
+    cfg = config or QuantizeRecipe()
     weights = Path(weights)
     out_dir = Path(out_dir) if out_dir is not None else weights.parent
     val = heldout(data_dir, split="validation")
@@ -185,33 +247,25 @@ def write_int8_beside(weights: Path = DEFAULT_WEIGHTS, size: int = 96,
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    d = QuantizeConfig()
-    p = argparse.ArgumentParser(
-        prog="python -m active_vision.training.quantize",
-        description="Make the int8 model of AVNet weights (static QDQ quantization of their "
-                    "ONNX export, calibrated on validation frames), named for the weights' "
-                    "sha256. Default: the shipped weights, written next to them.")
-    p.add_argument("--weights", type=Path, default=DEFAULT_WEIGHTS)
-    p.add_argument("--size", type=int, default=96, help="frame side (a multiple of 16)")
-    p.add_argument("--out-dir", type=Path, default=None,
-                   help="directory (default: the weights file's own)")
-    p.add_argument("--data-dir", type=Path, default=DEFAULT_DATA_DIR,
-                   help="where the validation split is rendered or reused")
-    p.add_argument("--calibration-frames", type=int, default=d.calibration_frames)
-    p.add_argument("--method", choices=("minmax", "entropy", "percentile"), default=d.method)
-    p.add_argument("--percentile", type=float, default=d.percentile)
-    a = p.parse_args(argv)
-    if a.calibration_frames < 1:
-        p.error(f"--calibration-frames must be at least 1, got {a.calibration_frames}")
-    if not 50.0 < a.percentile <= 100.0:
-        p.error(f"--percentile must be in (50, 100], got {a.percentile}")
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    cfg = QuantizeConfig(calibration_frames=a.calibration_frames, method=a.method,
-                         percentile=a.percentile)
+    stored, rest = recipe_defaults(argv, read_recipe)
+    p = build_parser(
+        (QuantizeRecipe, QuantizeRun), "python -m active_vision.training.quantize",
+        "Make the int8 model of AVNet weights (static QDQ quantization of their ONNX export, "
+        "calibrated on validation frames), named for the weights' sha256. Default: the "
+        "shipped weights, written next to them.",
+        defaults={QuantizeRecipe: stored} if stored else None,
+    )  # fmt: skip
+    add_recipe_option(p, "an int8 file")
+    ns = p.parse_args(rest)
+    cfg, run = instance_from(QuantizeRecipe, ns), instance_from(QuantizeRun, ns)
+    problem = cfg.problem()
+    if problem:
+        p.error(problem)
+    setup_logging(ns.log_level)
     from active_vision.onnx_export import OnnxExportError
 
     try:
-        path = write_int8_beside(a.weights, a.size, a.out_dir, a.data_dir, cfg)
+        path = write_int8_beside(run.weights, run.size, run.out_dir, run.data_dir, cfg)
     except (QuantizeError, OnnxExportError) as exc:
         print(f"quantize: {exc}", file=sys.stderr)
         return 1
@@ -219,8 +273,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-__all__ = ["QuantizeConfig", "QuantizeError", "calibration_frames", "head_nodes",
-           "quantize_file", "write_int8_beside"]
+__all__ = ["QuantizeError", "QuantizeRecipe", "QuantizeRun", "calibration_frames",
+           "head_nodes", "quantize_file", "read_recipe", "write_int8_beside"]
 
 
 if __name__ == "__main__":
