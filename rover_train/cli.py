@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 T = TypeVar("T")
+U = TypeVar("U")
 
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 LOG_LEVEL_ENV_VAR = "ROVERAV_LOG_LEVEL"
@@ -270,6 +271,28 @@ def add_recipe_option(parser: argparse.ArgumentParser, what: str) -> None:
                         "remakes it); options given beside it override its values")
 
 
+def parse_recipe_command(
+    recipe_cls: type[T], run_cls: type[U], prog: str, description: str,
+    read: Callable[[Path], T], argv: Sequence[str] | None = None, what: str = "the artefact",
+) -> tuple[T, U, argparse.Namespace]:  # fmt: skip
+    """A maker's command line: ``recipe_cls``'s fields (their defaults, or the recipe stored
+    in the file of ``--recipe FILE``, read by ``read``), ``run_cls``'s, ``--recipe`` and
+    ``--log-level``. Returns the recipe, the run options and the namespace (for extra
+    checks), with logging set up at the chosen level. A recipe with a ``problem()`` method
+    that returns a message is a usage error."""
+    stored, rest = recipe_defaults(argv, read)
+    parser = build_parser((recipe_cls, run_cls), prog, description,
+                          defaults={recipe_cls: stored} if stored is not None else None)
+    add_recipe_option(parser, what)
+    ns = parser.parse_args(rest)
+    recipe, run = instance_from(recipe_cls, ns), instance_from(run_cls, ns)
+    problem = getattr(recipe, "problem", lambda: None)()
+    if problem:
+        parser.error(problem)
+    setup_logging(ns.log_level)
+    return recipe, run, ns
+
+
 def setup_logging(level: str) -> None:
     """Root logging at ``level`` for a command line (library code never calls this)."""
     logging.basicConfig(level=level.upper(), format="%(levelname)s %(name)s: %(message)s")
@@ -290,6 +313,7 @@ __all__ = [
     "field_docs",
     "instance_from",
     "parse_into",
+    "parse_recipe_command",
     "plain",
     "recipe_defaults",
     "recipe_dict",

@@ -379,10 +379,10 @@ def test_train_cli_names_a_bad_option(argv, message, capsys) -> None:
 def test_train_cli_reads_world_depth_weights() -> None:
     from active_vision.training.train import _parse
 
-    cfg, _, _ = _parse(["--depth-world-weights", "moon=3,maze=0.5"])
+    cfg, _ = _parse(["--depth-world-weights", "moon=3,maze=0.5"])
     assert cfg.depth_world_weights == {"moon": 3.0, "maze": 0.5}
     assert not cfg.calibrate
-    cfg, _, _ = _parse(["--calibrate", "--worlds", "moon,maze"])
+    cfg, _ = _parse(["--calibrate", "--worlds", "moon,maze"])
     assert cfg.calibrate and cfg.worlds == ("moon", "maze")
 
 
@@ -465,6 +465,11 @@ def test_train_cli_calibrates_on_validation_then_reports_on_heldout(
 
     monkeypatch.setattr(ev, "heldout", tiny_split)
     monkeypatch.setattr(cal, "choose_threshold", lambda sweep: 0.3)
+    # the int8 model is made after every figure (tests/test_av_quantize.py covers it)
+    import active_vision.training.quantize as quant
+
+    int8: list[Path] = []
+    monkeypatch.setattr(quant, "write_int8_beside", lambda w, **kw: int8.append(w) or w)
     argv = ["--data", str(data), "--epochs", "1", "--batch", "16", "--threads", "1",
             "--widths", "4,8,8,8", "--log-level", "WARNING"]
     assert train_main([*argv, "--out", str(tmp_path / "plain.pt")]) == 0
@@ -486,6 +491,7 @@ def test_train_cli_calibrates_on_validation_then_reports_on_heldout(
         else:
             assert torch.equal(calibrated[k], v), k
     assert list(tmp_path.glob("cal-*.onnx")), "the ONNX export is written beside the weights"
+    assert int8 == [tmp_path / "plain.pt", tmp_path / "cal.pt"]  # and then the int8 model
 
 
 def test_folding_a_threshold_moves_the_heatmaps_operating_point_only() -> None:

@@ -33,7 +33,7 @@ def test_the_shipped_perception_files_carry_their_recipes() -> None:
 
 
 def test_recipe_option_starts_the_command_line_from_the_file(tmp_path: Path) -> None:
-    recipe, run, _ = train._parse(["--recipe", str(DEFAULT_WEIGHTS), "--epochs", "2",
+    recipe, run = train._parse(["--recipe", str(DEFAULT_WEIGHTS), "--epochs", "2",
                                    "--out", str(tmp_path / "x.pt")])  # fmt: skip
     assert recipe == train.AVNetRecipe(threads=1, depth_world_weights={"moon": 4.0},
                                        calibrate=True, epochs=2)  # fmt: skip

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import logging
 import math
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -160,7 +159,6 @@ def _parse(argv: Sequence[str] | None) -> CalibrateRun:
 
 def main(argv: Sequence[str] | None = None) -> int:
     from active_vision.models import save_weights, weights_meta
-    from active_vision.onnx_export import OnnxExportError, write_export_beside
 
     a = _parse(argv)
     assert a.weights is not None  # _parse refuses a run without it
@@ -173,19 +171,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"chosen threshold {t:.2f}: logit shift {shift:+.4f}")
     out = save_weights(model, a.out or a.weights, calibrated_meta(meta, t, shift))
     print(f"wrote {out}")
-    if not a.export:
-        return 0
-    try:
-        print(f"wrote {write_export_beside(out)}")
-    except OnnxExportError as exc:
-        print(f"no ONNX export written beside the weights ({exc})", file=sys.stderr)
-        return 0
-    from active_vision.training.quantize import QuantizeError, write_int8_beside
+    if a.export:
+        from active_vision.training.quantize import write_exports_beside
 
-    try:
-        print(f"wrote {write_int8_beside(out, data_dir=a.data_dir)}")
-    except QuantizeError as exc:
-        print(f"no int8 model written beside the weights ({exc})", file=sys.stderr)
+        write_exports_beside(out, a.data_dir)
     return 0
 
 

@@ -60,15 +60,7 @@ from active_vision.training.dataset import (
 )
 from active_vision.training.driving import DriveRecorder
 from fused_image import CHANNEL_HEATMAP, FUSED_SIZE
-from rover_train.cli import (
-    add_recipe_option,
-    build_parser,
-    instance_from,
-    recipe_defaults,
-    recipe_dict,
-    recipe_from_dict,
-    setup_logging,
-)
+from rover_train.cli import parse_recipe_command, recipe_dict, recipe_from_dict
 
 logger = logging.getLogger(__name__)
 
@@ -407,14 +399,9 @@ def read_recipe(path: Path) -> PredictRecipe:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    stored, rest = recipe_defaults(argv, read_recipe)
-    p = build_parser((PredictRecipe, PredictRun), "python -m active_vision.training.predict_train",
-                     "Train/evaluate the predictive heatmap.",
-                     defaults={PredictRecipe: stored} if stored else None)  # fmt: skip
-    add_recipe_option(p, "a predictor weights file")
-    ns = p.parse_args(rest)
-    cfg, run = instance_from(PredictRecipe, ns), instance_from(PredictRun, ns)
-    setup_logging(ns.log_level)
+    cfg, run, _ = parse_recipe_command(
+        PredictRecipe, PredictRun, "python -m active_vision.training.predict_train",
+        "Train/evaluate the predictive heatmap.", read_recipe, argv, "a predictor weights file")
     if not run.evaluate_only:
         model, facts = train_predictor(cfg, run.data_dir)
         save_predictor(model, run.out, {**facts, RECIPE_KEY: recipe_dict(cfg)})

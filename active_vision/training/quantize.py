@@ -52,15 +52,7 @@ from active_vision.onnx_export import (
 )
 from active_vision.training.dataset import DEFAULT_DATA_DIR
 from fused_image import FUSED_SIZE
-from rover_train.cli import (
-    add_recipe_option,
-    build_parser,
-    instance_from,
-    recipe_defaults,
-    recipe_dict,
-    recipe_from_dict,
-    setup_logging,
-)
+from rover_train.cli import parse_recipe_command, recipe_dict, recipe_from_dict
 
 logger = logging.getLogger(__name__)
 
@@ -246,22 +238,29 @@ def write_int8_beside(weights: Path = DEFAULT_WEIGHTS, size: int = FUSED_SIZE[0]
     return path
 
 
+def write_exports_beside(weights: Path, data_dir: Path = DEFAULT_DATA_DIR) -> None:
+    """After a maker wrote ``weights``: the fp32 ONNX export and the int8 model beside it
+    (stale ones of the same stem removed), each path printed, or why it was not written (the
+    daemon then exports on first use, or runs fp32)."""
+    from active_vision.onnx_export import OnnxExportError, write_export_beside
+
+    try:
+        print(f"wrote {write_export_beside(weights)}")
+        print(f"wrote {write_int8_beside(weights, data_dir=data_dir)}")
+    except OnnxExportError as exc:
+        print(f"no ONNX export written beside the weights ({exc}); the daemon exports it on "
+              "first use, or run `python -m active_vision.onnx_export`", file=sys.stderr)
+    except QuantizeError as exc:
+        print(f"no int8 model written beside the weights ({exc}); the daemon runs fp32 until "
+              "`python -m active_vision.training.quantize` makes it", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    stored, rest = recipe_defaults(argv, read_recipe)
-    p = build_parser(
-        (QuantizeRecipe, QuantizeRun), "python -m active_vision.training.quantize",
+    cfg, run, _ = parse_recipe_command(
+        QuantizeRecipe, QuantizeRun, "python -m active_vision.training.quantize",
         "Make the int8 model of AVNet weights (static QDQ quantization of their ONNX export, "
         "calibrated on validation frames), named for the weights' sha256. Default: the "
-        "shipped weights, written next to them.",
-        defaults={QuantizeRecipe: stored} if stored else None,
-    )  # fmt: skip
-    add_recipe_option(p, "an int8 file")
-    ns = p.parse_args(rest)
-    cfg, run = instance_from(QuantizeRecipe, ns), instance_from(QuantizeRun, ns)
-    problem = cfg.problem()
-    if problem:
-        p.error(problem)
-    setup_logging(ns.log_level)
+        "shipped weights, written next to them.", read_recipe, argv, "an int8 file")
     from active_vision.onnx_export import OnnxExportError
 
     try:
@@ -274,7 +273,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 __all__ = ["QuantizeError", "QuantizeRecipe", "QuantizeRun", "calibration_frames",
-           "head_nodes", "quantize_file", "read_recipe", "write_int8_beside"]
+           "head_nodes", "quantize_file", "read_recipe", "write_exports_beside",
+           "write_int8_beside"]
 
 
 if __name__ == "__main__":

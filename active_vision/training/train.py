@@ -50,7 +50,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import sys
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -81,15 +80,7 @@ from active_vision.training.dataset import (
     build,
 )
 from fused_image import DEPTH_MAX_M
-from rover_train.cli import (
-    add_recipe_option,
-    build_parser,
-    instance_from,
-    recipe_defaults,
-    recipe_dict,
-    recipe_from_dict,
-    setup_logging,
-)
+from rover_train.cli import parse_recipe_command, recipe_dict, recipe_from_dict
 
 logger = logging.getLogger(__name__)
 
@@ -484,23 +475,15 @@ def read_recipe(path: Path) -> AVNetRecipe:
     return recipe_from_dict(AVNetRecipe, meta[RECIPE_KEY])
 
 
-def _parse(argv: Sequence[str] | None) -> tuple[AVNetRecipe, TrainRun, str]:
-    stored, rest = recipe_defaults(argv, read_recipe)
-    p = build_parser((AVNetRecipe, TrainRun), "python -m active_vision.training.train",
-                     __doc__.split("\n")[0],
-                     defaults={AVNetRecipe: stored} if stored else None)  # fmt: skip
-    add_recipe_option(p, "a weights file")
-    ns = p.parse_args(rest)
-    recipe = instance_from(AVNetRecipe, ns)
-    problem = recipe.problem()
-    if problem:
-        p.error(problem)
-    return recipe, instance_from(TrainRun, ns), ns.log_level
+def _parse(argv: Sequence[str] | None) -> tuple[AVNetRecipe, TrainRun]:
+    recipe, run, _ = parse_recipe_command(
+        AVNetRecipe, TrainRun, "python -m active_vision.training.train",
+        __doc__.split("\n")[0], read_recipe, argv, "a weights file")
+    return recipe, run
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    cfg, run, log_level = _parse(argv)
-    setup_logging(log_level)
+    cfg, run = _parse(argv)
     model, facts = train(cfg, run)
     meta: dict[str, Any] = {**facts, RECIPE_KEY: recipe_dict(cfg)}
     path = _save(model, run.out, meta)  # first without figures: evaluation may fail
@@ -521,23 +504,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         path = _save(model, run.out, meta)
     print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB) after {facts['epochs']:.0f} "
           f"epochs in {facts['seconds']:.0f} s")
-    # the ONNX backend's file, named for these exact weights (stale exports are removed)
-    from active_vision.onnx_export import OnnxExportError, write_export_beside
+    from active_vision.training.quantize import write_exports_beside
 
-    try:
-        print(f"wrote {write_export_beside(path)}")
-    except OnnxExportError as exc:
-        print(f"no ONNX export written beside the weights ({exc}); the daemon exports it "
-              "on first use, or run `python -m active_vision.onnx_export`", file=sys.stderr)
-        return 0
-    # and its int8 model (calibrated on the validation split), which the daemon prefers
-    from active_vision.training.quantize import QuantizeError, write_int8_beside
-
-    try:
-        print(f"wrote {write_int8_beside(path)}")
-    except QuantizeError as exc:
-        print(f"no int8 model written beside the weights ({exc}); the daemon runs fp32 "
-              "until `python -m active_vision.training.quantize` makes it", file=sys.stderr)
+    write_exports_beside(path, run.data_dir)
     return 0
 
 
