@@ -468,7 +468,7 @@ def test_train_cli_calibrates_on_validation_then_reports_on_heldout(
     # the int8 model is made after every figure (tests/test_av_quantize.py covers it)
     import active_vision.training.quantize as quant
 
-    int8: list[Path] = []
+    int8: list[object] = []
     monkeypatch.setattr(quant, "write_int8_beside", lambda w, **kw: int8.append(w) or w)
     argv = ["--data", str(data), "--epochs", "1", "--batch", "16", "--threads", "1",
             "--widths", "4,8,8,8", "--log-level", "WARNING"]
