@@ -62,10 +62,12 @@ import numpy as np
 from active_vision.training.driving import DriveRecorder
 from active_vision.training.lighting import random_lighting
 from fused_image import FUSED_SIZE
+from rover_env.worlds import WORLD_NAMES
 
 logger = logging.getLogger(__name__)
 
-WORLDS: tuple[str, ...] = ("inspect", "moon", "maze")
+WORLDS: tuple[str, ...] = WORLD_NAMES
+"""The worlds, in the order a dataset's world index counts them."""
 TRAIN_SEED = 0
 HELDOUT_SEED = 1_000_003
 VALIDATION_SEED = 2_000_003
