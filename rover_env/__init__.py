@@ -23,6 +23,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from gymnasium.envs.registration import register, registry  # noqa: E402
 
 from rover_env.core import RoverEnvBase  # noqa: E402
+from rover_env.crowd import MAX_PEDESTRIANS, CrowdPlacementError  # noqa: E402
 from rover_env.discrete_env import DiscreteRoverEnvFused  # noqa: E402
 from rover_env.errors import EnvClosedError  # noqa: E402
 from rover_env.fused_env import AUTO_SLOT, RoverEnvFused, served_slots  # noqa: E402
@@ -60,12 +61,14 @@ __all__ = [
     "AUTO_SLOT",
     "FORWARD_CAMERA",
     "LIDAR_SCAN_LAG",
+    "MAX_PEDESTRIANS",
     "PEDESTRIAN_MODES",
     "WORLD_NAMES",
     "Appearance",
     "CameraFrame",
     "CameraGeometry",
     "Contacts",
+    "CrowdPlacementError",
     "DiscreteRoverEnvFused",
     "DiscreteRoverEnvFusedGaze",
     "EnvClosedError",

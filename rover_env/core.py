@@ -26,7 +26,7 @@ from rover_env import constants as c
 from rover_env import reward as rw
 from rover_env.controller import HeadingPID, wrap_angle
 from rover_env.errors import EnvClosedError, closed_env_message
-from rover_env.pedestrians import PEDESTRIAN_MODES
+from rover_env.pedestrians import DEFAULT_MODE, pedestrian_count, pedestrian_mode
 from rover_env.reward import RewardConfig
 from rover_env.simulation import PHYSICS_DT, RoverSim
 from rover_env.worlds import canonical_world_name
@@ -76,10 +76,17 @@ class EnvOptions:
     """None or ``"rgb_array"``: ``render()`` returns a chase-camera frame."""
     render_size: tuple[int, int] = RENDER_SIZE
     """(width, height) of ``render()`` frames."""
-    pedestrian_mode: str = PEDESTRIAN_MODES[0]
-    """``walk`` (paths anywhere in the pedestrian area) or ``crossing`` (paths across the
-    line from the rover's start to its first goal, walked from the side: see
-    ``Pedestrians.lay_crossings``)."""
+    pedestrian_mode: str = DEFAULT_MODE
+    """How the pedestrians walk: ``pacing`` (the default: straight out-and-back paths,
+    waiting when the rover is in the way; the figures the shipped perception and zoo were
+    made on), ``crowd`` (a social-force crowd walking to goals, routing around the scenery,
+    keeping apart and making room for the rover), ``oblivious`` (the same crowd, blind to
+    the rover), ``crossing`` (the crowd walking across the line from the rover's start to
+    its first goal, from the side: see ``Pedestrians.lay_crossings``) or ``groups`` (the
+    crowd in groups of 2-3). ``walk``, the old name of ``pacing``, is accepted with a
+    ``FutureWarning`` for one release."""
+    n_pedestrians: int | None = None
+    """Walking figures, 0 to 20; None: the world's own count (3)."""
     pedestrian_appearance: str = "fixed"
     """``"fixed"`` (the seed's look) or ``"random"`` (clothing colours, height, girth and
     gait phase drawn per episode, deterministic from the reset seed)."""
@@ -89,10 +96,9 @@ class EnvOptions:
             raise ValueError(f"control_dt must be > 0 s, got {self.control_dt}")
         if not self.physics_dt > 0:
             raise ValueError(f"physics_dt must be > 0 s, got {self.physics_dt}")
-        if self.pedestrian_mode not in PEDESTRIAN_MODES:
-            raise ValueError(
-                f"pedestrian_mode must be one of {PEDESTRIAN_MODES}, got {self.pedestrian_mode!r}"
-            )
+        object.__setattr__(self, "pedestrian_mode", pedestrian_mode(self.pedestrian_mode))
+        if self.n_pedestrians is not None:
+            object.__setattr__(self, "n_pedestrians", pedestrian_count(self.n_pedestrians))
 
     @classmethod
     def of(cls, owner: str, options: dict[str, Any]) -> EnvOptions:
@@ -202,6 +208,8 @@ class RoverEnvBase(gym.Env):
             camera_size=camera_size,
             physics_dt=self.control_dt / self.physics_substeps,
             pedestrian_appearance=opts.pedestrian_appearance,
+            n_pedestrians=opts.n_pedestrians,
+            pedestrian_mode=opts.pedestrian_mode,
         )
         self.world = self.sim.world
         self.pid = HeadingPID(dt=self.control_dt)

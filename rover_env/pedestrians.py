@@ -27,11 +27,13 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from typing import NamedTuple
 
 import mujoco
 import numpy as np
 
+from rover_env.crowd import MAX_PEDESTRIANS, Crowd, CrowdState
 from rover_env.worlds.spec import GROUP_PEDESTRIAN, WorldSpec
 
 log = logging.getLogger(__name__)
@@ -53,7 +55,9 @@ _BATCH = 32  # candidate paths checked per batch
 _MAX_BATCHES = 20
 _PATH_SAMPLES = 33  # clearance checks along a path (every 0.25 m on an 8 m path)
 
-PEDESTRIAN_MODES = ("walk", "crossing")
+PEDESTRIAN_MODES = ("pacing", "crowd", "oblivious", "crossing", "groups")
+DEFAULT_MODE = "pacing"  # until the perception data and the zoo are re-made on the crowd
+RENAMED_MODES = {"walk": "pacing"}  # old name -> new, accepted with a warning for one release
 # crossing mode: each pedestrian walks across the rover's start-goal line
 CROSSING_FRACTION_RANGE = (0.3, 0.85)  # where along the line it crosses
 CROSSING_HALF_LENGTH_RANGE = (2.5, 4.0)  # m walked on either side of the line
@@ -125,6 +129,42 @@ class _Path(NamedTuple):
     speed: float
 
 
+def pedestrian_mode(mode: str) -> str:
+    """The canonical name of pedestrian mode ``mode``: ``ValueError`` naming the modes for an
+    unknown one; ``walk`` (the old name of ``pacing``) with a ``FutureWarning``."""
+    if mode in RENAMED_MODES:
+        new = RENAMED_MODES[mode]
+        warnings.warn(
+            f"pedestrian_mode={mode!r} is deprecated and will be removed in the next release; "
+            f"it is now called {new!r}",
+            FutureWarning,
+            stacklevel=3,
+        )
+        return new
+    if mode not in PEDESTRIAN_MODES:
+        raise ValueError(
+            f"pedestrian_mode must be one of {', '.join(PEDESTRIAN_MODES)}; got {mode!r}"
+        )
+    return mode
+
+
+def pedestrian_count(n: object, world: WorldSpec | None = None) -> int:
+    """``n`` checked: an int in 0..MAX_PEDESTRIANS (None: the world's own count)."""
+    if n is None:
+        return world.n_pedestrians if world is not None else 3
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)):
+        raise TypeError(
+            f"n_pedestrians must be an int from 0 to {MAX_PEDESTRIANS}, got {n!r} "
+            f"({type(n).__name__}); pass a whole number, e.g. n_pedestrians=10"
+        )
+    if not 0 <= n <= MAX_PEDESTRIANS:
+        raise ValueError(
+            f"n_pedestrians must be from 0 to {MAX_PEDESTRIANS}, got {n}; the worlds hold at "
+            f"most {MAX_PEDESTRIANS} walking figures"
+        )
+    return int(n)
+
+
 def body_name(i: int) -> str:
     return f"pedestrian{i}"
 
@@ -168,7 +208,13 @@ class Pedestrians:
         data: mujoco.MjData,
         world: WorldSpec,
         appearance: str = "fixed",
+        mode: str = DEFAULT_MODE,
     ) -> None:
+        """:param mode: one of :data:`PEDESTRIAN_MODES`: ``pacing`` walks the out-and-back
+        paths below; the others are a :class:`~rover_env.crowd.Crowd` (``oblivious``: blind
+        to the rover; ``groups``: in groups of 2-3; ``crossing``: across the rover's way,
+        see :meth:`lay_crossings`). The model's bodies (``pedestrian<i>``) say how many."""
+        mode = pedestrian_mode(mode)
         if appearance not in APPEARANCES:
             raise ValueError(
                 f"pedestrian appearance must be one of {APPEARANCES}, got {appearance!r}"
@@ -214,11 +260,33 @@ class Pedestrians:
         self._hip = [HIP_HEIGHT] * self.n
         self._gait = [0.0] * self.n
         self.appearance: list[Appearance] = []
+        self.mode = mode
+        self._crowd: Crowd | None = None
+        if mode != "pacing":
+            self._crowd = Crowd(
+                world, self.n, sees_rover=mode != "oblivious", groups=mode == "groups"
+            )
+
+    @property
+    def crowd(self) -> Crowd | None:
+        """The crowd model walking the figures (None in ``pacing`` mode)."""
+        return self._crowd
+
+    @property
+    def touching_rover(self) -> bool:
+        """Whether a crowd pedestrian's body was held at the rover's this step (it would
+        have walked into it; never in ``pacing`` mode, whose figures wait instead)."""
+        return self._crowd is not None and bool(self._crowd.touching.any())
 
     # --- episode set-up ------------------------------------------------------------------------
     def reset(self, rng: np.random.Generator, avoid: tuple[float, float] | None = None) -> None:
-        """New paths, speeds, start points and clothes for every pedestrian, then pose them."""
-        for i in range(self.n):
+        """New paths, speeds, start points and clothes for every pedestrian, then pose them
+        (a crowd: new starts, speeds and goals, then the clothes)."""
+        if self._crowd is not None:
+            self._crowd.reset(rng, avoid)
+            for i in range(self.n):
+                self._recolour(i, rng)
+        for i in range(self.n if self._crowd is None else 0):
             (ax, ay), (ux, uy), length, phase = self._sample_path(rng, avoid)
             speed = float(rng.uniform(*SPEED_RANGE))
             self._paths[i] = _Path(ax, ay, ux, uy, length, speed)
@@ -367,8 +435,16 @@ class Pedestrians:
                     self._paths[i] = _Path(ax, ay, ux, uy, length, speed)
                     self._walked[i] = phase
                     crossing += 1
+                    if self._crowd is not None:  # walked by the crowd model from there
+                        px, py, wx, wy = _position(self._paths[i], phase)
+                        a, b = (ax, ay), (ax + length * ux, ay + length * uy)
+                        end, back = (b, a) if wx * ux + wy * uy > 0 else (a, b)
+                        self._crowd.lay_crossing(i, (px, py), end, back, speed)
                     break
             else:
+                if self._crowd is not None:  # keeps its own start and goal
+                    self._recolour(i, rng)
+                    continue
                 (ax, ay), (ux, uy), length, phase = self._sample_path(rng, start)
                 self._paths[i] = _Path(ax, ay, ux, uy, length, speed)
                 self._walked[i] = phase
@@ -395,17 +471,27 @@ class Pedestrians:
         """Pin pedestrian ``i`` standing at (x, y) facing ``heading`` (rad) until next reset."""
         if not 0 <= i < self.n:
             raise IndexError(f"pedestrian index {i} out of range: this world has {self.n}")
+        if self._crowd is not None:
+            self._crowd.place(i, float(x), float(y), float(heading))
+            self._write_poses()
+            return
         self._paths[i] = _Path(float(x), float(y), math.cos(heading), math.sin(heading), 0.0, 0.0)
         self._walked[i] = 0.0
         self._write_poses()
 
-    def walked_state(self) -> list[float]:
-        """Where every pedestrian is on its path (for :meth:`restore_walked`)."""
+    def walked_state(self) -> list[float] | CrowdState:
+        """Where every pedestrian is (for :meth:`restore_walked`)."""
+        if self._crowd is not None:
+            return self._crowd.state()
         return list(self._walked)
 
-    def restore_walked(self, state: list[float]) -> None:
+    def restore_walked(self, state: list[float] | CrowdState) -> None:
         """Put every pedestrian back where :meth:`walked_state` found it."""
-        self._walked = list(state)
+        if isinstance(state, CrowdState):
+            assert self._crowd is not None
+            self._crowd.restore(state)
+        else:
+            self._walked = list(state)
         self._write_poses()
 
     # --- motion --------------------------------------------------------------------------------
@@ -416,6 +502,10 @@ class Pedestrians:
         with the rover ahead of it, waits instead (mocap bodies push with infinite mass:
         walking through the rover would throw it about).
         """
+        if self._crowd is not None:
+            self._crowd.advance(dt, rover_xy)
+            self._write_poses()
+            return
         walked = self._walked
         for i, path in enumerate(self._paths):
             if path.length <= 0.0:
@@ -430,38 +520,63 @@ class Pedestrians:
         self._write_poses()
 
     def _write_poses(self) -> None:
-        """Mocap poses from the walked distances (plain Python: a handful of figures)."""
+        """Mocap poses from the walked distances, or from the crowd (plain Python: a
+        handful of figures)."""
         if self.n == 0:
             return
-        world = self._world
-        flat = world.heightfield is None
-        positions, headings = self.positions, self.headings
         pos_rows: list[list[float]] = []
         quat_rows: list[list[float]] = []
-        for i, path in enumerate(self._paths):
-            walked = self._walked[i]
-            x, y, ux, uy = _position(path, walked)
-            swing = (
-                LEG_SWING * math.sin(math.pi * walked / STEP_LENGTH + self._gait[i])
-                if path.length
-                else 0.0
-            )
-            hip = self._hip[i]
-            positions[i, 0], positions[i, 1] = x, y
-            yaw = math.atan2(uy, ux)
-            headings[i] = yaw
-            z = 0.0 if flat else world.ground_height(x, y)
-            cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
-            cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
-            pos_rows.append([x, y, z])
-            quat_rows.append([cy, 0.0, 0.0, sy])
-            for side, angle in ((HIP_HALF_WIDTH, swing), (-HIP_HALF_WIDTH, -swing)):
-                # hip = pos + R(yaw) (0, side, HIP_HEIGHT); leg quat = yaw * pitch(angle)
-                cp, sp = math.cos(0.5 * angle), math.sin(0.5 * angle)
-                pos_rows.append([x - sin_yaw * side, y + cos_yaw * side, z + hip])
-                quat_rows.append([cy * cp, -sy * sp, cy * sp, sy * cp])
+        crowd = self._crowd
+        if crowd is None:
+            for i, path in enumerate(self._paths):
+                walked = self._walked[i]
+                x, y, ux, uy = _position(path, walked)
+                swing = (
+                    LEG_SWING * math.sin(math.pi * walked / STEP_LENGTH + self._gait[i])
+                    if path.length
+                    else 0.0
+                )
+                self._pose(i, x, y, math.atan2(uy, ux), swing, pos_rows, quat_rows)
+        else:
+            moving = (np.abs(crowd.vel).sum(axis=1) > 0.05).tolist()
+            walked_all = crowd.walked.tolist()
+            yaws = crowd.heading.tolist()
+            for i, (x, y) in enumerate(crowd.pos.tolist()):
+                swing = (
+                    LEG_SWING * math.sin(math.pi * walked_all[i] / STEP_LENGTH + self._gait[i])
+                    if moving[i]
+                    else 0.0
+                )
+                self._pose(i, x, y, yaws[i], swing, pos_rows, quat_rows)
         self._data.mocap_pos[self._order] = pos_rows
         self._data.mocap_quat[self._order] = quat_rows
+
+    def _pose(
+        self,
+        i: int,
+        x: float,
+        y: float,
+        yaw: float,
+        swing: float,
+        pos_rows: list[list[float]],
+        quat_rows: list[list[float]],
+    ) -> None:
+        """Append pedestrian ``i``'s three mocap poses (upper body, left, right leg)."""
+        world = self._world
+        hip = self._hip[i]
+        positions = self.positions
+        positions[i, 0], positions[i, 1] = x, y
+        self.headings[i] = yaw
+        z = 0.0 if world.heightfield is None else world.ground_height(x, y)
+        cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+        cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+        pos_rows.append([x, y, z])
+        quat_rows.append([cy, 0.0, 0.0, sy])
+        for side, angle in ((HIP_HALF_WIDTH, swing), (-HIP_HALF_WIDTH, -swing)):
+            # hip = pos + R(yaw) (0, side, HIP_HEIGHT); leg quat = yaw * pitch(angle)
+            cp, sp = math.cos(0.5 * angle), math.sin(0.5 * angle)
+            pos_rows.append([x - sin_yaw * side, y + cos_yaw * side, z + hip])
+            quat_rows.append([cy * cp, -sy * sp, cy * sp, sy * cp])
 
 
 def _position(path: _Path, walked: float) -> tuple[float, float, float, float]:

@@ -17,7 +17,13 @@ import numpy as np
 
 from fused_image import DEPTH_MAX_M, FUSED_SIZE
 from rover_env import rover
-from rover_env.pedestrians import Appearance, Pedestrians, pedestrians_xml
+from rover_env.pedestrians import (
+    DEFAULT_MODE,
+    Appearance,
+    Pedestrians,
+    pedestrian_count,
+    pedestrians_xml,
+)
 from rover_env.rendering import CameraFrame, GLRenderer
 from rover_env.worlds import WorldSpec, make_world
 from rover_env.worlds.spec import (
@@ -73,8 +79,16 @@ class Contacts(NamedTuple):
 _NO_CONTACT = Contacts(False, False)
 
 
-def build_mjcf(world: WorldSpec, camera_size: tuple[int, int], physics_dt: float) -> str:
-    """The complete MJCF of ``world`` with the rover, its pedestrians and a goal marker."""
+def build_mjcf(
+    world: WorldSpec,
+    camera_size: tuple[int, int],
+    physics_dt: float,
+    n_pedestrians: int | None = None,
+) -> str:
+    """The complete MJCF of ``world`` with the rover, ``n_pedestrians`` pedestrians (the
+    world's own count by default) and a goal marker."""
+    if n_pedestrians is None:
+        n_pedestrians = world.n_pedestrians
     height, width = camera_size
     offwidth = max(width, CHASE_MAX_SIZE[0])
     offheight = max(height, CHASE_MAX_SIZE[1])
@@ -111,7 +125,7 @@ def build_mjcf(world: WorldSpec, camera_size: tuple[int, int], physics_dt: float
         'diffuse="0.55 0.55 0.55" specular="0 0 0" castshadow="false"/>'
         + world.worldbody_xml
         + rover_body
-        + pedestrians_xml(world.n_pedestrians)
+        + pedestrians_xml(n_pedestrians)
         + goal
         + "</worldbody>"
         + f"<actuator>{actuators}</actuator>"
@@ -130,6 +144,10 @@ class RoverSim:
     :param pedestrian_appearance: ``"fixed"`` (default: the palette figures) or ``"random"``
         (colours, height, girth and gait phase drawn per episode from the reset generator;
         see :mod:`rover_env.pedestrians`).
+    :param n_pedestrians: walking figures, 0 to 20 (None: the world's own count, 3); the
+        model has exactly this many pedestrian bodies.
+    :param pedestrian_mode: how they walk: ``pacing`` (default), ``crowd``, ``oblivious``,
+        ``crossing`` or ``groups`` (see :mod:`rover_env.pedestrians`).
     """
 
     def __init__(
@@ -139,16 +157,19 @@ class RoverSim:
         physics_dt: float = PHYSICS_DT,
         seed_rng: np.random.Generator | None = None,
         pedestrian_appearance: str = "fixed",
+        n_pedestrians: int | None = None,
+        pedestrian_mode: str = DEFAULT_MODE,
     ) -> None:
         if not physics_dt > 0:
             raise ValueError(f"physics_dt must be > 0, got {physics_dt}")
         if len(camera_size) != 2 or min(camera_size) < 1:
             raise ValueError(f"camera_size must be (height, width) >= 1, got {camera_size}")
         self.world: WorldSpec = make_world(world)
+        n_pedestrians = pedestrian_count(n_pedestrians, self.world)
         self.camera_size = (int(camera_size[0]), int(camera_size[1]))
         self.physics_dt = float(physics_dt)
         self.model = mujoco.MjModel.from_xml_string(
-            build_mjcf(self.world, self.camera_size, self.physics_dt)
+            build_mjcf(self.world, self.camera_size, self.physics_dt, n_pedestrians)
         )
         self.data = mujoco.MjData(self.model)
         m, d = self.model, self.data
@@ -173,7 +194,9 @@ class RoverSim:
         self.camera_half_fov = math.atan(math.tan(half_fovy) * width / height)
         """Half the forward camera's horizontal field of view (rad): 45 deg on square frames."""
         self._goal_mocap = m.body_mocapid[mujoco.mj_name2id(m, obj.mjOBJ_BODY, _GOAL_BODY)]
-        self.pedestrians = Pedestrians(m, d, self.world, appearance=pedestrian_appearance)
+        self.pedestrians = Pedestrians(
+            m, d, self.world, appearance=pedestrian_appearance, mode=pedestrian_mode
+        )
         # Geom classes for contacts: rover subtree, pedestrians, ground.
         rover_bodies = {self._body, self._head} | {
             mujoco.mj_name2id(m, obj.mjOBJ_BODY, n) for n in rover.WHEEL_NAMES

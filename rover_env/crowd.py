@@ -1,0 +1,620 @@
+"""Crowd: pedestrians who walk to goals, as a social-force model vectorised in numpy.
+
+The model is Helbing & Molnár's social force (1995): each person accelerates towards a
+desired velocity (its speed, towards the next waypoint of its route) with relaxation time
+``TAU``, and is pushed away from the people around it (exponential in the gap between their
+bodies, weaker for people behind: anisotropy ``LAMBDA``) and from the scenery (exponential in
+the clearance, along the gradient of a precomputed distance field). Groups (``groups`` mode)
+add Moussaïd et al.'s (2010) coherence force towards the group's centre, as PySocialForce
+does, share a goal, a speed and pauses. People who see the rover (every mode but
+``oblivious``) treat it as a moving obstacle: they are pushed from the point of closest
+approach over the next ``ROVER_LOOKAHEAD`` s and step aside (a sideways force, to the side
+they already are on), so they slow, sidestep and pass; nobody freezes.
+
+Routes: the pedestrian area is a grid of ``CELL`` m cells; a cell is free when its centre
+is ``GRID_CLEARANCE`` m from every obstacle footprint. A goal is a free cell in the walker's
+connected part of the grid, at least ``GOAL_MIN_DISTANCE`` away; the distance to it from
+every cell comes from one Dijkstra search (cached per goal cell), and every step each
+walker heads for the cell two moves down its route (its goal point in the last cell). On
+arrival a walker pauses (probability ``PAUSE_PROBABILITY``, ``PAUSE_RANGE`` s) and draws a
+new goal; one that makes no progress for ``STUCK_TIME`` s draws a new goal too.
+
+Solid bodies: after each step of the forces, people are moved apart to ``MIN_SEPARATION`` m
+(centre to centre), out of the scenery to ``BODY_RADIUS`` m of clearance, kept inside the
+pedestrian area, and out of the rover's footprint (``ROVER_RADIUS`` + ``BODY_RADIUS``). Mocap
+bodies push with infinite mass: a pedestrian moved into the rover would throw it about, so
+nobody is; one held at the rover's body this step is reported by :attr:`Crowd.touching`.
+
+Time: the model steps at a fixed ``CROWD_DT`` of simulated time whatever the env's
+``control_dt``; :meth:`Crowd.advance` runs the whole steps that fit and keeps the rest.
+Randomness (starts, goals, speeds, pauses) comes from a generator drawn at :meth:`Crowd.reset`
+from the env's, so ``reset(seed=s)`` reproduces an episode.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import weakref
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from rover_env.worlds.spec import Rect, WorldSpec
+
+CROWD_DT = 0.05  # s: the model's fixed step
+SPEED_RANGE = (1.0, 1.5)  # m/s: preferred walking speed (as the pacers')
+MAX_SPEED_FACTOR = 1.3  # a pushed walker may go this much faster than it prefers
+TAU = 0.5  # s: relaxation time towards the desired velocity
+BODY_RADIUS = 0.3  # m: shoulders; clearance kept from the scenery
+MIN_SEPARATION = 0.5  # m between two people's centres (bodies touch, never overlap)
+ROVER_RADIUS = 0.33  # m: the rover's footprint as a disc (0.45 x 0.43 m chassis)
+# Pedestrian-pedestrian repulsion (Helbing & Molnár; values as in PySocialForce's circular form)
+A_PED, B_PED = 2.1, 0.3  # m/s^2, m
+LAMBDA = 0.35  # weight of people behind (1 = isotropic)
+GROUP_REPULSION_FACTOR = 0.3  # members of one group mind each other less
+A_SIDE = 0.6  # sideways (evasive) share of a repulsion from someone ahead
+# Scenery repulsion along the distance field's gradient
+A_OBS, B_OBS = 4.0, 0.2
+# The rover, for people who see it
+A_ROVER, B_ROVER = 5.0, 0.45
+ROVER_LAMBDA = 0.5
+ROVER_LOOKAHEAD = 1.0  # s: they react to where the rover will be closest
+A_ROVER_SIDE = 1.0
+# Groups (Moussaïd et al. 2010, PySocialForce's group coherence)
+A_COHERENCE = 2.0
+GROUP_SIZES = (2, 3)
+GROUP_SPACING = 0.7  # m between members at the start
+# Routes and goals
+CELL = 0.5  # m: routing grid
+GRID_CLEARANCE = 0.45  # m: a free cell's centre is this far from every obstacle
+FIELD_CELL = 0.1  # m: scenery distance field
+FIELD_MARGIN = 1.0  # m around the pedestrian area
+GOAL_MIN_DISTANCE = 3.0  # m from the walker
+ARRIVAL_DISTANCE = 0.5  # m from the goal point
+SLOW_DOWN_DISTANCE = 1.0  # m: walkers slow down this close to their goal
+PAUSE_PROBABILITY = 0.5
+PAUSE_RANGE = (1.0, 4.0)  # s
+STUCK_TIME = 8.0  # s without 0.5 m of progress: a new goal
+MIN_START_DISTANCE = 2.0  # m from the rover at the start
+START_SPACING = 1.0  # m between people at the start (group members: GROUP_SPACING)
+MAX_PEDESTRIANS = 20
+_START_TRIES = 40  # batches of candidate starts
+_START_BATCH = 64
+_SQRT2 = math.sqrt(2.0)
+_MOVES = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
+
+
+class CrowdPlacementError(ValueError):
+    """The crowd asked for cannot stand in the world's pedestrian area."""
+
+
+@dataclass(frozen=True, eq=False)
+class CrowdMap:
+    """What the crowd knows of a world: the routing grid and the scenery distance field."""
+
+    area: Rect
+    nx: int
+    ny: int
+    centres: np.ndarray  # (C, 2) cell centres, row-major (iy * nx + ix)
+    free: np.ndarray  # (C,) bool
+    component: np.ndarray  # (C,) int: connected part of the free grid (-1: not free)
+    neighbours: np.ndarray  # (C + 1, 8) int: neighbour cells (C = none), row C all none
+    weights: np.ndarray  # (C + 1, 8) float: move costs (inf = none)
+    nearest_free: np.ndarray  # (C,) int: the free cell nearest each cell's centre
+    field_origin: tuple[float, float]
+    field: np.ndarray  # (fy, fx) clearance (m) at FIELD_CELL spacing
+    gradient: np.ndarray  # (2, fy, fx) its gradient (x, y)
+
+    @property
+    def capacity(self) -> int:
+        """How many people can start in the area at once: one per START_SPACING² of free
+        grid (a bound, not a promise: the rover's start keeps some of it)."""
+        return int(self.free.sum() * CELL * CELL / (START_SPACING * START_SPACING))
+
+    def cell_of(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) the grid cell under each point (clipped to the grid)."""
+        a = self.area
+        ix = np.clip(((xy[:, 0] - a.x[0]) / CELL).astype(np.intp), 0, self.nx - 1)
+        iy = np.clip(((xy[:, 1] - a.y[0]) / CELL).astype(np.intp), 0, self.ny - 1)
+        return iy * self.nx + ix
+
+    def clearance(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(clearance (n,), unit gradient (n, 2)) at each point: bilinear in the field."""
+        fy, fx = self.field.shape
+        u = np.clip((xy[:, 0] - self.field_origin[0]) / FIELD_CELL, 0.0, fx - 1.000001)
+        v = np.clip((xy[:, 1] - self.field_origin[1]) / FIELD_CELL, 0.0, fy - 1.000001)
+        i0, j0 = u.astype(np.intp), v.astype(np.intp)
+        a, b = u - i0, v - j0
+        w00, w10, w01, w11 = (1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b
+        f, g = self.field, self.gradient
+        d = w00 * f[j0, i0] + w10 * f[j0, i0 + 1] + w01 * f[j0 + 1, i0] + w11 * f[j0 + 1, i0 + 1]
+        grad = (
+            w00 * g[:, j0, i0] + w10 * g[:, j0, i0 + 1] + w01 * g[:, j0 + 1, i0]
+            + w11 * g[:, j0 + 1, i0 + 1]
+        ).T  # fmt: skip
+        norm = np.hypot(grad[:, 0], grad[:, 1])[:, None]
+        return d, grad / np.maximum(norm, 1e-9)
+
+    def route_distances(self, goal: int) -> np.ndarray:
+        """(C + 1,) route length (m) from every cell to free cell ``goal`` (inf where none;
+        entry C, the 'no neighbour' cell, is inf). Dijkstra, cached per goal."""
+        cache = _ROUTES.setdefault(self, {})
+        hit = cache.get(goal)
+        if hit is not None:
+            return hit
+        n = len(self.free)
+        dist = [math.inf] * (n + 1)
+        dist[goal] = 0.0
+        nbrs, wts = self.neighbours.tolist(), self.weights.tolist()
+        heap = [(0.0, goal)]
+        while heap:
+            d, c = heapq.heappop(heap)
+            if d > dist[c]:
+                continue
+            for k in range(8):
+                nb = nbrs[c][k]
+                if nb == n:
+                    continue
+                nd = d + wts[c][k]
+                if nd < dist[nb]:
+                    dist[nb] = nd
+                    heapq.heappush(heap, (nd, nb))
+        out = np.array(dist)
+        cache[goal] = out
+        return out
+
+
+_MAPS: weakref.WeakKeyDictionary[WorldSpec, CrowdMap] = weakref.WeakKeyDictionary()
+_ROUTES: weakref.WeakKeyDictionary[CrowdMap, dict[int, np.ndarray]] = weakref.WeakKeyDictionary()
+
+
+def crowd_map(world: WorldSpec) -> CrowdMap:
+    """The routing grid and distance field of ``world`` (built once per WorldSpec)."""
+    hit = _MAPS.get(world)
+    if hit is None:
+        hit = _MAPS[world] = _build_map(world)
+    return hit
+
+
+def _build_map(world: WorldSpec) -> CrowdMap:
+    area = world.pedestrian_area
+    nx = max(1, int(round((area.x[1] - area.x[0]) / CELL)))
+    ny = max(1, int(round((area.y[1] - area.y[0]) / CELL)))
+    ix, iy = np.meshgrid(np.arange(nx), np.arange(ny))
+    cx = area.x[0] + (ix.reshape(-1) + 0.5) * CELL
+    cy = area.y[0] + (iy.reshape(-1) + 0.5) * CELL
+    centres = np.stack([cx, cy], axis=1)
+    free = world.clearance_many(cx, cy) > GRID_CLEARANCE
+    n = nx * ny
+    neighbours = np.full((n + 1, 8), n, dtype=np.intp)
+    weights = np.full((n + 1, 8), np.inf)
+    free2 = free.reshape(ny, nx)
+    for k, (dx, dy) in enumerate(_MOVES):
+        jx, jy = ix + dx, iy + dy
+        inside = (jx >= 0) & (jx < nx) & (jy >= 0) & (jy < ny)
+        jxc, jyc = np.clip(jx, 0, nx - 1), np.clip(jy, 0, ny - 1)
+        ok = inside & free2 & free2[jyc, jxc]
+        if dx and dy:  # diagonal: no corner cutting
+            ok &= free2[iy, jxc] & free2[jyc, ix]
+        ok = ok.reshape(-1)
+        neighbours[:n][ok, k] = (jyc * nx + jxc).reshape(-1)[ok]
+        weights[:n][ok, k] = _SQRT2 if dx and dy else 1.0
+    weights *= CELL
+    component = np.full(n, -1, dtype=np.intp)
+    label = 0
+    for start in np.flatnonzero(free):
+        if component[start] >= 0:
+            continue
+        component[start] = label
+        stack = [int(start)]
+        while stack:
+            c = stack.pop()
+            for nb in neighbours[c]:
+                if nb < n and component[nb] < 0:
+                    component[nb] = label
+                    stack.append(int(nb))
+        label += 1
+    free_idx = np.flatnonzero(free)
+    if len(free_idx):
+        d2 = ((centres[:, None, :] - centres[None, free_idx, :]) ** 2).sum(axis=2)
+        nearest_free = free_idx[np.argmin(d2, axis=1)]
+    else:
+        nearest_free = np.zeros(n, dtype=np.intp)
+    x0, y0 = area.x[0] - FIELD_MARGIN, area.y[0] - FIELD_MARGIN
+    fx = int(math.ceil((area.x[1] - area.x[0] + 2 * FIELD_MARGIN) / FIELD_CELL)) + 1
+    fy = int(math.ceil((area.y[1] - area.y[0] + 2 * FIELD_MARGIN) / FIELD_CELL)) + 1
+    gx, gy = np.meshgrid(x0 + FIELD_CELL * np.arange(fx), y0 + FIELD_CELL * np.arange(fy))
+    field = np.minimum(world.clearance_many(gx, gy), 50.0)
+    grad_y, grad_x = np.gradient(field, FIELD_CELL)
+    return CrowdMap(
+        area, nx, ny, centres, free, component, neighbours, weights, nearest_free,
+        (x0, y0), field, np.stack([grad_x, grad_y]),
+    )  # fmt: skip
+
+
+@dataclass
+class CrowdState:
+    """Everything that moves (for :meth:`Crowd.state` / :meth:`Crowd.restore`)."""
+
+    pos: np.ndarray
+    vel: np.ndarray
+    heading: np.ndarray
+    walked: np.ndarray
+    goal: np.ndarray
+    goal_cell: np.ndarray
+    pause: np.ndarray
+    best: np.ndarray
+    stall: np.ndarray
+    pinned: np.ndarray
+    alternate: np.ndarray
+    paused: np.ndarray
+    group: np.ndarray
+    clock: float
+    rover_prev: tuple[float, float] | None
+    rng: Mapping[str, Any]
+
+
+class Crowd:
+    """``n`` social-force walkers in ``world``'s pedestrian area.
+
+    :param world: the arena (obstacles and pedestrian area).
+    :param n: walkers (0 to ``MAX_PEDESTRIANS``).
+    :param sees_rover: False for the ``oblivious`` mode: the rover is no force on anyone
+        (their bodies still never enter its footprint).
+    :param groups: walk in groups of 2-3 (``groups`` mode).
+    """
+
+    def __init__(
+        self, world: WorldSpec, n: int, *, sees_rover: bool = True, groups: bool = False
+    ) -> None:
+        self.world = world
+        self.map = crowd_map(world)
+        self.n = n
+        self.sees_rover = sees_rover
+        self.grouped = groups
+        if n > self.map.capacity:
+            raise CrowdPlacementError(
+                f"{n} pedestrians cannot be placed in world {world.name!r}: its pedestrian "
+                f"area {world.pedestrian_area} has room for {self.map.capacity} (one per "
+                f"{START_SPACING:g} m² of free ground); ask for at most {self.map.capacity}"
+            )
+        z = np.zeros(n)
+        self.pos = np.zeros((n, 2))
+        self.vel = np.zeros((n, 2))
+        self.heading = z.copy()
+        self.walked = z.copy()  # metres walked (the gait's phase)
+        self.speed = np.full(n, SPEED_RANGE[0])
+        self.goal = np.zeros((n, 2))
+        self.goal_cell = np.zeros(n, dtype=np.intp)
+        self.pause = z.copy()  # s left standing
+        self.best = z.copy()  # closest route distance to the goal so far
+        self.stall = z.copy()  # s since the last 0.5 m of progress
+        self.pinned = np.zeros(n, dtype=bool)  # placed by hand: stands still
+        self.alternate = np.full((n, 2), np.nan)  # crossing: the other end of the walk
+        self.touching = np.zeros(n, dtype=bool)  # held at the rover's body this step
+        self.group = np.arange(n)  # group id per walker (its leader's index)
+        self._paused = np.zeros(n, dtype=bool)  # the leader has paused at this goal
+        self._route = np.full((n, len(self.map.free) + 1), np.inf)
+        self._clock = 0.0  # simulated time not yet stepped (< CROWD_DT)
+        self._rover_prev: tuple[float, float] | None = None
+        self._rng = np.random.default_rng(0)
+        self._eye = np.eye(n, dtype=bool)
+        self._same_group = self._eye.copy()
+
+    # --- episode set-up ----------------------------------------------------------------------
+    def reset(self, rng: np.random.Generator, avoid: tuple[float, float] | None) -> None:
+        """New walkers: starts clear of the scenery, of each other and ``MIN_START_DISTANCE``
+        from ``avoid`` (the rover), speeds, groups and first goals; the crowd's own
+        generator is drawn from ``rng``."""
+        self._rng = np.random.default_rng(int(rng.integers(2**63)))
+        n = self.n
+        self.group = np.arange(n)
+        if self.grouped:
+            i = 0
+            while i < n:
+                size = min(int(self._rng.choice(GROUP_SIZES)), n - i)
+                self.group[i : i + size] = i
+                i += size
+        self._same_group = self.group[:, None] == self.group[None, :]
+        self.speed = self._rng.uniform(*SPEED_RANGE, n)
+        self.speed = self.speed[self.group]  # a group walks at its first member's speed
+        self.pos[:] = self._starts(avoid)
+        self.vel[:] = 0.0
+        self.heading[:] = self._rng.uniform(-math.pi, math.pi, n)
+        self.walked[:] = 0.0
+        self.pause[:] = 0.0
+        self.pinned[:] = False
+        self.alternate[:] = np.nan
+        self.touching[:] = False
+        self._paused[:] = False
+        self._clock = 0.0
+        self._rover_prev = avoid
+        for i in range(n):
+            if self.group[i] == i:
+                self._new_goal(i)
+
+    def _starts(self, avoid: tuple[float, float] | None) -> np.ndarray:
+        m, rng, n = self.map, self._rng, self.n
+        out = np.zeros((n, 2))
+        cells = np.flatnonzero(m.free)
+        placed = 0
+        for _ in range(_START_TRIES):
+            if placed == n:
+                break
+            leader = placed if self.group[placed] == placed else int(self.group[placed])
+            if placed == leader:
+                pick = m.centres[rng.choice(cells, _START_BATCH)]
+                cand = pick + rng.uniform(-0.5 * CELL, 0.5 * CELL, (_START_BATCH, 2))
+                spacing = START_SPACING
+            else:  # a group member: beside its leader
+                a = rng.uniform(-math.pi, math.pi, _START_BATCH)
+                cand = out[leader] + GROUP_SPACING * np.stack([np.cos(a), np.sin(a)], 1)
+                spacing = GROUP_SPACING * 0.9
+            ok = self.world.clearance_many(cand[:, 0], cand[:, 1]) > BODY_RADIUS + 0.1
+            ok &= m.area.x[0] <= cand[:, 0]
+            ok &= cand[:, 0] <= m.area.x[1]
+            ok &= m.area.y[0] <= cand[:, 1]
+            ok &= cand[:, 1] <= m.area.y[1]
+            if avoid is not None:
+                ok &= np.hypot(cand[:, 0] - avoid[0], cand[:, 1] - avoid[1]) >= MIN_START_DISTANCE
+            if placed:
+                gap = np.hypot(cand[:, None, 0] - out[None, :placed, 0],
+                               cand[:, None, 1] - out[None, :placed, 1])
+                ok &= np.all(gap >= spacing, axis=1)
+            good = np.flatnonzero(ok)
+            if len(good):
+                out[placed] = cand[good[0]]
+                placed += 1
+        if placed < n:
+            raise CrowdPlacementError(
+                f"could place only {placed} of {self.n} pedestrians in world "
+                f"{self.world.name!r} ({START_SPACING:g} m apart, {BODY_RADIUS + 0.1:g} m from "
+                f"the scenery, {MIN_START_DISTANCE:g} m from the rover); ask for fewer"
+            )
+        return out
+
+    def _new_goal(self, leader: int) -> None:
+        """A new goal for walker ``leader`` and its group: a free cell of its part of the
+        grid at least GOAL_MIN_DISTANCE away (the farthest of a few when none is)."""
+        m, rng = self.map, self._rng
+        here = m.nearest_free[m.cell_of(self.pos[leader : leader + 1])[0]]
+        cells = np.flatnonzero(m.component == m.component[here])
+        cand = cells[rng.integers(len(cells), size=8)]
+        far = np.hypot(*(m.centres[cand] - self.pos[leader]).T)
+        ok = np.flatnonzero(far >= GOAL_MIN_DISTANCE)
+        cell = int(cand[ok[0]] if len(ok) else cand[np.argmax(far)])
+        point = m.centres[cell] + rng.uniform(-0.2 * CELL, 0.2 * CELL, 2)
+        self._set_goal(leader, cell, point)
+
+    def _set_goal(self, leader: int, cell: int, point: np.ndarray) -> None:
+        members = np.flatnonzero(self.group == leader)
+        route = self.map.route_distances(cell)
+        self.goal[members] = point
+        self.goal_cell[members] = cell
+        self._route[members] = route
+        here = self.map.nearest_free[self.map.cell_of(self.pos[members])]
+        self.best[members] = route[here]
+        self.stall[members] = 0.0
+
+    def lay_crossing(
+        self,
+        i: int,
+        start: tuple[float, float],
+        end: tuple[float, float],
+        back: tuple[float, float],
+        speed: float,
+    ) -> None:
+        """Walker ``i`` (alone, at ``speed``) walks from ``start`` to ``end``, then to
+        ``back``, then to ``end`` again, and so on (crossing mode)."""
+        self.group[self.group == i] = np.flatnonzero(self.group == i)
+        self.group[i] = i
+        self._same_group = self.group[:, None] == self.group[None, :]
+        self.pos[i] = start
+        self.vel[i] = 0.0
+        self.pause[i] = 0.0
+        self.speed[i] = speed
+        self.alternate[i] = back
+        self._goal_at(i, np.array(end))
+
+    def _goal_at(self, i: int, point: np.ndarray) -> None:
+        m = self.map
+        cell = int(m.nearest_free[m.cell_of(point[None])[0]])
+        self._set_goal(i, cell, point)
+
+    def place(self, i: int, x: float, y: float, heading: float) -> None:
+        """Pin walker ``i`` standing at (x, y), facing ``heading``, until the next reset."""
+        self.pos[i] = (x, y)
+        self.vel[i] = 0.0
+        self.heading[i] = heading
+        self.pinned[i] = True
+
+    # --- state ---------------------------------------------------------------------------------
+    def state(self) -> CrowdState:
+        return CrowdState(
+            self.pos.copy(), self.vel.copy(), self.heading.copy(), self.walked.copy(),
+            self.goal.copy(), self.goal_cell.copy(), self.pause.copy(), self.best.copy(),
+            self.stall.copy(), self.pinned.copy(), self.alternate.copy(), self._paused.copy(),
+            self.group.copy(), self._clock, self._rover_prev, self._rng.bit_generator.state,
+        )  # fmt: skip
+
+    def restore(self, s: CrowdState) -> None:
+        self.pos[:], self.vel[:] = s.pos, s.vel
+        self.heading[:], self.walked[:] = s.heading, s.walked
+        self.goal[:], self.pause[:], self.best[:], self.stall[:] = s.goal, s.pause, s.best, s.stall
+        self.pinned[:], self.alternate[:], self._paused[:] = s.pinned, s.alternate, s.paused
+        self.group[:] = s.group
+        self._same_group = self.group[:, None] == self.group[None, :]
+        for i, cell in enumerate(s.goal_cell):
+            if cell != self.goal_cell[i]:
+                self._route[i] = self.map.route_distances(int(cell))
+        self.goal_cell[:] = s.goal_cell
+        self._clock, self._rover_prev = s.clock, s.rover_prev
+        self._rng.bit_generator.state = s.rng
+
+    # --- motion --------------------------------------------------------------------------------
+    def advance(self, dt: float, rover_xy: tuple[float, float] | None) -> None:
+        """Walk on ``dt`` s: the whole ``CROWD_DT`` steps that fit (the remainder carries
+        to the next call), with the rover at ``rover_xy`` (its velocity from the last call)."""
+        self._clock += dt
+        steps = int(self._clock / CROWD_DT + 1e-9)
+        if steps == 0:
+            return
+        self._clock -= steps * CROWD_DT
+        rover_v = np.zeros(2)
+        if rover_xy is not None and self._rover_prev is not None:
+            rover_v = (np.asarray(rover_xy) - self._rover_prev) / dt
+        self._rover_prev = None if rover_xy is None else (float(rover_xy[0]), float(rover_xy[1]))
+        for _ in range(steps):
+            self._step(rover_xy, rover_v)
+
+    def _step(self, rover_xy: tuple[float, float] | None, rover_v: np.ndarray) -> None:
+        n = self.n
+        if n == 0:
+            return
+        m, dt = self.map, CROWD_DT
+        pos, vel = self.pos, self.vel
+        # desired velocity: towards the cell two moves down the route, the goal in its cell
+        cells = m.nearest_free[m.cell_of(pos)]
+        rows = np.arange(n)
+        nb = m.neighbours[cells]
+        nxt = nb[rows, np.argmin(m.weights[cells] + self._route[rows[:, None], nb], axis=1)]
+        nb2 = m.neighbours[nxt]
+        nxt2 = nb2[rows, np.argmin(m.weights[nxt] + self._route[rows[:, None], nb2], axis=1)]
+        route_left = self._route[rows, cells]
+        target = np.where(
+            ((cells == self.goal_cell) | (nxt == self.goal_cell) | (nxt2 >= len(m.free)))[:, None],
+            self.goal, m.centres[np.minimum(nxt2, len(m.free) - 1)],
+        )  # fmt: skip
+        to_target = target - pos
+        dist_t = np.hypot(to_target[:, 0], to_target[:, 1])
+        e = to_target / np.maximum(dist_t, 1e-9)[:, None]
+        to_goal = np.hypot(*(self.goal - pos).T)
+        # the group's walk: all members stand while any is paused
+        standing = (self.pause > 0.0) | self.pinned
+        desired = self.speed * np.minimum(1.0, to_goal / SLOW_DOWN_DISTANCE)
+        desired[standing] = 0.0
+        force = (desired[:, None] * e - vel) / TAU
+        # other people
+        diff = pos[:, None, :] - pos[None, :, :]  # i minus j
+        d = np.hypot(diff[..., 0], diff[..., 1])
+        d[self._eye] = np.inf
+        nij = diff / np.maximum(d, 1e-9)[..., None]
+        cos_phi = -(nij[..., 0] * e[:, None, 0] + nij[..., 1] * e[:, None, 1])
+        weight = LAMBDA + (1.0 - LAMBDA) * 0.5 * (1.0 + cos_phi)
+        mag = A_PED * np.exp((MIN_SEPARATION + 0.1 - d) / B_PED) * weight
+        mag = np.where(self._same_group, GROUP_REPULSION_FACTOR * mag, mag)
+        force += (mag[..., None] * nij).sum(axis=1)
+        # step aside from those ahead: perpendicular to e, away from their side
+        side = np.sign(e[:, None, 0] * diff[..., 1] - e[:, None, 1] * diff[..., 0])  # j left: -
+        side[side == 0] = -1.0  # dead ahead: keep right
+        ahead = np.maximum(cos_phi, 0.0) * A_SIDE * mag * side
+        perp = np.stack([-e[:, 1], e[:, 0]], axis=1)  # left of e
+        force += ahead.sum(axis=1)[:, None] * perp
+        # groups: coherence towards the centre of the group
+        if self.grouped:
+            sizes = np.bincount(self.group, minlength=n)
+            centre = np.stack(
+                [np.bincount(self.group, pos[:, k], minlength=n) for k in (0, 1)], 1
+            ) / np.maximum(sizes, 1)[:, None]
+            off = centre[self.group] - pos
+            far = np.hypot(off[:, 0], off[:, 1])
+            thr = 0.5 * (sizes[self.group] - 1)
+            force += A_COHERENCE * (far > thr)[:, None] * off / np.maximum(far, 1e-9)[:, None]
+        # scenery
+        clear, grad = m.clearance(pos)
+        force += (A_OBS * np.exp((BODY_RADIUS - clear) / B_OBS))[:, None] * grad
+        # the rover, for those who see it: from its point of closest approach
+        if rover_xy is not None and self.sees_rover:
+            rel = pos - np.asarray(rover_xy)
+            rel_v = vel - rover_v
+            vv = (rel_v * rel_v).sum(axis=1)
+            closing = -(rel * rel_v).sum(axis=1) / np.maximum(vv, 1e-9)
+            t_star = np.clip(closing, 0.0, ROVER_LOOKAHEAD)
+            near = rel + rel_v * t_star[:, None]
+            dn = np.hypot(near[:, 0], near[:, 1])
+            nr = near / np.maximum(dn, 1e-9)[:, None]
+            cos_r = -(nr * e).sum(axis=1)
+            w_r = ROVER_LAMBDA + (1.0 - ROVER_LAMBDA) * 0.5 * (1.0 + cos_r)
+            mag_r = A_ROVER * np.exp((ROVER_RADIUS + BODY_RADIUS - dn) / B_ROVER) * w_r
+            force += mag_r[:, None] * nr
+            side_r = np.sign(e[:, 0] * rel[:, 1] - e[:, 1] * rel[:, 0])
+            side_r[side_r == 0] = -1.0
+            force += (np.maximum(cos_r, 0.0) * A_ROVER_SIDE * mag_r * side_r)[:, None] * perp
+        # integrate (semi-implicit Euler), speed capped
+        new_v = vel + force * dt
+        speed = np.hypot(new_v[:, 0], new_v[:, 1])
+        cap = MAX_SPEED_FACTOR * self.speed
+        new_v *= np.minimum(1.0, cap / np.maximum(speed, 1e-9))[:, None]
+        new_v[self.pinned] = 0.0
+        new_pos = pos + new_v * dt
+        self._solid(new_pos, rover_xy)
+        step = new_pos - pos
+        self.vel[:] = step / dt
+        moved = np.hypot(step[:, 0], step[:, 1])
+        self.walked += moved
+        fast = moved > 0.2 * dt
+        self.heading[fast] = np.arctan2(step[fast, 1], step[fast, 0])
+        pos[:] = new_pos
+        # goals: arrival, pauses, stalls
+        self.pause = np.maximum(self.pause - dt, 0.0)
+        improved = route_left < self.best - 0.5
+        self.best = np.where(improved, route_left, self.best)
+        self.stall = np.where(improved | standing, 0.0, self.stall + dt)
+        for i in np.flatnonzero(self.group == rows).tolist():  # leaders
+            if self.pinned[i]:
+                continue
+            members = self.group == i
+            if to_goal[members].min() < ARRIVAL_DISTANCE + 0.3 * (members.sum() - 1):
+                if self.pause[i] > 0.0:
+                    continue
+                if not np.isnan(self.alternate[i, 0]):  # a crosser turns back
+                    back = self.alternate[i].copy()
+                    self.alternate[i] = self.goal[i]
+                    self._goal_at(i, back)
+                    continue
+                if not self._paused[i] and self._rng.random() < PAUSE_PROBABILITY:
+                    self.pause[members] = self._rng.uniform(*PAUSE_RANGE)
+                    self._paused[i] = True
+                    continue
+                self._paused[i] = False
+                self._new_goal(i)
+            elif self.stall[members].max() > STUCK_TIME:
+                if np.isnan(self.alternate[i, 0]):
+                    self._new_goal(i)
+                else:
+                    self.stall[members] = 0.0
+
+    def _solid(self, pos: np.ndarray, rover_xy: tuple[float, float] | None) -> None:
+        """Bodies are solid: apart from each other, out of the scenery, inside the area, out
+        of the rover's footprint (in place)."""
+        n = self.n
+        for _ in range(2):
+            diff = pos[:, None, :] - pos[None, :, :]
+            d = np.hypot(diff[..., 0], diff[..., 1])
+            d[self._eye] = np.inf
+            short = np.maximum(MIN_SEPARATION - d, 0.0)
+            if not short.any():
+                break
+            push = 0.5 * short / np.maximum(d, 1e-9)
+            pos += (push[..., None] * diff).sum(axis=1)
+        self.touching = np.zeros(n, dtype=bool)
+        if rover_xy is not None:
+            rel = pos - np.asarray(rover_xy)
+            d = np.hypot(rel[:, 0], rel[:, 1])
+            reach = ROVER_RADIUS + BODY_RADIUS
+            inside = d < reach
+            if inside.any():
+                self.touching = inside
+                pos[inside] += (rel[inside] / np.maximum(d[inside], 1e-9)[:, None]) * (
+                    reach - d[inside]
+                )[:, None]
+        clear, grad = self.map.clearance(pos)
+        deep = clear < BODY_RADIUS
+        if deep.any():
+            pos[deep] += grad[deep] * (BODY_RADIUS - clear[deep])[:, None]
+        a = self.map.area
+        np.clip(pos[:, 0], a.x[0], a.x[1], out=pos[:, 0])
+        np.clip(pos[:, 1], a.y[0], a.y[1], out=pos[:, 1])
