@@ -118,3 +118,4 @@ DEFAULT_WORLD = "inspect"  # seed: world_n='inspect'; every CLI's default too
 # --- proxemics (not in the seeds; the metrics every env and report use) -------------------
 PERSONAL_SPACE_M = 1.2  # a pedestrian closer than this is a personal-space intrusion
 INTIMATE_SPACE_M = 0.45  # ... and closer than this an intimate-space intrusion
+ROVER_STOPPED_SPEED = 0.05  # m/s: slower, a pedestrian contact is the pedestrian's doing

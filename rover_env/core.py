@@ -334,6 +334,7 @@ class RoverEnvBase(gym.Env):
         self.collision_count = 0
         self.goal_reached = False
         self.collided = False
+        self.pedestrian_contact = False
         self.distance_delta = 0.0
         self._steps = 0
         self._episode_reward = 0.0
@@ -440,6 +441,9 @@ class RoverEnvBase(gym.Env):
         self._total_steps += 1
         self._read_state()
         self._positions.append((float(self.position[0]), float(self.position[1])))
+        self.pedestrian_contact = (
+            self.sim.rover_contacts().pedestrian or self.sim.pedestrians.touching_rover
+        )
 
         # Progress is measured against the goal of this step, even if it was just reached.
         self.distance_delta = self._previous_distance - self.distance_to_goal
@@ -487,13 +491,27 @@ class RoverEnvBase(gym.Env):
             "collision_count": self.collision_count,
             "termination_reason": reason,
             "distance_to_goal": self.distance_to_goal,
-            "min_pedestrian_distance": self.min_pedestrian_distance(),
+            **self._social_info(),
             "x_position": float(self.position[0]),
             "y_position": float(self.position[1]),
             "goal": self.goal,
         }
         info.update(self._reward_terms)
         return info
+
+    def _social_info(self) -> dict[str, Any]:
+        """The social metrics of this step (every env's ``info``)."""
+        d_ped = self.min_pedestrian_distance()
+        contact = self.pedestrian_contact
+        rover_moving = abs(float(self.odometry[0])) >= c.ROVER_STOPPED_SPEED
+        return {
+            "min_pedestrian_distance": d_ped,
+            "personal_space_intrusion": bool(d_ped < c.PERSONAL_SPACE_M),
+            "intimate_space_intrusion": bool(d_ped < c.INTIMATE_SPACE_M),
+            "pedestrian_collision": contact,
+            "rover_hit_pedestrian": contact and rover_moving,
+            "pedestrian_hit_rover": contact and not rover_moving,
+        }
 
     def render(self) -> np.ndarray | None:
         """``rgb_array``: a chase-camera frame (``render_size`` = (width, height))."""

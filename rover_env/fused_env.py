@@ -156,9 +156,9 @@ class RoverEnvFused(RoverEnvBase):
 
     RoverEnv's keys (``steps``, ``total_steps``, ``reward``, ``goals_reached``,
     ``is_success``, ``collision``, ``termination_reason``, ``distance_to_goal``,
-    ``min_pedestrian_distance``, the reward terms) plus ``pedestrian_collision``,
-    ``personal_space_intrusion`` (a pedestrian within 1.2 m), ``intimate_space_intrusion``
-    (within 0.45 m), ``heatmap_center`` (the centre-column heatmap sum),
+    ``min_pedestrian_distance``, ``personal_space_intrusion``, ``intimate_space_intrusion``,
+    ``pedestrian_collision``, ``rover_hit_pedestrian``, ``pedestrian_hit_rover``, the reward
+    terms) plus ``heatmap_center`` (the centre-column heatmap sum),
     ``pedestrian_in_view`` (some pedestrian stands inside the camera's horizontal field of
     view, within the depth range of 10 m; geometric, occlusion not tested) and
     ``nearest_pedestrian_in_view`` (the nearest one does). With ``report_latency=True``
@@ -180,9 +180,9 @@ class RoverEnvFused(RoverEnvBase):
     leave it off there). The keyword-only options common to every roverav env
     (:class:`~rover_env.core.EnvOptions`): ``control_dt``, ``physics_dt``,
     ``reward_config`` (default ``RewardConfig.fused()``), ``render_mode``
-    (``"rgb_array"``: chase camera), ``render_size``, ``pedestrian_mode`` ``"walk"``
-    (default) or ``"crossing"`` (pedestrians walk across the line from the rover's start
-    to its first goal, from the side, timed to meet it), ``pedestrian_appearance``
+    (``"rgb_array"``: chase camera), ``render_size``, ``n_pedestrians`` (0-20, default
+    the world's 3), ``pedestrian_mode`` ``"pacing"`` (default), ``"crowd"``,
+    ``"oblivious"``, ``"crossing"`` or ``"groups"`` (see ``RoverEnv``), ``pedestrian_appearance``
     ``"fixed"`` (default, the seed's figures) or ``"random"`` (clothing colours, height,
     girth and gait phase drawn per episode from the reset seed).
     ``scan_topic``, ``imu_topic``, ``cmd_vel_topic``, ``lidar_points`` and
@@ -258,7 +258,6 @@ class RoverEnvFused(RoverEnvBase):
         self._frame_latency_ms = 0.0
         self._episode_start = False
         self._heatmap_center = 0.0
-        self._pedestrian_collision = False
 
     @classmethod
     def _default_reward_config(cls) -> RewardConfig:
@@ -428,7 +427,6 @@ class RoverEnvFused(RoverEnvBase):
             self._connect(self.connection_check_timeout)
         # reset()'s info describes the new episode, not the last step of the previous one
         self._heatmap_center = 0.0
-        self._pedestrian_collision = False
         self._episode_start = True  # the next camera frame opens the episode
 
     def _observe(self) -> dict[str, np.ndarray]:
@@ -451,7 +449,6 @@ class RoverEnvFused(RoverEnvBase):
 
     def _collision(self) -> bool:
         contacts = self.sim.rover_contacts()
-        self._pedestrian_collision = contacts.pedestrian
         return contacts.obstacle or contacts.pedestrian
 
     def _task_reward(self, obs: dict[str, np.ndarray]) -> float:
@@ -468,12 +465,8 @@ class RoverEnvFused(RoverEnvBase):
 
     def _info(self, reward: float, reason: str) -> dict[str, Any]:
         info = super()._info(reward, reason)
-        d_ped = info["min_pedestrian_distance"]
         if self.report_latency:
             info["frame_latency_ms"] = self._frame_latency_ms
-        info["pedestrian_collision"] = self._pedestrian_collision and self.collided
-        info["personal_space_intrusion"] = bool(d_ped < c.PERSONAL_SPACE_M)
-        info["intimate_space_intrusion"] = bool(d_ped < c.INTIMATE_SPACE_M)
         info["heatmap_center"] = self._heatmap_center
         in_view = self.sim.pedestrians_in_view()
         info["pedestrian_in_view"] = bool(in_view.any())

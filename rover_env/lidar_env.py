@@ -115,8 +115,13 @@ class RoverEnv(RoverEnvBase):
     ``reward``, ``episode_reward``,
     ``goals_reached``, ``is_success`` (at least one goal), ``collision``,
     ``collision_count``, ``termination_reason`` ("" while running), ``distance_to_goal``,
-    ``min_pedestrian_distance``, ``x_position``, ``y_position``, ``goal``, and each
-    ``reward_*`` term.
+    ``x_position``, ``y_position``, ``goal``, each ``reward_*`` term, and the social
+    metrics (the same in every roverav env): ``min_pedestrian_distance`` (m, inf with no
+    pedestrians), ``personal_space_intrusion`` (a pedestrian within 1.2 m),
+    ``intimate_space_intrusion`` (within 0.45 m), ``pedestrian_collision`` (the rover
+    touched a pedestrian this step), split as HuNavSim does into ``rover_hit_pedestrian``
+    (the rover was moving, odometry >= 0.05 m/s) and ``pedestrian_hit_rover`` (a person
+    walked into the stopped rover).
 
     ## Arguments
 
@@ -139,8 +144,13 @@ class RoverEnv(RoverEnvBase):
     ``control_dt`` (0.05 s simulated per step), ``physics_dt`` (0.025 s, largest physics
     step), ``reward_config`` (``RewardConfig()``), ``render_mode`` (None or
     ``"rgb_array"``: chase camera), ``render_size`` ((480, 360), width x height),
-    ``pedestrian_mode`` (``"walk"``, or ``"crossing"``: pedestrians walk across the line
-    from the start to the first goal, from the side), ``pedestrian_appearance``
+    ``n_pedestrians`` (0-20; default the world's 3), ``pedestrian_mode`` (``"pacing"``,
+    the default: out-and-back walkers who wait for the rover; ``"crowd"``: a social-force
+    crowd walking to goals around the scenery, making room for the rover;
+    ``"oblivious"``: the same crowd, blind to the rover; ``"crossing"``: the crowd walking
+    across the line from the start to the first goal, from the side; ``"groups"``: the
+    crowd in groups of 2-3; ``"walk"`` is the deprecated name of ``"pacing"``),
+    ``pedestrian_appearance``
     (``"fixed"``, or ``"random"``: clothing colours, height, girth and gait phase drawn
     per episode from the reset seed).
 

@@ -34,6 +34,7 @@ def env_kwargs(
     connect_timeout: float | None = None,
     render_mode: str | None = None,
     pedestrian_mode: str | None = None,
+    n_pedestrians: int | None = None,
     size: tuple[int, int] | None = None,
     frame_timeout: float | None = None,
     report_latency: bool = False,
@@ -51,6 +52,8 @@ def env_kwargs(
         kwargs["render_mode"] = render_mode
     if pedestrian_mode is not None:
         kwargs["pedestrian_mode"] = pedestrian_mode
+    if n_pedestrians is not None:
+        kwargs["n_pedestrians"] = n_pedestrians
     if size is not None:
         kwargs["size"] = tuple(size)
     if kind in FUSED_KINDS:

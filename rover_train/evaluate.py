@@ -34,7 +34,8 @@ from typing import Any
 import numpy as np
 
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
-from rover_env.pedestrians import PEDESTRIAN_MODES
+from rover_env.crowd import MAX_PEDESTRIANS
+from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
 from rover_env.reward import STUCK_IN_COLLISION
 from rover_env.worlds import WORLD_CHOICES
 from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
@@ -429,8 +430,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     p.add_argument("--env", choices=sorted(ENV_IDS), default="lidar")
     p.add_argument("--world", choices=WORLD_CHOICES, default=DEFAULT_WORLD)
-    p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default="walk",
-                   help="crossing: pedestrians cross the rover's path from the sides")
+    p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=DEFAULT_MODE,
+                   help="pacing (out and back), crowd (social force, to goals, making room "
+                        "for the rover), oblivious (blind to the rover), crossing (across "
+                        "the rover's path) or groups")
+    p.add_argument("--n-pedestrians", type=int, default=None,
+                   help="pedestrians per world, 0 to 20 (default: the world's 3)")
     p.add_argument("--episodes", type=int, default=10)
     p.add_argument("--seed", type=int, default=1000,
                    help="episode i uses seed + i (reset, and the random policy's actions)")
@@ -460,6 +465,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     problem = validate(args)
     if problem:
         p.error(problem)
+    if args.n_pedestrians is not None and not 0 <= args.n_pedestrians <= MAX_PEDESTRIANS:
+        p.error(f"--n-pedestrians must be from 0 to {MAX_PEDESTRIANS}, got {args.n_pedestrians}")
 
     from shm_protocol.errors import ShmError
 
@@ -469,7 +476,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             for k in range(min(args.slots, args.episodes)):
                 envs.append(make_env(
                     args.env, world=args.world, slot=args.slot + k, name=args.name,
-                    pedestrian_mode=args.pedestrian_mode,
+                    pedestrian_mode=args.pedestrian_mode, n_pedestrians=args.n_pedestrians,
                     render_mode="rgb_array" if args.video and k == 0 else None,
                 ))  # fmt: skip
         except ShmError as exc:

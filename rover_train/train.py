@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
-from rover_env.pedestrians import PEDESTRIAN_MODES
+from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
 from rover_env.worlds import WORLD_CHOICES
 from rover_train.checkpoint import (
     Checkpoint,
@@ -69,8 +69,12 @@ class TrainArgs:
     fused-gaze or fused-gaze-discrete (the same, also turning the camera)."""
     world: str = field(default=DEFAULT_WORLD, metadata={"choices": WORLD_CHOICES})
     """World: inspect, moon (island) or maze."""
-    pedestrian_mode: str = field(default="walk", metadata={"choices": PEDESTRIAN_MODES})
-    """walk, or crossing (pedestrians cross the rover's path from the sides)."""
+    pedestrian_mode: str = field(default=DEFAULT_MODE, metadata={"choices": PEDESTRIAN_MODES})
+    """How the pedestrians walk: pacing (out and back, waiting for the rover), crowd
+    (social force, to goals, making room for the rover), oblivious (the crowd, blind to
+    the rover), crossing (the crowd crossing the rover's path from the sides) or groups."""
+    n_pedestrians: int | None = None
+    """Pedestrians per world, 0 to 20 (default: the world's 3)."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), sac (lidar, fused) or dqn (discrete)."""
     timesteps: int = 100_000
@@ -356,6 +360,7 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
             monitor_dir=str(monitor_dir),
             world=args.world,
             pedestrian_mode=args.pedestrian_mode,
+            n_pedestrians=args.n_pedestrians,
             slot=i,
             name=args.name,
             length=args.length,

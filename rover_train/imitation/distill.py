@@ -32,6 +32,7 @@ from typing import Any
 import torch
 
 from fused_image import FUSED_SIZE
+from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
 from rover_train.cli import (
     add_recipe_option,
     build_parser,
@@ -110,6 +111,11 @@ class DAggerRecipe:
     depth_scan: int = SCAN_BANDS
     """A fused student's bands of forward range scan read off the depth channel (0: none,
     the image branch alone sees what is ahead)."""
+    pedestrian_mode: str = field(default=DEFAULT_MODE, metadata={"choices": PEDESTRIAN_MODES})
+    """How the pedestrians of the training episodes walk (``RoverEnv``'s
+    ``pedestrian_mode``: pacing, crowd, oblivious, crossing or groups)."""
+    n_pedestrians: int | None = None
+    """Pedestrians in the training episodes, 0 to 20 (default: the world's 3)."""
     unmapped_scan: bool = False
     """A LIDAR student's second scan of the returns the world's map does not explain (the
     pedestrians; ``rover_train.zoo.agent.unmapped_scan``)."""
@@ -262,6 +268,7 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
     daemon gone for good, loses only stage 2); with ``run.resume`` that file, if there,
     replaces stage 1."""
     name, world = recipe.entry, recipe.world
+    crowd = {"pedestrian_mode": recipe.pedestrian_mode, "n_pedestrians": recipe.n_pedestrians}
     cfg = recipe.dagger(seed)
     torch.manual_seed(seed)
     init = recipe.init
@@ -274,7 +281,7 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
         log.info("distill %s: stage 1 from %s", name, stage1_file)
         init = stage1_file
     if recipe.kind == "lidar":
-        env = make_training_env("lidar", world)
+        env = make_training_env("lidar", world, **crowd)
         try:
             if init is not None:
                 agent = StudentAgent.load(init)
@@ -291,7 +298,7 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
     else:
         # stage 1: the state network in RoverEnv (fast, no daemon), the depth scan read off
         # the fused image computed in this process
-        env = make_training_env("lidar", world, size=FUSED_SIZE)
+        env = make_training_env("lidar", world, size=FUSED_SIZE, **crowd)
         if recipe.depth_scan:
             env = WithFusedView(env)
         try:
@@ -314,7 +321,7 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
     if recipe.stage1_only:
         return agent
     # stage 2: everything, with the daemon's fused images
-    env = make_training_env("fused", world, name=run.name, slot=run.slot)
+    env = make_training_env("fused", world, name=run.name, slot=run.slot, **crowd)
     try:
         run_dagger(env, world, agent, recipe.fused_dagger(seed),
                    label=f"distill {name} stage 2")  # fmt: skip
