@@ -241,7 +241,8 @@ class Pedestrians:
                 [
                     mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, f"{body_name(i)}_{part}")
                     for i in range(self.n)
-                ]
+                ],
+                dtype=np.intp,
             )
             for part in ("torso", "head", "arm_l", "arm_r", "leg_l", "leg_r")
         }
