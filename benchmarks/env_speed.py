@@ -14,6 +14,11 @@ Measured per world (``inspect``, ``moon``, ``maze``), in this process pinned to 
 A second table times the forward camera (96x96) the fused envs render every step: RGB,
 RGB + metric depth, RGB + depth + pedestrian mask.
 
+A third table (issue 36) times RoverEnv's steps/s with today's 3 pacing pedestrians (the
+default) against 10 and 20 walkers of the social-force crowd (``pedestrian_mode="crowd"``),
+measured one after the other in this run, and the ratio crowd 10 / pacing 3 (the target is
+>= 80 %). On a shared machine the absolute numbers move with the load; the ratio less so.
+
     python benchmarks/env_speed.py            # about 30 s
     python benchmarks/env_speed.py --quick    # about 8 s
 """
@@ -140,6 +145,19 @@ def main(argv: list[str] | None = None) -> None:
     print("|---|---:|---:|---:|")
     for world, rgb, depth, seg in cams:
         print(f"| {world} | {rgb:.2f} ms | {depth:.2f} ms | {seg:.2f} ms |")
+    print()
+    print("| world | pacing 3 steps/s | crowd 10 steps/s | crowd 20 steps/s | "
+          "crowd 10 / pacing 3 |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|")
+    for world in WORLD_NAMES:
+        crowd = []
+        for n, mode in ((3, "pacing"), (10, "crowd"), (20, "crowd")):
+            env = RoverEnv(world_n=world, n_pedestrians=n, pedestrian_mode=mode)
+            time_steps(env, 200, args.seed)  # warm the crowd's route cache a little
+            crowd.append(time_steps(env, args.steps // 2, args.seed))
+            env.close()
+        print(f"| {world} | {crowd[0]:,.0f} | {crowd[1]:,.0f} | {crowd[2]:,.0f} | "
+              f"{crowd[1] / crowd[0]:.0%} |")  # fmt: skip
     print()
     print(f"{args.steps} steps (random actions, control_dt {rows[0][4]} s) and "
           f"{args.resets} resets per world; camera: {args.frames} frames per mode, "

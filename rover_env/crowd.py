@@ -14,7 +14,7 @@ they already are on), so they slow, sidestep and pass; nobody freezes.
 Routes: the pedestrian area is a grid of ``CELL`` m cells; a cell is free when its centre
 is ``GRID_CLEARANCE`` m from every obstacle footprint. A goal is a free cell in the walker's
 connected part of the grid, at least ``GOAL_MIN_DISTANCE`` away; the distance to it from
-every cell comes from one Dijkstra search (cached per goal cell), and every step each
+every cell is a row of the all-pairs route table (built once per world), and each
 walker heads for the cell two moves down its route (its goal point in the last cell). On
 arrival a walker pauses (probability ``PAUSE_PROBABILITY``, ``PAUSE_RANGE`` s) and draws a
 new goal; one that makes no progress for ``STUCK_TIME`` s draws a new goal too.
@@ -33,7 +33,6 @@ from the env's, so ``reset(seed=s)`` reproduces an episode.
 
 from __future__ import annotations
 
-import heapq
 import math
 import weakref
 from collections.abc import Mapping
@@ -44,7 +43,7 @@ import numpy as np
 
 from rover_env.worlds.spec import Rect, WorldSpec
 
-CROWD_DT = 0.05  # s: the model's fixed step
+CROWD_DT = 0.1  # s: the model's fixed step (CrowdNav steps 0.25 s); poses move at 10 Hz
 SPEED_RANGE = (1.0, 1.5)  # m/s: preferred walking speed (as the pacers')
 MAX_SPEED_FACTOR = 1.3  # a pushed walker may go this much faster than it prefers
 TAU = 0.5  # s: relaxation time towards the desired velocity
@@ -78,6 +77,8 @@ SLOW_DOWN_DISTANCE = 1.0  # m: walkers slow down this close to their goal
 PAUSE_PROBABILITY = 0.5
 PAUSE_RANGE = (1.0, 4.0)  # s
 STUCK_TIME = 8.0  # s without 0.5 m of progress: a new goal
+PLAN_EVERY = 3  # steps between route look-ups (0.3 s), and right after a new goal
+MAX_STEP = MAX_SPEED_FACTOR * SPEED_RANGE[1] * CROWD_DT  # m a walker moves in one step
 MIN_START_DISTANCE = 2.0  # m from the rover at the start
 START_SPACING = 1.0  # m between people at the start (group members: GROUP_SPACING)
 MAX_PEDESTRIANS = 20
@@ -107,6 +108,7 @@ class CrowdMap:
     field_origin: tuple[float, float]
     field: np.ndarray  # (fy, fx) clearance (m) at FIELD_CELL spacing
     gradient: np.ndarray  # (2, fy, fx) its gradient (x, y)
+    table: np.ndarray  # (fy * fx, 3) clearance and unit gradient, flat (nearest lookups)
 
     @property
     def capacity(self) -> int:
@@ -120,6 +122,16 @@ class CrowdMap:
         ix = np.clip(((xy[:, 0] - a.x[0]) / CELL).astype(np.intp), 0, self.nx - 1)
         iy = np.clip(((xy[:, 1] - a.y[0]) / CELL).astype(np.intp), 0, self.ny - 1)
         return iy * self.nx + ix
+
+    def nearest_clearance(self, xy: np.ndarray) -> np.ndarray:
+        """(n, 3) clearance and unit gradient (x, y) at the field point nearest each point
+        (one lookup: the forces' view of the scenery)."""
+        fy, fx = self.field.shape
+        i = np.clip(((xy[:, 0] - self.field_origin[0]) / FIELD_CELL + 0.5).astype(np.intp),
+                    0, fx - 1)  # fmt: skip
+        j = np.clip(((xy[:, 1] - self.field_origin[1]) / FIELD_CELL + 0.5).astype(np.intp),
+                    0, fy - 1)  # fmt: skip
+        return self.table[j * fx + i]
 
     def clearance(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(clearance (n,), unit gradient (n, 2)) at each point: bilinear in the field."""
@@ -140,35 +152,36 @@ class CrowdMap:
 
     def route_distances(self, goal: int) -> np.ndarray:
         """(C + 1,) route length (m) from every cell to free cell ``goal`` (inf where none;
-        entry C, the 'no neighbour' cell, is inf). Dijkstra, cached per goal."""
-        cache = _ROUTES.setdefault(self, {})
-        hit = cache.get(goal)
+        entry C, the 'no neighbour' cell, is inf): a row of :meth:`all_routes`."""
+        return self.all_routes()[goal]
+
+    def all_routes(self) -> np.ndarray:
+        """(C + 1, C + 1) route lengths between all cells over the free grid (Floyd-Warshall
+        on the free cells, vectorised: tens of ms, once per world and process)."""
+        hit = _ROUTES.get(self)
         if hit is not None:
             return hit
         n = len(self.free)
-        dist = [math.inf] * (n + 1)
-        dist[goal] = 0.0
-        nbrs, wts = self.neighbours.tolist(), self.weights.tolist()
-        heap = [(0.0, goal)]
-        while heap:
-            d, c = heapq.heappop(heap)
-            if d > dist[c]:
-                continue
-            for k in range(8):
-                nb = nbrs[c][k]
-                if nb == n:
-                    continue
-                nd = d + wts[c][k]
-                if nd < dist[nb]:
-                    dist[nb] = nd
-                    heapq.heappush(heap, (nd, nb))
-        out = np.array(dist)
-        cache[goal] = out
+        free_idx = np.flatnonzero(self.free)
+        k = len(free_idx)
+        slot = np.full(n + 1, -1, dtype=np.intp)
+        slot[free_idx] = np.arange(k)
+        w = np.full((k, k), np.inf, dtype=np.float32)
+        np.fill_diagonal(w, 0.0)
+        rows = np.repeat(np.arange(k), 8)
+        nbrs = self.neighbours[free_idx].reshape(-1)
+        ok = nbrs < n
+        w[rows[ok], slot[nbrs[ok]]] = self.weights[free_idx].reshape(-1)[ok]
+        for m in range(k):
+            np.minimum(w, w[:, m : m + 1] + w[m : m + 1, :], out=w)
+        out = np.full((n + 1, n + 1), np.inf)
+        out[np.ix_(free_idx, free_idx)] = w
+        _ROUTES[self] = out
         return out
 
 
 _MAPS: weakref.WeakKeyDictionary[WorldSpec, CrowdMap] = weakref.WeakKeyDictionary()
-_ROUTES: weakref.WeakKeyDictionary[CrowdMap, dict[int, np.ndarray]] = weakref.WeakKeyDictionary()
+_ROUTES: weakref.WeakKeyDictionary[CrowdMap, np.ndarray] = weakref.WeakKeyDictionary()
 
 
 def crowd_map(world: WorldSpec) -> CrowdMap:
@@ -229,9 +242,11 @@ def _build_map(world: WorldSpec) -> CrowdMap:
     gx, gy = np.meshgrid(x0 + FIELD_CELL * np.arange(fx), y0 + FIELD_CELL * np.arange(fy))
     field = np.minimum(world.clearance_many(gx, gy), 50.0)
     grad_y, grad_x = np.gradient(field, FIELD_CELL)
+    norm = np.maximum(np.hypot(grad_x, grad_y), 1e-9)
+    table = np.stack([field, grad_x / norm, grad_y / norm], axis=-1).reshape(-1, 3)
     return CrowdMap(
         area, nx, ny, centres, free, component, neighbours, weights, nearest_free,
-        (x0, y0), field, np.stack([grad_x, grad_y]),
+        (x0, y0), field, np.stack([grad_x, grad_y]), table,
     )  # fmt: skip
 
 
@@ -303,6 +318,15 @@ class Crowd:
         self._rng = np.random.default_rng(0)
         self._eye = np.eye(n, dtype=bool)
         self._same_group = self._eye.copy()
+        self._group_sizes = np.ones(n)
+        self._rows = np.arange(n)
+        self._target_cell: np.ndarray | None = None
+        self._route_left = np.zeros(n)
+        self._plan_age = PLAN_EVERY
+        self._cap = MAX_SPEED_FACTOR * self.speed
+        self._arrive = np.full(n, ARRIVAL_DISTANCE)
+        area = world.pedestrian_area
+        self._lo, self._hi = np.array([area.x[0], area.y[0]]), np.array([area.x[1], area.y[1]])
 
     # --- episode set-up ----------------------------------------------------------------------
     def reset(self, rng: np.random.Generator, avoid: tuple[float, float] | None) -> None:
@@ -318,9 +342,10 @@ class Crowd:
                 size = min(int(self._rng.choice(GROUP_SIZES)), n - i)
                 self.group[i : i + size] = i
                 i += size
-        self._same_group = self.group[:, None] == self.group[None, :]
+        self._regroup()
         self.speed = self._rng.uniform(*SPEED_RANGE, n)
         self.speed = self.speed[self.group]  # a group walks at its first member's speed
+        self._cap = MAX_SPEED_FACTOR * self.speed
         self.pos[:] = self._starts(avoid)
         self.vel[:] = 0.0
         self.heading[:] = self._rng.uniform(-math.pi, math.pi, n)
@@ -330,11 +355,20 @@ class Crowd:
         self.alternate[:] = np.nan
         self.touching[:] = False
         self._paused[:] = False
+        self._target_cell = None
         self._clock = 0.0
         self._rover_prev = avoid
         for i in range(n):
             if self.group[i] == i:
                 self._new_goal(i)
+
+    def _regroup(self) -> None:
+        """Derived group tables after ``group`` changed."""
+        n = self.n
+        self._same_group = self.group[:, None] == self.group[None, :]
+        self._group_sizes = np.bincount(self.group, minlength=n).astype(float)
+        # a group has arrived when a member is this close to the goal
+        self._arrive = ARRIVAL_DISTANCE + 0.3 * (self._group_sizes[self.group] - 1)
 
     def _starts(self, avoid: tuple[float, float] | None) -> np.ndarray:
         m, rng, n = self.map, self._rng, self.n
@@ -411,11 +445,13 @@ class Crowd:
         ``back``, then to ``end`` again, and so on (crossing mode)."""
         self.group[self.group == i] = np.flatnonzero(self.group == i)
         self.group[i] = i
-        self._same_group = self.group[:, None] == self.group[None, :]
+        self._regroup()
         self.pos[i] = start
         self.vel[i] = 0.0
         self.pause[i] = 0.0
         self.speed[i] = speed
+        self._cap = MAX_SPEED_FACTOR * self.speed
+        self._target_cell = None
         self.alternate[i] = back
         self._goal_at(i, np.array(end))
 
@@ -446,7 +482,8 @@ class Crowd:
         self.goal[:], self.pause[:], self.best[:], self.stall[:] = s.goal, s.pause, s.best, s.stall
         self.pinned[:], self.alternate[:], self._paused[:] = s.pinned, s.alternate, s.paused
         self.group[:] = s.group
-        self._same_group = self.group[:, None] == self.group[None, :]
+        self._regroup()
+        self._target_cell = None
         for i, cell in enumerate(s.goal_cell):
             if cell != self.goal_cell[i]:
                 self._route[i] = self.map.route_distances(int(cell))
@@ -455,13 +492,14 @@ class Crowd:
         self._rng.bit_generator.state = s.rng
 
     # --- motion --------------------------------------------------------------------------------
-    def advance(self, dt: float, rover_xy: tuple[float, float] | None) -> None:
+    def advance(self, dt: float, rover_xy: tuple[float, float] | None) -> int:
         """Walk on ``dt`` s: the whole ``CROWD_DT`` steps that fit (the remainder carries
-        to the next call), with the rover at ``rover_xy`` (its velocity from the last call)."""
+        to the next call), with the rover at ``rover_xy`` (its velocity from the last call).
+        Returns how many steps ran."""
         self._clock += dt
         steps = int(self._clock / CROWD_DT + 1e-9)
         if steps == 0:
-            return
+            return 0
         self._clock -= steps * CROWD_DT
         rover_v = np.zeros(2)
         if rover_xy is not None and self._rover_prev is not None:
@@ -469,6 +507,22 @@ class Crowd:
         self._rover_prev = None if rover_xy is None else (float(rover_xy[0]), float(rover_xy[1]))
         for _ in range(steps):
             self._step(rover_xy, rover_v)
+        return steps
+
+    def _plan(self) -> None:
+        """Each walker's next target cell: two moves down its route (-1: its goal point)."""
+        m, n = self.map, self.n
+        rows = self._rows
+        cells = m.nearest_free[m.cell_of(self.pos)]
+        nb = m.neighbours[cells]
+        nxt = nb[rows, np.argmin(m.weights[cells] + self._route[rows[:, None], nb], axis=1)]
+        nb2 = m.neighbours[nxt]
+        nxt2 = nb2[rows, np.argmin(m.weights[nxt] + self._route[rows[:, None], nb2], axis=1)]
+        last = (cells == self.goal_cell) | (nxt == self.goal_cell) | (nxt2 >= len(m.free))
+        self._target_cell = np.where(last, -1, nxt2)
+        self._route_left = self._route[rows, cells]
+        self._plan_age = 0
+        del n
 
     def _step(self, rover_xy: tuple[float, float] | None, rover_v: np.ndarray) -> None:
         n = self.n
@@ -476,100 +530,106 @@ class Crowd:
             return
         m, dt = self.map, CROWD_DT
         pos, vel = self.pos, self.vel
-        # desired velocity: towards the cell two moves down the route, the goal in its cell
-        cells = m.nearest_free[m.cell_of(pos)]
-        rows = np.arange(n)
-        nb = m.neighbours[cells]
-        nxt = nb[rows, np.argmin(m.weights[cells] + self._route[rows[:, None], nb], axis=1)]
-        nb2 = m.neighbours[nxt]
-        nxt2 = nb2[rows, np.argmin(m.weights[nxt] + self._route[rows[:, None], nb2], axis=1)]
-        route_left = self._route[rows, cells]
-        target = np.where(
-            ((cells == self.goal_cell) | (nxt == self.goal_cell) | (nxt2 >= len(m.free)))[:, None],
-            self.goal, m.centres[np.minimum(nxt2, len(m.free) - 1)],
-        )  # fmt: skip
+        if self._plan_age >= PLAN_EVERY or self._target_cell is None:
+            self._plan()
+        self._plan_age += 1
+        tc = self._target_cell
+        assert tc is not None
+        target = np.where((tc < 0)[:, None], self.goal, m.centres[tc])
         to_target = target - pos
         dist_t = np.hypot(to_target[:, 0], to_target[:, 1])
         e = to_target / np.maximum(dist_t, 1e-9)[:, None]
-        to_goal = np.hypot(*(self.goal - pos).T)
-        # the group's walk: all members stand while any is paused
+        gx, gy = self.goal[:, 0] - pos[:, 0], self.goal[:, 1] - pos[:, 1]
+        to_goal = np.hypot(gx, gy)
         standing = (self.pause > 0.0) | self.pinned
         desired = self.speed * np.minimum(1.0, to_goal / SLOW_DOWN_DISTANCE)
         desired[standing] = 0.0
         force = (desired[:, None] * e - vel) / TAU
-        # other people
-        diff = pos[:, None, :] - pos[None, :, :]  # i minus j
-        d = np.hypot(diff[..., 0], diff[..., 1])
+        # other people, as complex numbers (fewer array operations)
+        z = pos[:, 0] + 1j * pos[:, 1]
+        ez = e[:, 0] + 1j * e[:, 1]
+        diff = z[:, None] - z[None, :]  # i minus j
+        d = np.abs(diff)
         d[self._eye] = np.inf
-        nij = diff / np.maximum(d, 1e-9)[..., None]
-        cos_phi = -(nij[..., 0] * e[:, None, 0] + nij[..., 1] * e[:, None, 1])
-        weight = LAMBDA + (1.0 - LAMBDA) * 0.5 * (1.0 + cos_phi)
-        mag = A_PED * np.exp((MIN_SEPARATION + 0.1 - d) / B_PED) * weight
-        mag = np.where(self._same_group, GROUP_REPULSION_FACTOR * mag, mag)
-        force += (mag[..., None] * nij).sum(axis=1)
-        # step aside from those ahead: perpendicular to e, away from their side
-        side = np.sign(e[:, None, 0] * diff[..., 1] - e[:, None, 1] * diff[..., 0])  # j left: -
-        side[side == 0] = -1.0  # dead ahead: keep right
-        ahead = np.maximum(cos_phi, 0.0) * A_SIDE * mag * side
-        perp = np.stack([-e[:, 1], e[:, 0]], axis=1)  # left of e
-        force += ahead.sum(axis=1)[:, None] * perp
+        nij = diff / d
+        rel = nij * ez.conj()[:, None]  # the direction to i from j, in i's walking frame
+        cos_phi = -rel.real
+        mag = A_PED * np.exp((MIN_SEPARATION + 0.1 - d) / B_PED)
+        if self.grouped:
+            mag[self._same_group] *= GROUP_REPULSION_FACTOR
+        mag *= LAMBDA + (1.0 - LAMBDA) * 0.5 * (1.0 + cos_phi)
+        # ... and a step aside from those ahead, away from their side (dead ahead: right)
+        side = np.where(rel.imag >= 0.0, 1.0, -1.0)  # j to i's right: i steps left
+        push = (mag * nij).sum(axis=1) + 1j * ez * (
+            np.maximum(cos_phi, 0.0) * A_SIDE * mag * side
+        ).sum(axis=1)
+        closest = float(d.min()) if n > 1 else math.inf
         # groups: coherence towards the centre of the group
         if self.grouped:
-            sizes = np.bincount(self.group, minlength=n)
-            centre = np.stack(
-                [np.bincount(self.group, pos[:, k], minlength=n) for k in (0, 1)], 1
-            ) / np.maximum(sizes, 1)[:, None]
-            off = centre[self.group] - pos
-            far = np.hypot(off[:, 0], off[:, 1])
+            sizes = self._group_sizes
+            centre = np.bincount(self.group, z.real, minlength=n) + 1j * np.bincount(
+                self.group, z.imag, minlength=n
+            )
+            off = centre[self.group] / sizes[self.group] - z
+            far = np.abs(off)
             thr = 0.5 * (sizes[self.group] - 1)
-            force += A_COHERENCE * (far > thr)[:, None] * off / np.maximum(far, 1e-9)[:, None]
+            push += A_COHERENCE * (far > thr) * off / np.maximum(far, 1e-9)
         # scenery
-        clear, grad = m.clearance(pos)
-        force += (A_OBS * np.exp((BODY_RADIUS - clear) / B_OBS))[:, None] * grad
+        scenery = m.nearest_clearance(pos)
+        clear = scenery[:, 0]
+        push += A_OBS * np.exp((BODY_RADIUS - clear) / B_OBS) * (
+            scenery[:, 1] + 1j * scenery[:, 2]
+        )
         # the rover, for those who see it: from its point of closest approach
-        if rover_xy is not None and self.sees_rover:
-            rel = pos - np.asarray(rover_xy)
-            rel_v = vel - rover_v
-            vv = (rel_v * rel_v).sum(axis=1)
-            closing = -(rel * rel_v).sum(axis=1) / np.maximum(vv, 1e-9)
-            t_star = np.clip(closing, 0.0, ROVER_LOOKAHEAD)
-            near = rel + rel_v * t_star[:, None]
-            dn = np.hypot(near[:, 0], near[:, 1])
-            nr = near / np.maximum(dn, 1e-9)[:, None]
-            cos_r = -(nr * e).sum(axis=1)
-            w_r = ROVER_LAMBDA + (1.0 - ROVER_LAMBDA) * 0.5 * (1.0 + cos_r)
-            mag_r = A_ROVER * np.exp((ROVER_RADIUS + BODY_RADIUS - dn) / B_ROVER) * w_r
-            force += mag_r[:, None] * nr
-            side_r = np.sign(e[:, 0] * rel[:, 1] - e[:, 1] * rel[:, 0])
-            side_r[side_r == 0] = -1.0
-            force += (np.maximum(cos_r, 0.0) * A_ROVER_SIDE * mag_r * side_r)[:, None] * perp
+        rz = None if rover_xy is None else complex(rover_xy[0], rover_xy[1])
+        if rz is not None and self.sees_rover:
+            r = z - rz
+            rv = (vel[:, 0] + 1j * vel[:, 1]) - complex(rover_v[0], rover_v[1])
+            vv = np.maximum(rv.real**2 + rv.imag**2, 1e-9)
+            t_star = np.clip(-(r * rv.conj()).real / vv, 0.0, ROVER_LOOKAHEAD)
+            near = r + rv * t_star
+            dn = np.maximum(np.abs(near), 1e-9)
+            nr = near / dn
+            rr = nr * ez.conj()
+            cos_r = -rr.real
+            mag_r = A_ROVER * np.exp((ROVER_RADIUS + BODY_RADIUS - dn) / B_ROVER) * (
+                ROVER_LAMBDA + (1.0 - ROVER_LAMBDA) * 0.5 * (1.0 + cos_r)
+            )
+            side_r = np.where(rr.imag >= 0.0, 1.0, -1.0)
+            push += mag_r * nr + 1j * ez * (np.maximum(cos_r, 0.0) * A_ROVER_SIDE * mag_r * side_r)
+        force[:, 0] += push.real
+        force[:, 1] += push.imag
         # integrate (semi-implicit Euler), speed capped
         new_v = vel + force * dt
         speed = np.hypot(new_v[:, 0], new_v[:, 1])
-        cap = MAX_SPEED_FACTOR * self.speed
-        new_v *= np.minimum(1.0, cap / np.maximum(speed, 1e-9))[:, None]
-        new_v[self.pinned] = 0.0
+        new_v *= np.minimum(1.0, self._cap / np.maximum(speed, 1e-9))[:, None]
+        if self.pinned.any():
+            new_v[self.pinned] = 0.0
         new_pos = pos + new_v * dt
-        self._solid(new_pos, rover_xy)
+        self._solid(new_pos, rz, closest, clear)
         step = new_pos - pos
-        self.vel[:] = step / dt
+        np.divide(step, dt, out=vel)
         moved = np.hypot(step[:, 0], step[:, 1])
         self.walked += moved
         fast = moved > 0.2 * dt
         self.heading[fast] = np.arctan2(step[fast, 1], step[fast, 0])
         pos[:] = new_pos
-        # goals: arrival, pauses, stalls
+        # goals: arrival, pauses, stalls (a Python loop only for the walkers concerned)
         self.pause = np.maximum(self.pause - dt, 0.0)
-        improved = route_left < self.best - 0.5
-        self.best = np.where(improved, route_left, self.best)
+        left = self._route_left
+        improved = left < self.best - 0.5
+        self.best = np.where(improved, left, self.best)
         self.stall = np.where(improved | standing, 0.0, self.stall + dt)
-        for i in np.flatnonzero(self.group == rows).tolist():  # leaders
-            if self.pinned[i]:
-                continue
+        due = ((to_goal < self._arrive) & (self.pause <= 0.0)) | (self.stall > STUCK_TIME)
+        due &= ~self.pinned
+        if not due.any():
+            return
+        self._plan_age = PLAN_EVERY  # replan next step
+        for i in sorted(set(self.group[due].tolist())):  # their leaders
             members = self.group == i
-            if to_goal[members].min() < ARRIVAL_DISTANCE + 0.3 * (members.sum() - 1):
-                if self.pause[i] > 0.0:
-                    continue
+            if (self.pause[members] > 0.0).any():
+                continue
+            if to_goal[members].min() < self._arrive[i]:
                 if not np.isnan(self.alternate[i, 0]):  # a crosser turns back
                     back = self.alternate[i].copy()
                     self.alternate[i] = self.goal[i]
@@ -587,34 +647,39 @@ class Crowd:
                 else:
                     self.stall[members] = 0.0
 
-    def _solid(self, pos: np.ndarray, rover_xy: tuple[float, float] | None) -> None:
-        """Bodies are solid: apart from each other, out of the scenery, inside the area, out
-        of the rover's footprint (in place)."""
-        n = self.n
-        for _ in range(2):
-            diff = pos[:, None, :] - pos[None, :, :]
-            d = np.hypot(diff[..., 0], diff[..., 1])
-            d[self._eye] = np.inf
-            short = np.maximum(MIN_SEPARATION - d, 0.0)
-            if not short.any():
-                break
-            push = 0.5 * short / np.maximum(d, 1e-9)
-            pos += (push[..., None] * diff).sum(axis=1)
-        self.touching = np.zeros(n, dtype=bool)
-        if rover_xy is not None:
-            rel = pos - np.asarray(rover_xy)
-            d = np.hypot(rel[:, 0], rel[:, 1])
-            reach = ROVER_RADIUS + BODY_RADIUS
-            inside = d < reach
+    def _solid(
+        self, pos: np.ndarray, rz: complex | None, closest: float, clear: np.ndarray
+    ) -> None:
+        """Bodies are solid: apart from each other, out of the rover's footprint, out of the
+        scenery, inside the area (in place). ``closest`` and ``clear``: the pair distance
+        and clearances before the step (a walker moves at most ``MAX_STEP`` m)."""
+        if closest < MIN_SEPARATION + 2.0 * MAX_STEP:
+            for _ in range(2):
+                diff = pos[:, None, :] - pos[None, :, :]
+                d = np.hypot(diff[..., 0], diff[..., 1])
+                d[self._eye] = np.inf
+                short = np.maximum(MIN_SEPARATION - d, 0.0)
+                if not short.any():
+                    break
+                push = 0.5 * short / np.maximum(d, 1e-9)
+                pos += (push[..., None] * diff).sum(axis=1)
+        self.touching[:] = False
+        if rz is not None:
+            rx, ry = pos[:, 0] - rz.real, pos[:, 1] - rz.imag
+            d = np.hypot(rx, ry)
+            inside = d < ROVER_RADIUS + BODY_RADIUS
             if inside.any():
-                self.touching = inside
-                pos[inside] += (rel[inside] / np.maximum(d[inside], 1e-9)[:, None]) * (
-                    reach - d[inside]
-                )[:, None]
-        clear, grad = self.map.clearance(pos)
-        deep = clear < BODY_RADIUS
-        if deep.any():
-            pos[deep] += grad[deep] * (BODY_RADIUS - clear[deep])[:, None]
+                self.touching[:] = inside
+                lift = (ROVER_RADIUS + BODY_RADIUS - d[inside]) / np.maximum(d[inside], 1e-9)
+                pos[inside, 0] += rx[inside] * lift
+                pos[inside, 1] += ry[inside] * lift
+        risky = clear < BODY_RADIUS + MAX_STEP + 0.1
+        if risky.any():
+            idx = np.flatnonzero(risky)
+            c, g = self.map.clearance(pos[idx])
+            deep = c < BODY_RADIUS
+            if deep.any():
+                pos[idx[deep]] += g[deep] * (BODY_RADIUS - c[deep])[:, None]
         a = self.map.area
-        np.clip(pos[:, 0], a.x[0], a.x[1], out=pos[:, 0])
-        np.clip(pos[:, 1], a.y[0], a.y[1], out=pos[:, 1])
+        np.minimum(np.maximum(pos, self._lo, out=pos), self._hi, out=pos)
+        del a

@@ -34,7 +34,7 @@ import mujoco
 import numpy as np
 
 from rover_env.crowd import MAX_PEDESTRIANS, Crowd, CrowdState
-from rover_env.worlds.spec import GROUP_PEDESTRIAN, WorldSpec
+from rover_env.worlds.spec import GROUP_PEDESTRIAN, GROUP_VISUAL, WorldSpec
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +48,8 @@ LEG_LENGTH = 0.85
 STEP_LENGTH = 0.7  # m per step: one leg cycle is two steps
 LEG_SWING = 0.45  # rad amplitude
 YIELD_DISTANCE = 1.0  # m: a pedestrian waits rather than walk into the rover
+PROXY_RADIUS = 0.2  # m: crowd modes: the capsule the LIDAR sees and the rover touches
+GROUP_PROXY = 5  # its geom group: scanned by the LIDAR, not drawn
 HEIGHT_SCALE_RANGE = (0.85, 1.12)  # "random" appearance: figure height factor
 GIRTH_SCALE_RANGE = (0.8, 1.3)  # "random" appearance: torso/arm/leg thickness factor
 APPEARANCES = ("fixed", "random")
@@ -169,9 +171,17 @@ def body_name(i: int) -> str:
     return f"pedestrian{i}"
 
 
-def pedestrians_xml(n: int) -> str:
-    """MJCF worldbody fragment with ``n`` pedestrians (parked far below the ground)."""
-    g = GROUP_PEDESTRIAN
+def pedestrians_xml(n: int, proxy: bool = False) -> str:
+    """MJCF worldbody fragment with ``n`` pedestrians (parked far below the ground).
+
+    ``proxy`` (the crowd modes): the six figure geoms are drawn only (group 2, no contacts)
+    and one upright capsule per figure, :data:`PROXY_RADIUS` wide and invisible (group
+    :data:`GROUP_PROXY`), is what the LIDAR sees and the rover touches: one geom instead of
+    six to cast rays at and collide with, so ten people cost the LIDAR less than three
+    figures do.
+    """
+    g = GROUP_PEDESTRIAN if not proxy else GROUP_VISUAL
+    solid = "" if not proxy else ' contype="0" conaffinity="0"'
     parts = []
     for i in range(n):
         name = body_name(i)
@@ -179,20 +189,26 @@ def pedestrians_xml(n: int) -> str:
         parts.append(
             f'<body name="{name}" mocap="true" pos="{park}">'
             f'<geom name="{name}_torso" type="capsule" fromto="0 0 {HIP_HEIGHT + 0.1} 0 0 1.35" '
-            f'size="0.17" group="{g}" rgba="1 0 0 1"/>'
-            f'<geom name="{name}_head" type="sphere" pos="0 0 1.6" size="0.11" group="{g}" '
+            f'size="0.17" group="{g}"{solid} rgba="1 0 0 1"/>'
+            f'<geom name="{name}_head" type="sphere" pos="0 0 1.6" size="0.11" group="{g}"{solid} '
             f'rgba="1 1 1 1"/>'
             f'<geom name="{name}_arm_l" type="capsule" fromto="0.02 0.24 1.38 0.06 0.26 0.92" '
-            f'size="0.05" group="{g}" rgba="1 0 0 1"/>'
+            f'size="0.05" group="{g}"{solid} rgba="1 0 0 1"/>'
             f'<geom name="{name}_arm_r" type="capsule" fromto="0.02 -0.24 1.38 0.06 -0.26 0.92" '
-            f'size="0.05" group="{g}" rgba="1 0 0 1"/>'
-            "</body>"
+            f'size="0.05" group="{g}"{solid} rgba="1 0 0 1"/>'
+            + (
+                f'<geom name="{name}_proxy" type="capsule" fromto="0 0 {PROXY_RADIUS} 0 0 1.5" '
+                f'size="{PROXY_RADIUS}" group="{GROUP_PROXY}" rgba="0 0 0 0"/>'
+                if proxy
+                else ""
+            )
+            + "</body>"
         )
         for side in ("l", "r"):
             parts.append(
                 f'<body name="{name}_leg_{side}" mocap="true" pos="{park}">'
                 f'<geom name="{name}_leg_{side}" type="capsule" '
-                f'fromto="0 0 0 0 0 {-(LEG_LENGTH - 0.07)}" size="0.07" group="{g}" '
+                f'fromto="0 0 0 0 0 {-(LEG_LENGTH - 0.07)}" size="0.07" group="{g}"{solid} '
                 f'rgba="0 0 1 1"/>'
                 "</body>"
             )
@@ -260,6 +276,10 @@ class Pedestrians:
         self._order = self._mocap.T.reshape(-1).copy()
         self._hip = [HIP_HEIGHT] * self.n
         self._gait = [0.0] * self.n
+        self._hip_arr = np.full(self.n, HIP_HEIGHT)
+        self._gait_arr = np.zeros(self.n)
+        self._pose_pos = np.zeros((self.n, 3, 3))
+        self._pose_quat = np.zeros((self.n, 3, 4))
         self.appearance: list[Appearance] = []
         self.mode = mode
         self._crowd: Crowd | None = None
@@ -332,6 +352,8 @@ class Pedestrians:
                        "head": look.skin, "leg_l": look.trousers, "leg_r": look.trousers}
             for name, c in colours.items():
                 m.geom_rgba[self._geoms_by_part[name][i], :3] = c
+        self._hip_arr = np.array(self._hip)
+        self._gait_arr = np.array(self._gait)
         m.geom_size[self._parts] = size
         m.geom_pos[self._parts] = pos
         m.geom_rbound[self._parts] = rbound
@@ -504,8 +526,8 @@ class Pedestrians:
         walking through the rover would throw it about).
         """
         if self._crowd is not None:
-            self._crowd.advance(dt, rover_xy)
-            self._write_poses()
+            if self._crowd.advance(dt, rover_xy):
+                self._write_poses()
             return
         walked = self._walked
         for i, path in enumerate(self._paths):
@@ -539,18 +561,45 @@ class Pedestrians:
                 )
                 self._pose(i, x, y, math.atan2(uy, ux), swing, pos_rows, quat_rows)
         else:
-            moving = (np.abs(crowd.vel).sum(axis=1) > 0.05).tolist()
-            walked_all = crowd.walked.tolist()
-            yaws = crowd.heading.tolist()
-            for i, (x, y) in enumerate(crowd.pos.tolist()):
-                swing = (
-                    LEG_SWING * math.sin(math.pi * walked_all[i] / STEP_LENGTH + self._gait[i])
-                    if moving[i]
-                    else 0.0
-                )
-                self._pose(i, x, y, yaws[i], swing, pos_rows, quat_rows)
+            self._write_crowd_poses(crowd)
+            return
         self._data.mocap_pos[self._order] = pos_rows
         self._data.mocap_quat[self._order] = quat_rows
+
+    def _write_crowd_poses(self, crowd: Crowd) -> None:
+        """Mocap poses of the crowd's walkers, vectorised (ten or twenty figures)."""
+        x, y, yaw = crowd.pos[:, 0], crowd.pos[:, 1], crowd.heading
+        moving = np.abs(crowd.vel).sum(axis=1) > 0.05
+        swing = np.where(
+            moving, LEG_SWING * np.sin(np.pi * crowd.walked / STEP_LENGTH + self._gait_arr), 0.0
+        )
+        world = self._world
+        if world.heightfield is None:
+            z = np.zeros(self.n)
+        else:
+            z = np.array(
+                [world.ground_height(u, v) for u, v in zip(x.tolist(), y.tolist(), strict=True)]
+            )
+        self.positions[:] = crowd.pos
+        self.headings[:] = yaw
+        cy, sy = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
+        cos_yaw, sin_yaw = np.cos(yaw), np.sin(yaw)
+        cp, sp = np.cos(0.5 * swing), np.sin(0.5 * swing)
+        hip = z + self._hip_arr
+        pos = self._pose_pos
+        quat = self._pose_quat
+        pos[:, 0, 0], pos[:, 0, 1], pos[:, 0, 2] = x, y, z
+        quat[:, 0, 0], quat[:, 0, 3] = cy, sy
+        for k, side, s in ((1, HIP_HALF_WIDTH, 1.0), (2, -HIP_HALF_WIDTH, -1.0)):
+            pos[:, k, 0] = x - sin_yaw * side
+            pos[:, k, 1] = y + cos_yaw * side
+            pos[:, k, 2] = hip
+            quat[:, k, 0] = cy * cp
+            quat[:, k, 1] = -sy * sp * s
+            quat[:, k, 2] = cy * sp * s
+            quat[:, k, 3] = sy * cp
+        self._data.mocap_pos[self._order] = pos.reshape(-1, 3)
+        self._data.mocap_quat[self._order] = quat.reshape(-1, 4)
 
     def _pose(
         self,

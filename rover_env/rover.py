@@ -183,14 +183,15 @@ class Lidar:
 
     def __init__(
         self, model: mujoco.MjModel, data: mujoco.MjData, n_points: int, max_range: float,
-        pedestrians: bool = True,
+        pedestrians: bool = True, pedestrian_group: int = 1,
     ) -> None:
         if n_points < 1:
             raise ValueError(f"lidar_points must be >= 1, got {n_points}")
         if not max_range > 0:
             raise ValueError(f"max_lidar_range must be > 0, got {max_range}")
         self._model, self._data = model, data
-        self._geomgroup = np.array([1, int(pedestrians), 0, 0, 0, 0], dtype=np.uint8)
+        self._geomgroup = np.array([1, 0, 0, 0, 0, 0], dtype=np.uint8)
+        self._geomgroup[pedestrian_group] = int(pedestrians)
         self.n_points = int(n_points)
         self.max_range = float(max_range)
         angles, self.rays_per_point = lidar_ray_angles(self.n_points)

@@ -19,10 +19,14 @@ from fused_image import DEPTH_MAX_M, FUSED_SIZE
 from rover_env import rover
 from rover_env.pedestrians import (
     DEFAULT_MODE,
+    GROUP_PROXY,
     Appearance,
     Pedestrians,
     pedestrian_count,
     pedestrians_xml,
+)
+from rover_env.pedestrians import (
+    pedestrian_mode as canonical_mode,
 )
 from rover_env.rendering import CameraFrame, GLRenderer
 from rover_env.worlds import WorldSpec, make_world
@@ -30,6 +34,7 @@ from rover_env.worlds.spec import (
     CONAFFINITY_WORLD,
     CONTYPE_WORLD,
     GROUP_MARKER,
+    GROUP_PEDESTRIAN,
     OBSTACLE_FRICTION,
     OBSTACLE_PRIORITY,
 )
@@ -84,6 +89,7 @@ def build_mjcf(
     camera_size: tuple[int, int],
     physics_dt: float,
     n_pedestrians: int | None = None,
+    pedestrian_mode: str = DEFAULT_MODE,
 ) -> str:
     """The complete MJCF of ``world`` with the rover, ``n_pedestrians`` pedestrians (the
     world's own count by default) and a goal marker."""
@@ -125,7 +131,7 @@ def build_mjcf(
         'diffuse="0.55 0.55 0.55" specular="0 0 0" castshadow="false"/>'
         + world.worldbody_xml
         + rover_body
-        + pedestrians_xml(n_pedestrians)
+        + pedestrians_xml(n_pedestrians, proxy=pedestrian_mode != "pacing")
         + goal
         + "</worldbody>"
         + f"<actuator>{actuators}</actuator>"
@@ -166,10 +172,13 @@ class RoverSim:
             raise ValueError(f"camera_size must be (height, width) >= 1, got {camera_size}")
         self.world: WorldSpec = make_world(world)
         n_pedestrians = pedestrian_count(n_pedestrians, self.world)
+        pedestrian_mode = canonical_mode(pedestrian_mode)
+        self._scan_group = GROUP_PEDESTRIAN if pedestrian_mode == "pacing" else GROUP_PROXY
         self.camera_size = (int(camera_size[0]), int(camera_size[1]))
         self.physics_dt = float(physics_dt)
         self.model = mujoco.MjModel.from_xml_string(
-            build_mjcf(self.world, self.camera_size, self.physics_dt, n_pedestrians)
+            build_mjcf(self.world, self.camera_size, self.physics_dt, n_pedestrians,
+                       pedestrian_mode)  # fmt: skip
         )
         self.data = mujoco.MjData(self.model)
         m, d = self.model, self.data
@@ -391,7 +400,8 @@ class RoverSim:
         key = (int(n_points), float(max_range), bool(pedestrians))
         lidar = self._lidars.get(key)
         if lidar is None:
-            lidar = rover.Lidar(self.model, self.data, n_points, max_range, pedestrians)
+            lidar = rover.Lidar(self.model, self.data, n_points, max_range, pedestrians,
+                                self._scan_group)  # fmt: skip
             self._lidars[key] = lidar
         return lidar.scan().copy()
 
