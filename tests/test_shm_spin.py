@@ -124,3 +124,10 @@ def test_the_daemons_camera_wait_burns_almost_no_cpu_when_idle(slots: int) -> No
             e.close()
         source.close(unlink=True)
     assert share < MAX_IDLE_CPU, f"the daemon's idle wait used {share:.0%} of a core"
+
+
+def test_the_fused_env_refuses_a_bad_spin_budget_before_attaching() -> None:
+    from rover_env.fused_env import RoverEnvFused
+
+    with pytest.raises(ValueError, match="spin_us"):
+        RoverEnvFused(rl_obs_name=f"test_spin_{uuid.uuid4().hex[:8]}", spin_us=-1)
