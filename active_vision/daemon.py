@@ -4,7 +4,7 @@
               [--backend auto|onnx|torch] [--precision int8|fp32] [--threads 1]
               [--source camera|video:PATH|device:N] [--preview PATH]
               [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
-              [--heatmap detect|predict] [--predict-weights FILE] [--spin-us 200]
+              [--heatmap detect|predict] [--predict-weights FILE]
 
 (also ``python -m active_vision``). For each slot i it creates the fused segment
 ``slot_name(name, i)`` (float32 ``size x size x 3``, written by the daemon) and, with
@@ -127,10 +127,6 @@ class DaemonConfig:
     next 1.5 s from the slot's last K frames)."""
     predict_weights: Path | None = None
     """Predictor weights; default: the shipped ``active_vision/weights/predict.pt``."""
-    spin_us: float | None = None
-    """Spin budget (microseconds) of the wait for camera frames: sleep until shortly before
-    the next frame is due, then spin (``shm_protocol.spin``); None: ``$ROVERAV_SPIN_US``, else
-    200; 0: futex sleep only."""
 
 
 class DaemonError(RuntimeError):
@@ -239,8 +235,7 @@ class Daemon:
                     logger.info("took over segment %s left by a dead daemon", w.name)
             if cfg.source == "camera":
                 channels = 4 if cfg.depth == "render" else 3
-                self.source = CameraSegmentSource(cfg.name, cfg.slots, cfg.size, channels,
-                                                  spin_us=cfg.spin_us)
+                self.source = CameraSegmentSource(cfg.name, cfg.slots, cfg.size, channels)
             else:
                 if cfg.depth == "render":
                     raise DaemonError(f"--depth render needs --source camera (frames with a "
@@ -443,10 +438,6 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         "occupancy over the next 1.5 s from the slot's last 5 frames")
     p.add_argument("--predict-weights", type=Path, default=None,
                    help="predictor weights file (--heatmap predict)")
-    p.add_argument("--spin-us", type=float, default=None,
-                   help="spin budget (microseconds) of the wait for camera frames: sleep "
-                        "until shortly before the next is due, then spin; default "
-                        "$ROVERAV_SPIN_US, else 200; 0: never spin")
     p.add_argument("--log-level", default=d.log_level,
                    choices=("DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning",
                             "error"))
@@ -456,13 +447,6 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
         camera_name(slot_name(a.name, a.slots - 1))
     except ValueError as exc:
         p.error(f"--name: {exc}")
-    if a.spin_us is not None:
-        from shm_protocol.spin import spin_budget_us
-
-        try:
-            spin_budget_us(a.spin_us)
-        except ValueError as exc:
-            p.error(f"--spin-us: {exc}")
     if not a.stale_after > 0:
         p.error("--stale-after must be > 0")
     return DaemonConfig(name=a.name, slots=a.slots, size=a.size, depth=a.depth,
@@ -470,8 +454,7 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         source=a.source, preview=a.preview,
                         log_every=max(0, a.log_every), stale_after=a.stale_after,
                         weights=a.weights, log_level=a.log_level.upper(),
-                        heatmap=a.heatmap, predict_weights=a.predict_weights,
-                        spin_us=a.spin_us)
+                        heatmap=a.heatmap, predict_weights=a.predict_weights)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -19,7 +19,6 @@ camera segments already have the fused size (the daemon creates them that way).
 from __future__ import annotations
 
 import logging
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,7 +38,6 @@ from shm_protocol import (
     camera_name,
     slot_name,
 )
-from shm_protocol.spin import SpinPlan, spin_budget_us
 
 logger = logging.getLogger(__name__)
 
@@ -188,16 +186,12 @@ class CameraSegmentSource:
     ``IDLE_AFTER_S`` without any frame the slices grow to ``idle_slice_s`` (a woken slot
     still answers at once; a frame on another slot waits at most one slice). Slots whose env
     has gone (closed or died) are only looked at, never waited on, until a frame arrives.
-
-    Before sleeping, a wait spins briefly when the next frame is due (``spin_us``, see
-    :mod:`shm_protocol.spin`; None: ``$ROVERAV_SPIN_US``, else 200; 0: never spin).
     """
 
     IDLE_AFTER_S = 1.0
 
     def __init__(self, name: str, slots: int, size: int, channels: int,
-                 slice_s: float = 0.002, idle_slice_s: float = 0.05,
-                 spin_us: float | None = None) -> None:
+                 slice_s: float = 0.002, idle_slice_s: float = 0.05) -> None:
         self.slots = slots
         self.channels = channels
         self.names = [camera_name(slot_name(name, i)) for i in range(slots)]
@@ -211,7 +205,7 @@ class CameraSegmentSource:
                 w = FrameWriter(seg, shape=(size, size, channels), dtype=np.uint8, create=True,
                                 replace=True)
                 self.writers.append(w)
-                self.readers.append(FrameReader(seg, spin_us=spin_us))
+                self.readers.append(FrameReader(seg))
         except BaseException:
             self.close(unlink=True)
             raise
@@ -235,8 +229,6 @@ class CameraSegmentSource:
         if slots > 1 and MULTIWAIT_AVAILABLE and all(
                 r.wake_address is not None for r in self.readers):
             self._watch = MultiWaiter(self.readers)
-        budget = spin_budget_us(spin_us)
-        self._plan = SpinPlan(budget) if budget > 0 else None
 
     def _take(self, i: int, seq: int, episode_start: bool = False) -> None:
         self._done[i] = seq
@@ -273,15 +265,8 @@ class CameraSegmentSource:
             if frames:
                 self._last_frame = time.monotonic()
                 return frames
-            started = time.perf_counter()
-            plan = self._plan
-            if plan is not None:
-                self._sleep_then_spin(watch, plan, timeout, started)
-            watch.wait(timeout - (time.perf_counter() - started))
-            frames = self._collect()
-            if frames and plan is not None:
-                plan.learn(time.perf_counter() - started)
-            return frames
+            watch.wait(timeout)
+            return self._collect()
         frames = self._collect()
         now = time.monotonic()
         if frames:
@@ -314,21 +299,6 @@ class CameraSegmentSource:
             self._take(i, f.seq, f.episode_start)
         # the woken slot's frame is already copied: look only at the other slots
         return self._collect(skip=i) if self.slots > 1 else self._new
-
-    @staticmethod
-    def _sleep_then_spin(watch: MultiWaiter, plan: SpinPlan, timeout: float,
-                         started: float) -> None:
-        """Sleep on every slot's word until shortly before a frame is due, then spin."""
-        sleep = min(plan.sleep_s(0.0), timeout)
-        if sleep > 0.0:
-            watch.wait(sleep)
-            if watch.changed():
-                return
-        now = time.perf_counter()
-        end = min(plan.spin_end(now, now - started), started + timeout)
-        clock, yield_ = time.perf_counter, os.sched_yield
-        while not watch.changed() and clock() < end:
-            yield_()
 
     def _gone(self, i: int) -> None:
         self._writer_gone[i] = True

@@ -4,14 +4,13 @@ for each perception backend (torch and onnx) side by side in one run.
     python benchmarks/fused_speed.py                     # both backends, 1 and 2 envs, training
     python benchmarks/fused_speed.py --steps 500 --train-steps 0   # shorter, no training rows
     python benchmarks/fused_speed.py --backends onnx     # one backend
-    python benchmarks/fused_speed.py --backends onnx --precision fp32,int8 --spin-us 0,200 \
-        --repeats 3 --train-steps 0               # precisions x hand-offs, interleaved
+    python benchmarks/fused_speed.py --backends onnx --precision fp32,int8 --repeats 3 \
+        --train-steps 0                           # both precisions, interleaved
 
-Every env row is one (backend, precision, spin budget) combination: the daemon runs with
-``--backend B --precision P --spin-us S`` and the envs with ``ROVERAV_SPIN_US=S`` (0: the
-plain futex hand-off; see ``shm_protocol.spin``). With ``--repeats N`` all rows are run
-N times in interleaved rounds and each cell is the median over the rounds; the last column
-gives each row's 1-env steps/s over the first row's (measured in the same run).
+Every env row is one (backend, precision) combination: the daemon runs with ``--backend B
+--precision P``. With ``--repeats N`` all rows are run N times in interleaved rounds and
+each cell is the median over the rounds; the last column gives each row's 1-env steps/s
+over the first row's (measured in the same run).
 
 For each backend the daemon (``av-daemon --backend B``) serves 1 env, then 2 envs on 2
 slots; then ``rover-train --env fused`` (PPO, rover-train's defaults, 1 env) trains for
@@ -52,7 +51,6 @@ sys.path.insert(0, str(ROOT))
 
 from active_vision.launcher import spawn_daemon  # noqa: E402
 from fused_image import FUSED_SHAPE, FUSED_SIZE  # noqa: E402
-from shm_protocol.spin import SPIN_ENV  # noqa: E402
 
 SEED_STEPS_PER_S = 20.0  # the seed steps in real time at 0.05 s control
 
@@ -67,11 +65,8 @@ def _timed(fn, acc: list[float]):
     return wrapper
 
 
-def run_env(name: str, slot: int, steps: int, world: str, out: mp.Queue,
-            spin_us: float | None = None) -> None:
+def run_env(name: str, slot: int, steps: int, world: str, out: mp.Queue) -> None:
     """Step one env ``steps`` times; put its timings on ``out``."""
-    if spin_us is not None:
-        os.environ[SPIN_ENV] = f"{spin_us:g}"
     from rover_env.fused_env import RoverEnvFused
 
     env = RoverEnvFused(rl_obs_name=name, slot=slot, world_n=world, report_latency=True)
@@ -172,20 +167,17 @@ def _ipc_child(name: str, n: int, q: mp.Queue) -> None:
 
 
 def daemon_args(threads: int, backend: str, weights: Path | None = None,
-                precision: str | None = None, spin_us: float | None = None) -> list[str]:
+                precision: str | None = None) -> list[str]:
     extra = ["--weights", str(weights)] if weights is not None else []
     if precision is not None:
         extra += ["--precision", precision]
-    if spin_us is not None:
-        extra += ["--spin-us", f"{spin_us:g}"]
     return ["--threads", str(threads), "--backend", backend, "--log-level", "WARNING", *extra]
 
 
-def run_envs(name: str, n_envs: int, steps: int, world: str,
-             spin_us: float | None = None) -> tuple[list[dict], float]:
+def run_envs(name: str, n_envs: int, steps: int, world: str) -> tuple[list[dict], float]:
     ctx = mp.get_context("spawn")
     q: mp.Queue = ctx.Queue()
-    procs = [ctx.Process(target=run_env, args=(name, i, steps, world, q, spin_us))
+    procs = [ctx.Process(target=run_env, args=(name, i, steps, world, q))
              for i in range(n_envs)]
     t0 = time.perf_counter()
     for pr in procs:
@@ -217,16 +209,13 @@ def train_speed(backend: str, steps: int, threads: int, world: str,
 
 
 def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
-    """The env-stepping table: per (backend, precision, spin) row, 1 env then 2 envs on 2
+    """The env-stepping table: per (backend, precision) row, 1 env then 2 envs on 2
     slots, ``--repeats`` interleaved rounds, medians."""
     alone_ipc = ipc_handoff()
     precisions = [p.strip() for p in a.precision.split(",") if p.strip()]
-    spins: list[float | None] = (
-        [float(s) for s in a.spin_us.split(",") if s.strip()] if a.spin_us else [None])
-    # (backend, precision, spin, weights file or None for the shipped one): rows in run order
-    runs = [(b, p, s, None) for b in backends for p in precisions for s in spins]
-    runs += [(b, p, s, w) for w in a.weights for b in backends for p in precisions
-             for s in spins]
+    # (backend, precision, weights file or None for the shipped one): rows in run order
+    runs = [(b, p, None) for b in backends for p in precisions]
+    runs += [(b, p, w) for w in a.weights for b in backends for p in precisions]
     # perception alone is timed again right before each row of each round (the machine's
     # load drifts; a figure taken minutes apart makes "round trip - perception" meaningless)
     alone_perc: dict[int, list[float]] = {}
@@ -237,29 +226,28 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
     )
     cells: dict[tuple[int, int], list[tuple[float, ...]]] = {}
     for r in range(a.repeats):
-        for k, (backend, precision, spin, weights) in enumerate(runs):
+        for k, (backend, precision, weights) in enumerate(runs):
             alone_perc.setdefault(k, []).append(
                 perception_alone(a.threads, backend, n=200, weights=weights,
                                  precision=precision))
             for n_envs in (1, 2):
                 name = f"bench_fused_{os.getpid()}_{r}_{k}_{n_envs}"
                 with spawn_daemon(name, n_envs, extra_args=daemon_args(
-                        a.threads, backend, weights, precision, spin)):
-                    results, _ = run_envs(name, n_envs, a.steps, a.world, spin)
+                        a.threads, backend, weights, precision)):
+                    results, _ = run_envs(name, n_envs, a.steps, a.world)
                 r0 = results[0]
                 cells.setdefault((k, n_envs), []).append((
                     sum(x["steps"] / x["wall"] for x in results), r0["wall"] / r0["steps"],
                     r0["physics"], r0["render"], r0["roundtrip"], r0["reset_s"]))
     print(
-        "\n| backend | precision | spin us | envs | steps/s (all envs) | x seed (20/s) "
+        "\n| backend | precision | envs | steps/s (all envs) | x seed (20/s) "
         "| ms/step | physics ms | render ms | daemon round trip ms | perception alone ms "
         "| round trip - perception ms | efficiency | reset ms | 1-env steps/s / row 1 |"
     )
-    print("|---" * 15 + "|", flush=True)
+    print("|---" * 14 + "|", flush=True)
     base = None
-    for k, (backend, precision, spin, weights) in enumerate(runs):
+    for k, (backend, precision, weights) in enumerate(runs):
         label = backend if weights is None else f"{backend}, {weights.name}"
-        spin_label = "default" if spin is None else f"{spin:g}"
         perc = float(np.median(alone_perc[k]))
         for n_envs in (1, 2):
             agg, step_s, phys, rend, rt, reset_s = np.median(
@@ -269,7 +257,7 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
             if n_envs == 1:
                 base = agg if base is None else base
                 ratio = f"{agg / base:.2f}x"
-            print(f"| {label} | {precision} | {spin_label} | {n_envs} | {agg:.0f} | "
+            print(f"| {label} | {precision} | {n_envs} | {agg:.0f} | "
                   f"{agg / SEED_STEPS_PER_S:.1f}x | {step_s * 1e3:.2f} | {phys * 1e3:.2f} | "
                   f"{rend * 1e3:.2f} | {rt * 1e3:.2f} | {perc * 1e3:.2f} | "
                   f"{(rt - perc) * 1e3:.2f} | {stages / step_s:.2f} | {reset_s * 1e3:.1f} | "
@@ -285,9 +273,6 @@ def main() -> int:
     p.add_argument("--backends", default="torch,onnx", help="comma-separated, in run order")
     p.add_argument("--precision", default="int8",
                    help="comma-separated daemon --precision values, in run order (fp32,int8)")
-    p.add_argument("--spin-us", default="",
-                   help="comma-separated spin budgets (us) of daemon and envs, in run order "
-                   "(0: the plain futex hand-off); default: theirs ($ROVERAV_SPIN_US or 200)")
     p.add_argument("--repeats", type=int, default=1,
                    help="interleaved rounds of all env rows; cells are medians")
     p.add_argument("--train-steps", type=int, default=5120,

@@ -8,10 +8,10 @@ perception are timed per frame. For every frame (wall clock, one clock for both 
     env publish -> daemon has the frame (woken + copied) -> perception start -> end
     -> fused frame stamped (publish) -> env has the fused frame
 
-and prints the medians of each gap, per spin budget (``ROVERAV_SPIN_US``, read by every
-``FrameReader`` and the daemon's camera source), interleaved over ``--repeats`` rounds::
+and prints the medians of each gap, per daemon precision, interleaved over ``--repeats``
+rounds::
 
-    python benchmarks/handoff_timeline.py --spin-us 0,200,2000 --frames 400 --repeats 3
+    python benchmarks/handoff_timeline.py --precision fp32,int8 --frames 400 --repeats 3
 """
 
 from __future__ import annotations
@@ -33,8 +33,7 @@ from fused_image import FUSED_SIZE  # noqa: E402
 STAGES = ("wake+read", "gather", "perception", "publish", "env wake+read")
 
 
-def _daemon_child(name: str, precision: str, spin_us: str, times, ready, stop) -> None:
-    os.environ["ROVERAV_SPIN_US"] = spin_us
+def _daemon_child(name: str, precision: str, times, ready, stop) -> None:
     sys.path.insert(0, str(ROOT))
     from active_vision.daemon import Daemon, DaemonConfig
 
@@ -75,8 +74,7 @@ def _daemon_child(name: str, precision: str, spin_us: str, times, ready, stop) -
         d.shutdown()
 
 
-def run_once(name: str, precision: str, spin_us: int, frames: int, env_ms: float):
-    os.environ["ROVERAV_SPIN_US"] = str(spin_us)
+def run_once(name: str, precision: str, frames: int, env_ms: float):
     from shm_protocol import FrameReader, FrameWriter, camera_name
 
     ctx = mp.get_context("spawn")
@@ -85,7 +83,7 @@ def run_once(name: str, precision: str, spin_us: int, frames: int, env_ms: float
     rows = np.frombuffer(times, np.float64).reshape(n, 3)
     ready, stop = ctx.Event(), ctx.Event()
     child = ctx.Process(target=_daemon_child,
-                        args=(name, precision, str(spin_us), rows_proxy(times, n), ready, stop))
+                        args=(name, precision, rows_proxy(times, n), ready, stop))
     child.start()
     ready.wait(120)
     cam = FrameWriter(camera_name(name), shape=(*FUSED_SIZE, 3), dtype=np.uint8, create=False)
@@ -132,23 +130,23 @@ class _Rows:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("--spin-us", default="0,200,2000")
-    p.add_argument("--precision", default="int8")
+    p.add_argument("--precision", default="fp32,int8",
+                   help="comma-separated daemon precisions, in run order")
     p.add_argument("--frames", type=int, default=400)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--env-ms", type=float, default=1.1, help="physics + render stand-in")
     a = p.parse_args()
-    spins = [int(s) for s in a.spin_us.split(",")]
-    res: dict[int, list] = {s: [] for s in spins}
+    precisions = [s.strip() for s in a.precision.split(",") if s.strip()]
+    res: dict[str, list] = {s: [] for s in precisions}
     for r in range(a.repeats):
-        for s in spins:
-            res[s].append(run_once(f"bench_timeline_{os.getpid()}_{r}_{s}", a.precision, s,
-                                   a.frames, a.env_ms))
-    print(f"\nmedian us per frame ({a.precision}, {a.frames} frames x {a.repeats} rounds, "
+        for s in precisions:
+            res[s].append(run_once(f"bench_timeline_{os.getpid()}_{r}_{s}", s, a.frames,
+                                   a.env_ms))
+    print(f"\nmedian us per frame ({a.frames} frames x {a.repeats} rounds, "
           f"env stand-in {a.env_ms} ms)\n")
-    print("| spin us | " + " | ".join(STAGES) + " | round trip | beyond perception |")
+    print("| precision | " + " | ".join(STAGES) + " | round trip | beyond perception |")
     print("|---" * (len(STAGES) + 3) + "|")
-    for s in spins:
+    for s in precisions:
         g = np.median(np.stack([x[0] for x in res[s]]), axis=0)
         tot = float(np.median([x[1] for x in res[s]]))
         print(f"| {s} | " + " | ".join(f"{v:.0f}" for v in g)

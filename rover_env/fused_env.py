@@ -29,7 +29,6 @@ from shm_protocol import (
     slot_name,
     writer_alive,
 )
-from shm_protocol.spin import spin_budget_us
 
 log = logging.getLogger(__name__)
 
@@ -178,10 +177,7 @@ class RoverEnvFused(RoverEnvBase):
     ``frame_timeout`` seconds per fused frame; ``report_latency`` (default False) puts the
     measured ``frame_latency_ms`` in ``info``: a wall-clock value, so two runs with the
     same seed and actions then differ in it (Gymnasium's ``check_env`` compares infos, so
-    leave it off there). ``spin_us`` the spin budget of the wait for the fused frame
-    (microseconds; sleep on the futex until shortly before the frame is due, then spin,
-    ``shm_protocol.spin``; default ``$ROVERAV_SPIN_US``, else 200; 0: futex sleep only).
-    The keyword-only options common to every roverav env
+    leave it off there). The keyword-only options common to every roverav env
     (:class:`~rover_env.core.EnvOptions`): ``control_dt``, ``physics_dt``,
     ``reward_config`` (default ``RewardConfig.fused()``), ``render_mode``
     (``"rgb_array"``: chase camera), ``render_size``, ``n_pedestrians`` (0-20, default
@@ -213,7 +209,6 @@ class RoverEnvFused(RoverEnvBase):
         slot: int | str = 0,
         frame_timeout: float = FRAME_TIMEOUT,
         report_latency: bool = False,
-        spin_us: float | None = None,
         **options: Any,
     ) -> None:
         del scan_topic, imu_topic, cmd_vel_topic  # ROS topics: accepted, no effect
@@ -232,7 +227,6 @@ class RoverEnvFused(RoverEnvBase):
         self._set_slot(0 if auto else int(slot))
         self.frame_timeout = float(frame_timeout)
         self.report_latency = bool(report_latency)
-        self.spin_us = spin_budget_us(spin_us)
         self.connection_check_timeout = float(connection_check_timeout)
         self._size = (height, width)
         self._fused: FrameReader | None = None
@@ -317,8 +311,7 @@ class RoverEnvFused(RoverEnvBase):
             )  # fmt: skip
         deadline = time.monotonic() + timeout
         try:
-            fused = FrameReader(name, dtype=np.float32, attach_timeout=timeout,
-                                spin_us=self.spin_us)
+            fused = FrameReader(name, dtype=np.float32, attach_timeout=timeout)
         except SegmentNotFoundError as exc:
             raise SegmentNotFoundError(
                 SEED_MISSING_MESSAGE.format(name=name)

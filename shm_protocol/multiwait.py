@@ -118,15 +118,6 @@ class MultiWaiter:
             # (a reader without a futex after a re-attach keeps its old entry: the wait
             # then simply runs to its timeout for that segment, which stays correct)
 
-    def changed(self) -> bool:
-        """Whether any segment published since :meth:`arm` (a look at each wake word; for
-        spinning before :meth:`wait`)."""
-        waiters, readers = self._waiters, self.readers
-        for i in range(len(readers)):
-            if readers[i].wake_value != waiters[i].val:
-                return True
-        return False
-
     def wait(self, timeout: float) -> None:
         """Sleep until a segment armed by :meth:`arm` publishes, or ``timeout`` s pass.
 

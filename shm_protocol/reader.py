@@ -20,7 +20,6 @@ frame is new when the timestamp changed and ``valid == 1``; there is no liveness
 from __future__ import annotations
 
 import logging
-import os
 import time
 import zlib
 from typing import Any, NamedTuple
@@ -45,7 +44,6 @@ from .layout import (
     normalize_shape,
 )
 from .names import validate_name
-from .spin import SpinPlan, spin_budget_us
 
 logger = logging.getLogger(__name__)
 
@@ -93,9 +91,6 @@ class FrameReader:
         heartbeat while idle (the env writing camera frames between episodes).
     :param check_pid: treat a vanished writer pid as gone. Turn off only when the writer
         lives in another pid namespace (another container), where its pid means nothing.
-    :param spin_us: spin budget of a wait, microseconds (:mod:`shm_protocol.spin`: sleep on
-        the futex until shortly before the frame is due, then spin up to ``2 x spin_us``);
-        None: ``$ROVERAV_SPIN_US``, else 200; 0: no spinning (futex sleep only).
 
     Not thread-safe: use one reader per thread.
     """
@@ -111,11 +106,8 @@ class FrameReader:
         attach_timeout: float = 0.0,
         stale_after: float | None = None,
         check_pid: bool = True,
-        spin_us: float | None = None,
     ) -> None:
         self.name = validate_name(name)
-        budget = spin_budget_us(spin_us)
-        self._spin = SpinPlan(budget) if budget > 0 else None
         self._want_shape = None if shape is None else normalize_shape(shape)
         self._want_dtype = None if dtype is None else normalize_dtype(dtype)
         if stale_after is not None and not stale_after > 0:
@@ -367,16 +359,12 @@ class FrameReader:
         self._check_out(out)
         newer = min_src is None
         deadline = time.monotonic() + timeout
-        plan = self._spin
-        started = -1.0  # perf_counter() when the first look found nothing (-1: not yet)
         while True:
             t, fw = self._t, self._futex
             # read before looking: no lost wake-up (a futex is only set with a trailer)
             wake = t.wake if fw is not None and t is not None else 0
             f = self._read(out, newer, min_src)
             if f is not None:
-                if plan is not None and started >= 0.0:
-                    plan.learn(time.perf_counter() - started)
                 return f
             now = time.monotonic()
             shutdown = t is not None and t.flags & FLAG_SHUTTING_DOWN
@@ -393,29 +381,10 @@ class FrameReader:
             if now >= deadline:
                 raise FrameTimeoutError(self._timeout_message(timeout, min_src), self.name, timeout)
             pause = min(deadline, self._next_check) - now
-            if plan is not None and fw is not None and t is not None and started < 0.0:
-                started = time.perf_counter()
-                self._sleep_then_spin(plan, fw, t, wake, pause, started)
-            elif fw is not None:
+            if fw is not None:
                 fw.wait(wake, min(pause, WAIT_SLICE_S))
             else:
                 time.sleep(min(pause, POLL_INTERVAL_S))
-
-    @staticmethod
-    def _sleep_then_spin(plan: SpinPlan, fw: FutexWord, t: Any, wake: int, pause: float,
-                         started: float) -> None:
-        """The first sleep of a wait: on the futex until shortly before the frame is due,
-        then spin on the wake word (yielding the core each turn), all within ``pause`` s."""
-        sleep = min(plan.sleep_s(0.0), pause)
-        if sleep > 0.0:
-            fw.wait(wake, sleep)
-            if t.wake != wake:
-                return
-        now = time.perf_counter()
-        end = min(plan.spin_end(now, now - started), started + pause)
-        clock, yield_ = time.perf_counter, os.sched_yield
-        while t.wake == wake and clock() < end:
-            yield_()
 
     # --- liveness ----------------------------------------------------------------------
 
