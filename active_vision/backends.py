@@ -45,7 +45,7 @@ Precision = Literal["fp32", "int8"]
 PRECISIONS: tuple[str, ...] = ("fp32", "int8")
 DEFAULT_PRECISION: Precision = "int8"
 """int8: on the held-out split it is within 0.01 IoU/recall and 0.005 AbsRel/delta1 of fp32
-in every world, and about 2x faster on one thread (benchmarks/perception_speed.py)."""
+in every world, and about 2x faster on one thread (benchmarks/precision_speed.py)."""
 _INT8_CPU_FLAGS = ("avx512_vnni", "avx_vnni", "asimddp")
 """/proc/cpuinfo flags of int8 dot-product instructions (x86 VNNI, Arm dot product)."""
 RAW_CHANNELS = 2

@@ -219,7 +219,7 @@ class DistillRun:
 
 def read_recipe(path: Path) -> DAggerRecipe:
     """The recipe stored in the entry file ``path``."""
-    meta = StudentAgent.load(path).meta
+    meta = StudentAgent.read_meta(path)
     if RECIPE_KEY not in meta:
         raise ValueError(f"{path} holds no recipe (a file written before recipes were "
                          "stored); remake it with its entry's name instead")  # fmt: skip

@@ -54,7 +54,7 @@ def command(name: str) -> str:
     spec = _spec(name)
     if not spec.path.is_file():
         return spec.command
-    recipe = StudentAgent.load(spec.path).meta.get("recipe")
+    recipe = StudentAgent.read_meta(spec.path).get("recipe")
     if recipe is None:
         return spec.command
     path = os.path.relpath(spec.path)

@@ -504,3 +504,10 @@ class StudentAgent:
     @classmethod
     def load(cls, path: Any) -> StudentAgent:
         return cls.from_state_dict(torch.load(path, map_location="cpu", weights_only=True))
+
+    @staticmethod
+    def read_meta(path: Any) -> dict[str, Any]:
+        """The ``meta`` of the student file ``path`` (its name, kind, world and recipe),
+        read without building the network."""
+        blob = torch.load(path, map_location="cpu", weights_only=True)
+        return dict(blob.get("meta") or {})
