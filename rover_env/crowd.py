@@ -88,6 +88,12 @@ _SQRT2 = math.sqrt(2.0)
 _MOVES = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
 
 
+def _clamp(a: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """``np.clip(a, lo, hi)`` without its per-call overhead (tens of µs in numpy 2: the crowd
+    calls it on a handful of numbers several times a step)."""
+    return np.minimum(np.maximum(a, lo), hi)
+
+
 class CrowdPlacementError(ValueError):
     """The crowd asked for cannot stand in the world's pedestrian area."""
 
@@ -107,8 +113,8 @@ class CrowdMap:
     nearest_free: np.ndarray  # (C,) int: the free cell nearest each cell's centre
     field_origin: tuple[float, float]
     field: np.ndarray  # (fy, fx) clearance (m) at FIELD_CELL spacing
-    gradient: np.ndarray  # (2, fy, fx) its gradient (x, y)
-    table: np.ndarray  # (fy * fx, 3) clearance and unit gradient, flat (nearest lookups)
+    table: np.ndarray  # (fy * fx, 4) clearance, unit gradient (x, y), ground z; flat
+    corners: np.ndarray  # (fy * fx, 3) clearance and raw gradient, flat (bilinear lookups)
 
     @property
     def capacity(self) -> int:
@@ -119,36 +125,34 @@ class CrowdMap:
     def cell_of(self, xy: np.ndarray) -> np.ndarray:
         """(n,) the grid cell under each point (clipped to the grid)."""
         a = self.area
-        ix = np.clip(((xy[:, 0] - a.x[0]) / CELL).astype(np.intp), 0, self.nx - 1)
-        iy = np.clip(((xy[:, 1] - a.y[0]) / CELL).astype(np.intp), 0, self.ny - 1)
+        ix = _clamp(((xy[:, 0] - a.x[0]) / CELL).astype(np.intp), 0, self.nx - 1)
+        iy = _clamp(((xy[:, 1] - a.y[0]) / CELL).astype(np.intp), 0, self.ny - 1)
         return iy * self.nx + ix
 
-    def nearest_clearance(self, xy: np.ndarray) -> np.ndarray:
-        """(n, 3) clearance and unit gradient (x, y) at the field point nearest each point
-        (one lookup: the forces' view of the scenery)."""
+    def lookup(self, xy: np.ndarray) -> np.ndarray:
+        """(n, 4) clearance, unit gradient (x, y) and ground height at the field point
+        nearest each point (one lookup: the forces' view of the scenery, and where the
+        figures' feet go)."""
         fy, fx = self.field.shape
-        i = np.clip(((xy[:, 0] - self.field_origin[0]) / FIELD_CELL + 0.5).astype(np.intp),
-                    0, fx - 1)  # fmt: skip
-        j = np.clip(((xy[:, 1] - self.field_origin[1]) / FIELD_CELL + 0.5).astype(np.intp),
-                    0, fy - 1)  # fmt: skip
+        i = _clamp(((xy[:, 0] - self.field_origin[0]) / FIELD_CELL + 0.5).astype(np.intp),
+                   0, fx - 1)  # fmt: skip
+        j = _clamp(((xy[:, 1] - self.field_origin[1]) / FIELD_CELL + 0.5).astype(np.intp),
+                   0, fy - 1)  # fmt: skip
         return self.table[j * fx + i]
 
     def clearance(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(clearance (n,), unit gradient (n, 2)) at each point: bilinear in the field."""
+        """(clearance (n,), unit gradient (n, 2)) at each point: bilinear in the field (the
+        four corners gathered from ``corners`` in one lookup)."""
         fy, fx = self.field.shape
-        u = np.clip((xy[:, 0] - self.field_origin[0]) / FIELD_CELL, 0.0, fx - 1.000001)
-        v = np.clip((xy[:, 1] - self.field_origin[1]) / FIELD_CELL, 0.0, fy - 1.000001)
+        u = _clamp((xy[:, 0] - self.field_origin[0]) / FIELD_CELL, 0.0, fx - 1.000001)
+        v = _clamp((xy[:, 1] - self.field_origin[1]) / FIELD_CELL, 0.0, fy - 1.000001)
         i0, j0 = u.astype(np.intp), v.astype(np.intp)
         a, b = u - i0, v - j0
-        w00, w10, w01, w11 = (1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b
-        f, g = self.field, self.gradient
-        d = w00 * f[j0, i0] + w10 * f[j0, i0 + 1] + w01 * f[j0 + 1, i0] + w11 * f[j0 + 1, i0 + 1]
-        grad = (
-            w00 * g[:, j0, i0] + w10 * g[:, j0, i0 + 1] + w01 * g[:, j0 + 1, i0]
-            + w11 * g[:, j0 + 1, i0 + 1]
-        ).T  # fmt: skip
-        norm = np.hypot(grad[:, 0], grad[:, 1])[:, None]
-        return d, grad / np.maximum(norm, 1e-9)
+        w = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=1)
+        corners = (j0 * fx + i0)[:, None] + np.array([0, 1, fx, fx + 1])
+        out = np.einsum("nk,nkc->nc", w, self.corners[corners])
+        norm = np.hypot(out[:, 1], out[:, 2])[:, None]
+        return out[:, 0], out[:, 1:] / np.maximum(norm, 1e-9)
 
     def route_distances(self, goal: int) -> np.ndarray:
         """(C + 1,) route length (m) from every cell to free cell ``goal`` (inf where none;
@@ -243,10 +247,12 @@ def _build_map(world: WorldSpec) -> CrowdMap:
     field = np.minimum(world.clearance_many(gx, gy), 50.0)
     grad_y, grad_x = np.gradient(field, FIELD_CELL)
     norm = np.maximum(np.hypot(grad_x, grad_y), 1e-9)
-    table = np.stack([field, grad_x / norm, grad_y / norm], axis=-1).reshape(-1, 3)
+    ground = world.ground_heights(gx, gy)
+    table = np.stack([field, grad_x / norm, grad_y / norm, ground], axis=-1).reshape(-1, 4)
+    corners = np.stack([field, grad_x, grad_y], axis=-1).reshape(-1, 3)
     return CrowdMap(
         area, nx, ny, centres, free, component, neighbours, weights, nearest_free,
-        (x0, y0), field, np.stack([grad_x, grad_y]), table,
+        (x0, y0), field, table, corners,
     )  # fmt: skip
 
 
@@ -321,6 +327,7 @@ class Crowd:
         self._group_sizes = np.ones(n)
         self._rows = np.arange(n)
         self._target_cell: np.ndarray | None = None
+        self._here: np.ndarray | None = None  # map.lookup(pos), while pos stays
         self._route_left = np.zeros(n)
         self._plan_age = PLAN_EVERY
         self._cap = MAX_SPEED_FACTOR * self.speed
@@ -356,6 +363,7 @@ class Crowd:
         self.touching[:] = False
         self._paused[:] = False
         self._target_cell = None
+        self._here = None
         self._clock = 0.0
         self._rover_prev = avoid
         for i in range(n):
@@ -452,6 +460,7 @@ class Crowd:
         self.speed[i] = speed
         self._cap = MAX_SPEED_FACTOR * self.speed
         self._target_cell = None
+        self._here = None
         self.alternate[i] = back
         self._goal_at(i, np.array(end))
 
@@ -466,6 +475,7 @@ class Crowd:
         self.vel[i] = 0.0
         self.heading[i] = heading
         self.pinned[i] = True
+        self._here = None
 
     # --- state ---------------------------------------------------------------------------------
     def state(self) -> CrowdState:
@@ -484,6 +494,7 @@ class Crowd:
         self.group[:] = s.group
         self._regroup()
         self._target_cell = None
+        self._here = None
         for i, cell in enumerate(s.goal_cell):
             if cell != self.goal_cell[i]:
                 self._route[i] = self.map.route_distances(int(cell))
@@ -492,6 +503,13 @@ class Crowd:
         self._rng.bit_generator.state = s.rng
 
     # --- motion --------------------------------------------------------------------------------
+    def here(self) -> np.ndarray:
+        """(n, 4) :meth:`CrowdMap.lookup` at every walker's position (kept from the step
+        that put them there)."""
+        if self._here is None:
+            self._here = self.map.lookup(self.pos)
+        return self._here
+
     def advance(self, dt: float, rover_xy: tuple[float, float] | None) -> int:
         """Walk on ``dt`` s: the whole ``CROWD_DT`` steps that fit (the remainder carries
         to the next call), with the rover at ``rover_xy`` (its velocity from the last call).
@@ -575,7 +593,7 @@ class Crowd:
             thr = 0.5 * (sizes[self.group] - 1)
             push += A_COHERENCE * (far > thr) * off / np.maximum(far, 1e-9)
         # scenery
-        scenery = m.nearest_clearance(pos)
+        scenery = self.here()
         clear = scenery[:, 0]
         push += A_OBS * np.exp((BODY_RADIUS - clear) / B_OBS) * (
             scenery[:, 1] + 1j * scenery[:, 2]
@@ -586,7 +604,7 @@ class Crowd:
             r = z - rz
             rv = (vel[:, 0] + 1j * vel[:, 1]) - complex(rover_v[0], rover_v[1])
             vv = np.maximum(rv.real**2 + rv.imag**2, 1e-9)
-            t_star = np.clip(-(r * rv.conj()).real / vv, 0.0, ROVER_LOOKAHEAD)
+            t_star = _clamp(-(r * rv.conj()).real / vv, 0.0, ROVER_LOOKAHEAD)
             near = r + rv * t_star
             dn = np.maximum(np.abs(near), 1e-9)
             nr = near / dn
@@ -614,6 +632,7 @@ class Crowd:
         fast = moved > 0.2 * dt
         self.heading[fast] = np.arctan2(step[fast, 1], step[fast, 0])
         pos[:] = new_pos
+        self._here = m.lookup(pos)
         # goals: arrival, pauses, stalls (a Python loop only for the walkers concerned)
         self.pause = np.maximum(self.pause - dt, 0.0)
         left = self._route_left

@@ -573,13 +573,7 @@ class Pedestrians:
         swing = np.where(
             moving, LEG_SWING * np.sin(np.pi * crowd.walked / STEP_LENGTH + self._gait_arr), 0.0
         )
-        world = self._world
-        if world.heightfield is None:
-            z = np.zeros(self.n)
-        else:
-            z = np.array(
-                [world.ground_height(u, v) for u, v in zip(x.tolist(), y.tolist(), strict=True)]
-            )
+        z = crowd.here()[:, 3]
         self.positions[:] = crowd.pos
         self.headings[:] = yaw
         cy, sy = np.cos(0.5 * yaw), np.sin(0.5 * yaw)

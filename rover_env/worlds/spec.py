@@ -134,6 +134,24 @@ class HeightField:
         )
         return float(h * self.z_top)
 
+    def heights(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """:meth:`height` at many points at once (the same bilinear values)."""
+        nrow, ncol = self.elevation.shape
+        u = (np.asarray(x) - self.centre[0] + self.radius_x) / (2 * self.radius_x) * (ncol - 1)
+        v = (np.asarray(y) - self.centre[1] + self.radius_y) / (2 * self.radius_y) * (nrow - 1)
+        inside = (u >= 0.0) & (u <= ncol - 1) & (v >= 0.0) & (v <= nrow - 1)
+        c0 = np.minimum(np.maximum(u, 0.0), ncol - 2).astype(np.intp)  # (np.clip: slower)
+        r0 = np.minimum(np.maximum(v, 0.0), nrow - 2).astype(np.intp)
+        fu, fv = u - c0, v - r0
+        e = self.elevation
+        h = (
+            e[r0, c0] * (1 - fu) * (1 - fv)
+            + e[r0, c0 + 1] * fu * (1 - fv)
+            + e[r0 + 1, c0] * (1 - fu) * fv
+            + e[r0 + 1, c0 + 1] * fu * fv
+        )
+        return np.where(inside, h * self.z_top, 0.0)
+
 
 @dataclass(frozen=True, eq=False)
 class WorldSpec:
@@ -246,6 +264,12 @@ class WorldSpec:
     def ground_height(self, x: float, y: float) -> float:
         """Terrain height at (x, y) (0 on flat worlds)."""
         return 0.0 if self.heightfield is None else self.heightfield.height(x, y)
+
+    def ground_heights(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """:meth:`ground_height` at many points at once."""
+        if self.heightfield is None:
+            return np.zeros(np.shape(x))
+        return self.heightfield.heights(x, y)
 
     def sample_free(
         self, rng: np.random.Generator, rect: Rect, clearance: float
