@@ -489,6 +489,7 @@ class RoverEnvBase(gym.Env):
             "is_success": self.goals_reached > 0,
             "collision": self.collided,
             "collision_count": self.collision_count,
+            "scenery_contact": self.sim.rover_contacts().obstacle,
             "termination_reason": reason,
             "distance_to_goal": self.distance_to_goal,
             **self._social_info(),

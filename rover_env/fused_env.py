@@ -155,14 +155,15 @@ class RoverEnvFused(RoverEnvBase):
     ## Info
 
     RoverEnv's keys (``steps``, ``total_steps``, ``reward``, ``goals_reached``,
-    ``is_success``, ``collision``, ``termination_reason``, ``distance_to_goal``,
-    ``min_pedestrian_distance``, ``personal_space_intrusion``, ``intimate_space_intrusion``,
-    ``pedestrian_collision``, ``rover_hit_pedestrian``, ``pedestrian_hit_rover``, the reward
-    terms) plus ``heatmap_center`` (the centre-column heatmap sum),
-    ``pedestrian_in_view`` (some pedestrian stands inside the camera's horizontal field of
-    view, within the depth range of 10 m; geometric, occlusion not tested) and
-    ``nearest_pedestrian_in_view`` (the nearest one does). With ``report_latency=True``
-    also ``frame_latency_ms`` (camera publish to fused frame received, wall clock).
+    ``is_success``, ``collision``, ``scenery_contact``, ``termination_reason``,
+    ``distance_to_goal``, ``min_pedestrian_distance``, ``personal_space_intrusion``,
+    ``intimate_space_intrusion``, ``pedestrian_collision``, ``rover_hit_pedestrian``,
+    ``pedestrian_hit_rover``, the reward terms) plus ``heatmap_center`` (the centre-column
+    heatmap sum), ``pedestrian_in_view`` (some pedestrian stands inside the camera's
+    horizontal field of view, within the depth range of 10 m; geometric, occlusion not
+    tested) and ``nearest_pedestrian_in_view`` (the nearest one does). With
+    ``report_latency=True`` also ``frame_latency_ms`` (camera publish to fused frame
+    received, wall clock).
 
     ## Arguments
 

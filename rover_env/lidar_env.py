@@ -113,8 +113,10 @@ class RoverEnv(RoverEnvBase):
 
     ``steps``, ``total_steps`` (over all episodes since the last seeded reset),
     ``reward``, ``episode_reward``,
-    ``goals_reached``, ``is_success`` (at least one goal), ``collision``,
-    ``collision_count``, ``termination_reason`` ("" while running), ``distance_to_goal``,
+    ``goals_reached``, ``is_success`` (at least one goal), ``collision`` (the seed's:
+    the LIDAR closer than ``RewardConfig.collision_distance``), ``collision_count``,
+    ``scenery_contact`` (the rover's body touched the scenery this step),
+    ``termination_reason`` ("" while running), ``distance_to_goal``,
     ``x_position``, ``y_position``, ``goal``, each ``reward_*`` term, and the social
     metrics (the same in every roverav env): ``min_pedestrian_distance`` (m, inf with no
     pedestrians), ``personal_space_intrusion`` (a pedestrian within 1.2 m),

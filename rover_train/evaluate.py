@@ -63,6 +63,8 @@ class EpisodeResult:
     intrusion_steps: int
     min_ped_distance: float
     ret: float
+    pedestrian_contact: bool = False  # the rover's body touched a pedestrian
+    scenery_contact: bool = False  # ... or the scenery
 
 
 class PolicyLoadError(ValueError):
@@ -260,7 +262,7 @@ def run_episode(
     start_distance = float(obs["target"][0])
     control_dt = float(getattr(base, "control_dt", 0.05))
     path = 0.0
-    collided = False
+    collided = ped_contact = scenery_contact = False
     intrusions = 0
     min_ped = float(info.get("min_pedestrian_distance", np.inf))
     ret = 0.0
@@ -278,6 +280,8 @@ def run_episode(
         path += float(np.linalg.norm(new - pos))
         pos = new
         collided |= bool(info.get("collision", False))
+        ped_contact |= bool(info.get("pedestrian_collision", False))
+        scenery_contact |= bool(info.get("scenery_contact", False))
         d_ped = float(info.get("min_pedestrian_distance", np.inf))
         intrusions += int(d_ped < PERSONAL_SPACE_M)
         min_ped = min(min_ped, d_ped)
@@ -302,6 +306,8 @@ def run_episode(
         intrusion_steps=intrusions,
         min_ped_distance=min_ped,
         ret=ret,
+        pedestrian_contact=ped_contact,
+        scenery_contact=scenery_contact,
     )
     if frames is not None and steps > 0:
         hold = max(1, round(OUTCOME_HOLD_S / control_dt))
@@ -456,6 +462,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="write an MP4: chase view beside the fused channels, labelled")
     p.add_argument("--video-episodes", type=int, default=1, help="episodes recorded in the video")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on the last line")
+    p.add_argument(
+        "--suite", nargs="?", const="all", default=None, metavar="SCENARIOS",
+        help="evaluate over the scenario suite (rover_env.scenarios) and print one table: "
+             "all scenarios, one world's, or names separated by commas; --world, "
+             "--pedestrian-mode and --n-pedestrians are the scenarios' then",
+    )  # fmt: skip
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(name)s %(levelname)s %(message)s")
     if (args.model is None) == (args.policy is None):
@@ -467,41 +479,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(problem)
     if args.n_pedestrians is not None and not 0 <= args.n_pedestrians <= MAX_PEDESTRIANS:
         p.error(f"--n-pedestrians must be from 0 to {MAX_PEDESTRIANS}, got {args.n_pedestrians}")
+    if args.suite is not None:
+        from rover_env.scenarios import select_scenarios
 
-    from shm_protocol.errors import ShmError
+        if args.video is not None:
+            p.error("--video records one env's episodes: drop it with --suite")
+        try:
+            select_scenarios(args.suite)
+        except ValueError as exc:
+            p.error(f"--suite: {exc}")
 
-    envs: list[Any] = []
+    if args.suite is not None:
+        return _main_suite(args)
     try:
-        try:
-            for k in range(min(args.slots, args.episodes)):
-                envs.append(make_env(
-                    args.env, world=args.world, slot=args.slot + k, name=args.name,
-                    pedestrian_mode=args.pedestrian_mode, n_pedestrians=args.n_pedestrians,
-                    render_mode="rgb_array" if args.video and k == 0 else None,
-                ))  # fmt: skip
-        except ShmError as exc:
-            print(
-                f"{exc}\n\nrover-eval --env {args.env} needs the daemon: "
-                f"av-daemon --name {args.name} --slots {args.slot + args.slots}",
-                file=sys.stderr,
-            )
-            return 1
-        try:
-            policies = [load_policy(args.model, args.policy, env, args.algo) for env in envs]
-        except PolicyLoadError as exc:
-            print(f"rover-eval: {exc}", file=sys.stderr)
-            return 1
-        results, frames = [], []
-        for i in range(args.episodes):
-            k = i % len(envs)
-            record = args.video is not None and k == 0 and i < args.video_episodes * len(envs)
-            envs[k].action_space.seed(args.seed + i)  # the random policy's draws, reproducible
-            results.append(run_episode(envs[k], policies[k], args.seed + i, args.max_steps,
-                                       frames if record else None))  # fmt: skip
-        fps = 1.0 / float(getattr(envs[0].unwrapped, "control_dt", 0.05))
-    finally:
-        for env in envs:
-            env.close()
+        results, frames, fps = _evaluate(
+            args,
+            {"world_n": args.world, "pedestrian_mode": args.pedestrian_mode,
+             "n_pedestrians": args.n_pedestrians},
+            record=args.video is not None,
+        )  # fmt: skip
+    except _EvalError as exc:
+        print(exc, file=sys.stderr)
+        return 1
     summary = summarise(results)
     who = "random policy" if args.policy else str(args.model)
     print(
@@ -516,6 +515,76 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"wrote {args.video} ({len(frames)} frames)")
     if args.json:
         print(json.dumps(summary))
+    return 0
+
+
+class _EvalError(RuntimeError):
+    """What stops an evaluation (no daemon, a model that does not load), as printed."""
+
+
+def _evaluate(
+    args: argparse.Namespace, env_kwargs: dict[str, Any], record: bool
+) -> tuple[list[EpisodeResult], list[np.ndarray], float]:
+    """``args.episodes`` episodes of the model or policy on ``args.env`` made with
+    ``env_kwargs``, spread over ``args.slots`` envs: (results, video frames, fps)."""
+    from shm_protocol.errors import ShmError
+
+    envs: list[Any] = []
+    try:
+        try:
+            for k in range(min(args.slots, args.episodes)):
+                envs.append(make_env(
+                    args.env, world=env_kwargs["world_n"], slot=args.slot + k, name=args.name,
+                    pedestrian_mode=env_kwargs["pedestrian_mode"],
+                    n_pedestrians=env_kwargs["n_pedestrians"],
+                    render_mode="rgb_array" if record and k == 0 else None,
+                ))  # fmt: skip
+        except ShmError as exc:
+            raise _EvalError(
+                f"{exc}\n\nrover-eval --env {args.env} needs the daemon: "
+                f"av-daemon --name {args.name} --slots {args.slot + args.slots}"
+            ) from exc
+        try:
+            policies = [load_policy(args.model, args.policy, env, args.algo) for env in envs]
+        except PolicyLoadError as exc:
+            raise _EvalError(f"rover-eval: {exc}") from exc
+        results: list[EpisodeResult] = []
+        frames: list[np.ndarray] = []
+        for i in range(args.episodes):
+            k = i % len(envs)
+            keep = record and k == 0 and i < args.video_episodes * len(envs)
+            envs[k].action_space.seed(args.seed + i)  # the random policy's draws, reproducible
+            results.append(run_episode(envs[k], policies[k], args.seed + i, args.max_steps,
+                                       frames if keep else None))  # fmt: skip
+        fps = 1.0 / float(getattr(envs[0].unwrapped, "control_dt", 0.05))
+    finally:
+        for env in envs:
+            env.close()
+    return results, frames, fps
+
+
+def _main_suite(args: argparse.Namespace) -> int:
+    """rover-eval --suite: the agent over the scenario suite, one table."""
+    from rover_env.scenarios import select_scenarios
+    from rover_train.suite import format_suite_table, run_suite, suite_json
+
+    scenarios = select_scenarios(args.suite)
+    try:
+        rows = run_suite(
+            scenarios,
+            lambda sc: _evaluate(args, sc.env_kwargs(), record=False)[0],
+            progress=lambda sc, s: logging.getLogger("rover-eval").info(
+                "%s: success %.0f%%", sc.name, 100 * s["success_rate"]
+            ),
+        )
+    except _EvalError as exc:
+        print(exc, file=sys.stderr)
+        return 1
+    who = "random policy" if args.policy else str(args.model)
+    last = args.seed + args.episodes - 1
+    print(format_suite_table(rows, f"{who} on {ENV_IDS[args.env]}, seeds {args.seed}..{last}"))
+    if args.json:
+        print(json.dumps(suite_json(rows)))
     return 0
 
 

@@ -61,14 +61,15 @@ def evaluate_agent(
     return results
 
 
-def entry_env(entry: str, name: str | None = None) -> Any:
-    """Zoo entry ``entry``'s env; a fused one attaches to daemon ``name`` (default:
-    ``$ROVERAV_SHM_NAME``, which rover-pair sets)."""
+def entry_env(entry: str, name: str | None = None, **overrides: Any) -> Any:
+    """Zoo entry ``entry``'s env (``overrides``: env keywords, e.g. a scenario's); a fused
+    one attaches to daemon ``name`` (default: ``$ROVERAV_SHM_NAME``, which rover-pair
+    sets)."""
     if zoo.ENTRIES[entry].kind != "fused":
-        return zoo.make_env(entry)
+        return zoo.make_env(entry, **overrides)
     from shm_protocol import default_name
 
-    return zoo.make_env(entry, rl_obs_name=name or default_name())
+    return zoo.make_env(entry, rl_obs_name=name or default_name(), **overrides)
 
 
 class ExpertAgent:
@@ -129,39 +130,71 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument(
         "--dump", help="write every episode's result to this JSON file (to merge split runs)"
     )
+    p.add_argument(
+        "--suite", nargs="?", const="world", default=None, metavar="SCENARIOS",
+        help="evaluate over the scenario suite (rover_env.scenarios) and print one table: "
+             "by default the scenarios of the entry's world; 'all', a world, or names "
+             "separated by commas",
+    )  # fmt: skip
     args = p.parse_args(argv)
     import torch
 
     torch.set_num_threads(1)
     spec = zoo.ENTRIES[args.entry]
-    env = entry_env(args.entry, args.name)
-    try:
+    scenarios = None
+    if args.suite is not None:
+        from rover_env.scenarios import select_scenarios
+
+        try:
+            scenarios = select_scenarios(None if args.suite == "world" else args.suite,
+                                         world=spec.world)  # fmt: skip
+        except ValueError as exc:
+            p.error(f"--suite: {exc}")
+    if args.expert:
+        manners = args.manners or RECIPES[args.entry].teacher_manners
+        who = f"planner expert ({manners})"
+    elif args.random:
+        who = "random policy"
+    else:
+        who = args.file or f"zoo {args.entry}"
+    student = None if (args.expert or args.random) else (
+        zoo.StudentAgent.load(args.file) if args.file else zoo.load(args.entry)
+    )  # fmt: skip
+
+    def agent_for(env: Any) -> zoo.Agent:
         if args.expert:
-            manners = args.manners or RECIPES[args.entry].teacher_manners
-            config = ExpertConfig.with_manners(manners)
-            agent: zoo.Agent = ExpertAgent(env, spec.world, config)
-            who = f"planner expert ({manners})"
-        elif args.random:
-            agent = RandomAgent(env.action_space, args.seed)
-            who = "random policy"
-        elif args.file:
-            agent = zoo.StudentAgent.load(args.file)
-            who = args.file
-        else:
-            agent = zoo.load(args.entry)
-            who = f"zoo {args.entry}"
-        status = StatusLine(f"eval {who}", args.episodes * zoo.EVAL_MAX_STEPS, every=10.0)
-        t0 = time.monotonic()
-        results = evaluate_agent(env, agent, args.episodes, args.seed, status=status)
-        wall = time.monotonic() - t0
-    finally:
-        env.close()
+            return ExpertAgent(env, spec.world, ExpertConfig.with_manners(manners))
+        if args.random:
+            return RandomAgent(env.action_space, args.seed)
+        assert student is not None
+        return student
+
+    def evaluate_on(overrides: dict[str, Any], label: str) -> list[EpisodeResult]:
+        env = entry_env(args.entry, args.name, **overrides)
+        try:
+            status = StatusLine(f"eval {who}{label}", args.episodes * zoo.EVAL_MAX_STEPS,
+                                every=10.0)  # fmt: skip
+            return evaluate_agent(env, agent_for(env), args.episodes, args.seed, status=status)
+        finally:
+            env.close()
+
+    last = args.seed + args.episodes - 1
+    if scenarios is not None:
+        from rover_train.suite import format_suite_table, run_suite, suite_json
+
+        rows = run_suite(scenarios, lambda sc: evaluate_on(sc.env_kwargs(), f" {sc.name}"))
+        print(format_suite_table(rows, f"{who} on {args.entry}'s suite, seeds {args.seed}..{last}"))
+        if args.json:
+            print(json.dumps(suite_json(rows)))
+        return 0
+    t0 = time.monotonic()
+    results = evaluate_on({}, "")
+    wall = time.monotonic() - t0
     summary = summarise(results)
     summary["wall_s"] = wall
     if args.dump:
         with open(args.dump, "w") as f:
             json.dump([dataclasses.asdict(r) for r in results], f)
-    last = args.seed + args.episodes - 1
     print(format_table(summary, f"{who} on {args.entry}, seeds {args.seed}..{last}"))
     if args.json:
         print(json.dumps(summary))

@@ -1,0 +1,108 @@
+"""The scenario suite's table: one agent over every scenario of :mod:`rover_env.scenarios`.
+
+``rover-eval --suite`` (SB3 models, the random policy) and ``zoo_eval ENTRY --suite`` (zoo
+entries, the planner expert) both end here: for each scenario an env is made with the
+scenario's keywords, the same evaluation episodes are run (episode i: ``reset(seed=seed +
+i)``, ended at the first goal, a termination, the env's length or ``max_steps``), and one
+row is printed per scenario:
+
+- success: share of episodes that reached the goal, with its 95 % Wilson interval;
+- collisions: episodes with a collision step in the seed's sense (LIDAR closer than
+  ``RewardConfig.collision_distance``: the zoo's targets count these);
+- ped. contact / scenery contact: episodes in which the rover's body touched a pedestrian
+  (either way round, ``info["pedestrian_collision"]``) / touched the scenery;
+- timeouts, SPL, time to goal (s, successful episodes), personal-space intrusion (share of
+  steps with a pedestrian within 1.2 m) and the smallest pedestrian distance (m).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from rover_env.scenarios import Scenario
+from rover_train.evaluate import EpisodeResult, summarise
+
+WILSON_Z = 1.96  # 95 % interval
+
+SUITE_COLUMNS = (
+    "scenario", "episodes", "success [95% CI]", "collisions", "ped. contact",
+    "scenery contact", "timeouts", "SPL", "time to goal (s)", "intrusion", "min dist. (m)",
+)  # fmt: skip
+
+
+def wilson_interval(successes: int, n: int, z: float = WILSON_Z) -> tuple[float, float]:
+    """The Wilson score interval of a binomial share (0, 1 with n = 0)."""
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def summarise_scenario(results: list[EpisodeResult]) -> dict[str, Any]:
+    """:func:`rover_train.evaluate.summarise` plus the suite's contact shares and the
+    success interval."""
+    summary = summarise(results)
+    n = len(results)
+    lo, hi = wilson_interval(sum(r.success for r in results), n)
+    summary["success_ci95"] = [lo, hi]
+    summary["pedestrian_contact_rate"] = sum(r.pedestrian_contact for r in results) / n
+    summary["scenery_contact_rate"] = sum(r.scenery_contact for r in results) / n
+    return summary
+
+
+def run_suite(
+    scenarios: Sequence[Scenario],
+    evaluate: Callable[[Scenario], list[EpisodeResult]],
+    progress: Callable[[Scenario, dict[str, Any]], None] | None = None,
+) -> list[tuple[Scenario, dict[str, Any]]]:
+    """``evaluate(scenario)`` (the caller makes the env and runs the episodes) for each
+    scenario, summarised; ``progress`` hears each row as it is done."""
+    rows = []
+    for scenario in scenarios:
+        summary = summarise_scenario(evaluate(scenario))
+        rows.append((scenario, summary))
+        if progress is not None:
+            progress(scenario, summary)
+    return rows
+
+
+def _pct(v: float) -> str:
+    return f"{100 * v:.0f}%"
+
+
+def format_suite_row(scenario: Scenario, s: dict[str, Any]) -> list[str]:
+    """One Markdown row's cells (:data:`SUITE_COLUMNS`)."""
+    lo, hi = s["success_ci95"]
+    ttg = s["time_to_goal_s"]
+    dmin = s["min_pedestrian_distance_m"]
+    return [
+        scenario.name,
+        str(s["episodes"]),
+        f"{_pct(s['success_rate'])} [{_pct(lo)}-{_pct(hi)}]",
+        _pct(s["collision_rate"]),
+        _pct(s["pedestrian_contact_rate"]),
+        _pct(s["scenery_contact_rate"]),
+        str(s["timeouts"]),
+        f"{s['spl']:.2f}",
+        "n/a" if ttg is None else f"{ttg:.1f}",
+        f"{100 * s['personal_space_intrusion_rate']:.1f}%",
+        "n/a" if dmin is None else f"{dmin:.2f}",
+    ]
+
+
+def format_suite_table(rows: Sequence[tuple[Scenario, dict[str, Any]]], title: str) -> str:
+    """The suite as one Markdown table under ``title``."""
+    lines = [title, "", "| " + " | ".join(SUITE_COLUMNS) + " |"]
+    lines.append("|" + "|".join(["---"] + ["---:"] * (len(SUITE_COLUMNS) - 1)) + "|")
+    lines += ["| " + " | ".join(format_suite_row(sc, s)) + " |" for sc, s in rows]
+    return "\n".join(lines)
+
+
+def suite_json(rows: Sequence[tuple[Scenario, dict[str, Any]]]) -> dict[str, Any]:
+    """The suite's summaries by scenario name (``--json``)."""
+    return {sc.name: {**s, **sc.env_kwargs()} for sc, s in rows}
