@@ -82,7 +82,7 @@ MAX_STEP = MAX_SPEED_FACTOR * SPEED_RANGE[1] * CROWD_DT  # m a walker moves in o
 MIN_START_DISTANCE = 2.0  # m from the rover at the start
 START_SPACING = 1.0  # m between people at the start (group members: GROUP_SPACING)
 MAX_PEDESTRIANS = 20
-_START_TRIES = 40  # batches of candidate starts
+_START_TRIES = 40  # batches of candidate starts (plus 10 per walker)
 _START_BATCH = 64
 _SQRT2 = math.sqrt(2.0)
 _MOVES = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
@@ -125,32 +125,33 @@ class CrowdMap:
     def cell_of(self, xy: np.ndarray) -> np.ndarray:
         """(n,) the grid cell under each point (clipped to the grid)."""
         a = self.area
-        ix = _clamp(((xy[:, 0] - a.x[0]) / CELL).astype(np.intp), 0, self.nx - 1)
-        iy = _clamp(((xy[:, 1] - a.y[0]) / CELL).astype(np.intp), 0, self.ny - 1)
-        return iy * self.nx + ix
+        ij = ((xy - (a.x[0], a.y[0])) * (1.0 / CELL)).astype(np.intp)
+        np.minimum(np.maximum(ij, 0, out=ij), (self.nx - 1, self.ny - 1), out=ij)
+        return ij[:, 1] * self.nx + ij[:, 0]
 
     def lookup(self, xy: np.ndarray) -> np.ndarray:
         """(n, 4) clearance, unit gradient (x, y) and ground height at the field point
         nearest each point (one lookup: the forces' view of the scenery, and where the
         figures' feet go)."""
         fy, fx = self.field.shape
-        i = _clamp(((xy[:, 0] - self.field_origin[0]) / FIELD_CELL + 0.5).astype(np.intp),
-                   0, fx - 1)  # fmt: skip
-        j = _clamp(((xy[:, 1] - self.field_origin[1]) / FIELD_CELL + 0.5).astype(np.intp),
-                   0, fy - 1)  # fmt: skip
-        return self.table[j * fx + i]
+        ij = ((xy - self.field_origin) * (1.0 / FIELD_CELL) + 0.5).astype(np.intp)
+        np.minimum(np.maximum(ij, 0, out=ij), (fx - 1, fy - 1), out=ij)
+        return self.table[ij[:, 1] * fx + ij[:, 0]]
 
     def clearance(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(clearance (n,), unit gradient (n, 2)) at each point: bilinear in the field (the
-        four corners gathered from ``corners`` in one lookup)."""
+        """(clearance (n,), unit gradient (n, 2)) at each point: bilinear in the field, from
+        the four corners of ``corners`` around it."""
         fy, fx = self.field.shape
-        u = _clamp((xy[:, 0] - self.field_origin[0]) / FIELD_CELL, 0.0, fx - 1.000001)
-        v = _clamp((xy[:, 1] - self.field_origin[1]) / FIELD_CELL, 0.0, fy - 1.000001)
-        i0, j0 = u.astype(np.intp), v.astype(np.intp)
-        a, b = u - i0, v - j0
-        w = np.stack([(1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b], axis=1)
-        corners = (j0 * fx + i0)[:, None] + np.array([0, 1, fx, fx + 1])
-        out = np.einsum("nk,nkc->nc", w, self.corners[corners])
+        uv = (xy - self.field_origin) * (1.0 / FIELD_CELL)
+        np.minimum(np.maximum(uv, 0.0, out=uv), (fx - 1.000001, fy - 1.000001), out=uv)
+        ij = uv.astype(np.intp)
+        frac = uv - ij
+        k = ij[:, 1] * fx + ij[:, 0]
+        f = self.corners
+        c00, c10, c01, c11 = f[k], f[k + 1], f[k + fx], f[k + (fx + 1)]
+        a, b = frac[:, :1], frac[:, 1:]
+        top = c00 + a * (c10 - c00)
+        out = top + b * (c01 + a * (c11 - c01) - top)
         norm = np.hypot(out[:, 1], out[:, 2])[:, None]
         return out[:, 0], out[:, 1:] / np.maximum(norm, 1e-9)
 
@@ -329,6 +330,7 @@ class Crowd:
         self._target_cell: np.ndarray | None = None
         self._here: np.ndarray | None = None  # map.lookup(pos), while pos stays
         self._route_left = np.zeros(n)
+        self._target = np.zeros(n, dtype=np.complex128)
         self._plan_age = PLAN_EVERY
         self._cap = MAX_SPEED_FACTOR * self.speed
         self._arrive = np.full(n, ARRIVAL_DISTANCE)
@@ -383,7 +385,7 @@ class Crowd:
         out = np.zeros((n, 2))
         cells = np.flatnonzero(m.free)
         placed = 0
-        for _ in range(_START_TRIES):
+        for _ in range(_START_TRIES + 10 * n):
             if placed == n:
                 break
             leader = placed if self.group[placed] == placed else int(self.group[placed])
@@ -410,6 +412,8 @@ class Crowd:
             if len(good):
                 out[placed] = cand[good[0]]
                 placed += 1
+            elif placed != leader:  # no room beside this leader: place the group anew
+                placed = leader
         if placed < n:
             raise CrowdPlacementError(
                 f"could place only {placed} of {self.n} pedestrians in world "
@@ -538,6 +542,8 @@ class Crowd:
         nxt2 = nb2[rows, np.argmin(m.weights[nxt] + self._route[rows[:, None], nb2], axis=1)]
         last = (cells == self.goal_cell) | (nxt == self.goal_cell) | (nxt2 >= len(m.free))
         self._target_cell = np.where(last, -1, nxt2)
+        target = np.where(last[:, None], self.goal, m.centres[nxt2 % len(m.free)])
+        self._target = target[:, 0] + 1j * target[:, 1]  # the point each walker heads for
         self._route_left = self._route[rows, cells]
         self._plan_age = 0
         del n
@@ -547,40 +553,37 @@ class Crowd:
         if n == 0:
             return
         m, dt = self.map, CROWD_DT
-        pos, vel = self.pos, self.vel
+        pos = self.pos
         if self._plan_age >= PLAN_EVERY or self._target_cell is None:
             self._plan()
         self._plan_age += 1
-        tc = self._target_cell
-        assert tc is not None
-        target = np.where((tc < 0)[:, None], self.goal, m.centres[tc])
-        to_target = target - pos
-        dist_t = np.hypot(to_target[:, 0], to_target[:, 1])
-        e = to_target / np.maximum(dist_t, 1e-9)[:, None]
-        gx, gy = self.goal[:, 0] - pos[:, 0], self.goal[:, 1] - pos[:, 1]
-        to_goal = np.hypot(gx, gy)
+        # positions, velocities and goals as complex numbers (x + iy): views, not copies,
+        # and half the array operations of (n, 2) arithmetic
+        z = pos.view(np.complex128)[:, 0]
+        vz = self.vel.view(np.complex128)[:, 0]
+        to_target = self._target - z
+        ez = to_target / np.maximum(np.abs(to_target), 1e-9)  # where each walker heads
+        to_goal = np.abs(self.goal.view(np.complex128)[:, 0] - z)
         standing = (self.pause > 0.0) | self.pinned
-        desired = self.speed * np.minimum(1.0, to_goal / SLOW_DOWN_DISTANCE)
+        desired = self.speed * np.minimum(1.0, to_goal * (1.0 / SLOW_DOWN_DISTANCE))
         desired[standing] = 0.0
-        force = (desired[:, None] * e - vel) / TAU
-        # other people, as complex numbers (fewer array operations)
-        z = pos[:, 0] + 1j * pos[:, 1]
-        ez = e[:, 0] + 1j * e[:, 1]
+        force = (desired * ez - vz) * (1.0 / TAU)
+        # other people
         diff = z[:, None] - z[None, :]  # i minus j
         d = np.abs(diff)
         d[self._eye] = np.inf
         nij = diff / d
         rel = nij * ez.conj()[:, None]  # the direction to i from j, in i's walking frame
         cos_phi = -rel.real
-        mag = A_PED * np.exp((MIN_SEPARATION + 0.1 - d) / B_PED)
+        mag = A_PED * np.exp((MIN_SEPARATION + 0.1 - d) * (1.0 / B_PED))
         if self.grouped:
             mag[self._same_group] *= GROUP_REPULSION_FACTOR
         mag *= LAMBDA + (1.0 - LAMBDA) * 0.5 * (1.0 + cos_phi)
         # ... and a step aside from those ahead, away from their side (dead ahead: right)
-        side = np.where(rel.imag >= 0.0, 1.0, -1.0)  # j to i's right: i steps left
-        push = (mag * nij).sum(axis=1) + 1j * ez * (
-            np.maximum(cos_phi, 0.0) * A_SIDE * mag * side
-        ).sum(axis=1)
+        side = np.copysign(A_SIDE, rel.imag)  # j to i's right (imag >= 0): i steps left
+        force += (mag * nij).sum(axis=1) + 1j * ez * (
+            np.maximum(cos_phi, 0.0) * mag * side
+        ).sum(axis=1)  # fmt: skip
         closest = float(d.min()) if n > 1 else math.inf
         # groups: coherence towards the centre of the group
         if self.grouped:
@@ -591,18 +594,18 @@ class Crowd:
             off = centre[self.group] / sizes[self.group] - z
             far = np.abs(off)
             thr = 0.5 * (sizes[self.group] - 1)
-            push += A_COHERENCE * (far > thr) * off / np.maximum(far, 1e-9)
+            force += A_COHERENCE * (far > thr) * off / np.maximum(far, 1e-9)
         # scenery
         scenery = self.here()
         clear = scenery[:, 0]
-        push += A_OBS * np.exp((BODY_RADIUS - clear) / B_OBS) * (
+        force += A_OBS * np.exp((BODY_RADIUS - clear) * (1.0 / B_OBS)) * (
             scenery[:, 1] + 1j * scenery[:, 2]
-        )
+        )  # fmt: skip
         # the rover, for those who see it: from its point of closest approach
         rz = None if rover_xy is None else complex(rover_xy[0], rover_xy[1])
         if rz is not None and self.sees_rover:
             r = z - rz
-            rv = (vel[:, 0] + 1j * vel[:, 1]) - complex(rover_v[0], rover_v[1])
+            rv = vz - complex(rover_v[0], rover_v[1])
             vv = np.maximum(rv.real**2 + rv.imag**2, 1e-9)
             t_star = _clamp(-(r * rv.conj()).real / vv, 0.0, ROVER_LOOKAHEAD)
             near = r + rv * t_star
@@ -610,23 +613,21 @@ class Crowd:
             nr = near / dn
             rr = nr * ez.conj()
             cos_r = -rr.real
-            mag_r = A_ROVER * np.exp((ROVER_RADIUS + BODY_RADIUS - dn) / B_ROVER) * (
+            mag_r = A_ROVER * np.exp((ROVER_RADIUS + BODY_RADIUS - dn) * (1.0 / B_ROVER)) * (
                 ROVER_LAMBDA + (1.0 - ROVER_LAMBDA) * 0.5 * (1.0 + cos_r)
             )
-            side_r = np.where(rr.imag >= 0.0, 1.0, -1.0)
-            push += mag_r * nr + 1j * ez * (np.maximum(cos_r, 0.0) * A_ROVER_SIDE * mag_r * side_r)
-        force[:, 0] += push.real
-        force[:, 1] += push.imag
+            side_r = np.copysign(A_ROVER_SIDE, rr.imag)
+            force += mag_r * nr + 1j * ez * (np.maximum(cos_r, 0.0) * mag_r * side_r)
         # integrate (semi-implicit Euler), speed capped
-        new_v = vel + force * dt
-        speed = np.hypot(new_v[:, 0], new_v[:, 1])
-        new_v *= np.minimum(1.0, self._cap / np.maximum(speed, 1e-9))[:, None]
+        new_v = vz + force * dt
+        new_v *= np.minimum(1.0, self._cap / np.maximum(np.abs(new_v), 1e-9))
         if self.pinned.any():
             new_v[self.pinned] = 0.0
-        new_pos = pos + new_v * dt
+        new_pos = np.empty_like(pos)
+        new_pos.view(np.complex128)[:, 0] = z + new_v * dt
         self._solid(new_pos, rz, closest, clear)
         step = new_pos - pos
-        np.divide(step, dt, out=vel)
+        np.multiply(step, 1.0 / dt, out=self.vel)
         moved = np.hypot(step[:, 0], step[:, 1])
         self.walked += moved
         fast = moved > 0.2 * dt

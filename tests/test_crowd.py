@@ -166,3 +166,20 @@ def test_a_density_that_cannot_be_placed_is_refused() -> None:
     small = dataclasses.replace(make_world("maze"), pedestrian_area=Rect((-4.0, -1.5), (3.0, 5.5)))
     with pytest.raises(CrowdPlacementError, match="ask for at most"):
         Crowd(small, 20)
+
+
+@pytest.mark.parametrize(("world", "n", "seeds"),
+                         [("inspect", 8, [179]), ("inspect", 20, [109, 113, 297]),
+                          ("moon", 20, [17, 162, 169])])  # fmt: skip
+def test_groups_start_where_a_leader_leaves_its_members_no_room(
+    world: str, n: int, seeds: list[int]
+) -> None:
+    """A group whose leader lands where its members have no room is placed anew (these
+    seeds once raised CrowdPlacementError, which ended the suite's inspect-groups-8)."""
+    crowd = Crowd(make_world(world), n, groups=True)
+    for seed in [*seeds, *range(10)]:
+        crowd.reset(np.random.default_rng(seed), (0.0, 0.0))
+        assert _pairwise_min(crowd.pos) >= 0.6
+        members = crowd.group != np.arange(n)
+        leaders = crowd.pos[crowd.group[members]]
+        assert np.all(np.hypot(*(crowd.pos[members] - leaders).T) < 0.75)
