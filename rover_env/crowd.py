@@ -673,33 +673,30 @@ class Crowd:
         """Bodies are solid: apart from each other, out of the rover's footprint, out of the
         scenery, inside the area (in place). ``closest`` and ``clear``: the pair distance
         and clearances before the step (a walker moves at most ``MAX_STEP`` m)."""
+        z = pos.view(np.complex128)[:, 0]  # a view: moving z moves pos
         if closest < MIN_SEPARATION + 2.0 * MAX_STEP:
             for _ in range(2):
-                diff = pos[:, None, :] - pos[None, :, :]
-                d = np.hypot(diff[..., 0], diff[..., 1])
+                diff = z[:, None] - z[None, :]
+                d = np.abs(diff)
                 d[self._eye] = np.inf
                 short = np.maximum(MIN_SEPARATION - d, 0.0)
-                if not short.any():
+                if not np.count_nonzero(short):
                     break
-                push = 0.5 * short / np.maximum(d, 1e-9)
-                pos += (push[..., None] * diff).sum(axis=1)
+                z += (0.5 * short / np.maximum(d, 1e-9) * diff).sum(axis=1)
         self.touching[:] = False
         if rz is not None:
-            rx, ry = pos[:, 0] - rz.real, pos[:, 1] - rz.imag
-            d = np.hypot(rx, ry)
+            r = z - rz
+            d = np.abs(r)
             inside = d < ROVER_RADIUS + BODY_RADIUS
-            if inside.any():
+            if np.count_nonzero(inside):
                 self.touching[:] = inside
-                lift = (ROVER_RADIUS + BODY_RADIUS - d[inside]) / np.maximum(d[inside], 1e-9)
-                pos[inside, 0] += rx[inside] * lift
-                pos[inside, 1] += ry[inside] * lift
+                z[inside] += r[inside] * ((ROVER_RADIUS + BODY_RADIUS - d[inside])
+                                          / np.maximum(d[inside], 1e-9))  # fmt: skip
         risky = clear < BODY_RADIUS + MAX_STEP + 0.1
-        if risky.any():
-            idx = np.flatnonzero(risky)
-            c, g = self.map.clearance(pos[idx])
+        if np.count_nonzero(risky):
+            c, g = self.map.clearance(pos[risky])
             deep = c < BODY_RADIUS
-            if deep.any():
-                pos[idx[deep]] += g[deep] * (BODY_RADIUS - c[deep])[:, None]
-        a = self.map.area
+            if np.count_nonzero(deep):
+                idx = np.flatnonzero(risky)[deep]
+                pos[idx] += g[deep] * (BODY_RADIUS - c[deep])[:, None]
         np.minimum(np.maximum(pos, self._lo, out=pos), self._hi, out=pos)
-        del a

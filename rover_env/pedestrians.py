@@ -584,14 +584,14 @@ class Pedestrians:
         quat = self._pose_quat
         pos[:, 0, 0], pos[:, 0, 1], pos[:, 0, 2] = x, y, z
         quat[:, 0, 0], quat[:, 0, 3] = cy, sy
-        for k, side, s in ((1, HIP_HALF_WIDTH, 1.0), (2, -HIP_HALF_WIDTH, -1.0)):
-            pos[:, k, 0] = x - sin_yaw * side
-            pos[:, k, 1] = y + cos_yaw * side
-            pos[:, k, 2] = hip
-            quat[:, k, 0] = cy * cp
-            quat[:, k, 1] = -sy * sp * s
-            quat[:, k, 2] = cy * sp * s
-            quat[:, k, 3] = sy * cp
+        # both legs at once: columns 1 (left, +HIP_HALF_WIDTH) and 2 (right, swung back)
+        pos[:, 1:, 0] = x[:, None] - sin_yaw[:, None] * _LEG_SIDES
+        pos[:, 1:, 1] = y[:, None] + cos_yaw[:, None] * _LEG_SIDES
+        pos[:, 1:, 2] = hip[:, None]
+        quat[:, 1:, 0] = (cy * cp)[:, None]
+        quat[:, 1:, 1] = (-sy * sp)[:, None] * _LEG_SIGNS
+        quat[:, 1:, 2] = (cy * sp)[:, None] * _LEG_SIGNS
+        quat[:, 1:, 3] = (sy * cp)[:, None]
         self._data.mocap_pos[self._order] = pos.reshape(-1, 3)
         self._data.mocap_quat[self._order] = quat.reshape(-1, 4)
 
@@ -621,6 +621,10 @@ class Pedestrians:
             cp, sp = math.cos(0.5 * angle), math.sin(0.5 * angle)
             pos_rows.append([x - sin_yaw * side, y + cos_yaw * side, z + hip])
             quat_rows.append([cy * cp, -sy * sp, cy * sp, sy * cp])
+
+
+_LEG_SIDES = np.array([HIP_HALF_WIDTH, -HIP_HALF_WIDTH])  # m: left and right hip offsets
+_LEG_SIGNS = np.array([1.0, -1.0])  # the legs swing in opposite phase
 
 
 def _position(path: _Path, walked: float) -> tuple[float, float, float, float]:
