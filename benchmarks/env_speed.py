@@ -15,9 +15,10 @@ A second table times the forward camera (96x96) the fused envs render every step
 RGB + metric depth, RGB + depth + pedestrian mask.
 
 A third table (issue 36) times RoverEnv's steps/s with today's 3 pacing pedestrians (the
-default) against 10 and 20 walkers of the social-force crowd (``pedestrian_mode="crowd"``),
-measured one after the other in this run, and the ratio crowd 10 / pacing 3 (the target is
->= 80 %). On a shared machine the absolute numbers move with the load; the ratio less so.
+default) against 3, 10 and 20 walkers of the social-force crowd (``pedestrian_mode="crowd"``),
+in interleaved rounds (medians), and the ratios crowd 10 / pacing 3 (the target is >= 80 %)
+and crowd 10 / crowd 3. On a shared machine the absolute numbers move with the load; the
+ratios less so.
 
     python benchmarks/env_speed.py            # about 30 s
     python benchmarks/env_speed.py --quick    # about 8 s
@@ -44,6 +45,8 @@ from rover_env import WORLD_NAMES, RoverEnv  # noqa: E402  (sets MUJOCO_GL=egl f
 
 SEED_RESET_S = 100 * 0.1 + 1.0  # the seed's reset: 100 spins of 0.1 s, then sleep(1)
 SEED_REAL_TIME = 1.0  # the seed's steps run at wall-clock speed
+CROWD_ROWS = ((3, "pacing"), (3, "crowd"), (10, "crowd"), (20, "crowd"))  # (n, mode) columns
+CROWD_ROUNDS = 5  # interleaved rounds of the crowd table (medians)
 
 
 @dataclass
@@ -59,6 +62,17 @@ class Args:
     cpu: int = 0
     """Core to pin this process to (-1: do not pin)."""
     seed: int = 0
+
+
+def cpu_model() -> str:
+    """The CPU's model name (``lscpu``'s), else the machine type."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
 
 
 def pin(cpu: int) -> str:
@@ -114,7 +128,7 @@ def main(argv: list[str] | None = None) -> None:
     if args_ns.quick:
         args = Args(steps=4000, resets=100, frames=100, cpu=args_ns.cpu)
     where = pin(args.cpu)
-    print(f"# RoverEnv speed: {platform.processor() or platform.machine()}, "
+    print(f"# RoverEnv speed: {cpu_model()}, "
           f"{os.cpu_count()} CPUs, {where}; python {platform.python_version()}")  # fmt: skip
 
     rows, cams = [], []
@@ -146,18 +160,23 @@ def main(argv: list[str] | None = None) -> None:
     for world, rgb, depth, seg in cams:
         print(f"| {world} | {rgb:.2f} ms | {depth:.2f} ms | {seg:.2f} ms |")
     print()
-    print("| world | pacing 3 steps/s | crowd 10 steps/s | crowd 20 steps/s | "
-          "crowd 10 / pacing 3 |")  # fmt: skip
-    print("|---|---:|---:|---:|---:|")
+    print("| world | pacing 3 steps/s | crowd 3 | crowd 10 | crowd 20 | crowd 10 / pacing 3 | "
+          "crowd 10 / crowd 3 |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|---:|---:|")
     for world in WORLD_NAMES:
-        crowd = []
-        for n, mode in ((3, "pacing"), (10, "crowd"), (20, "crowd")):
-            env = RoverEnv(world_n=world, n_pedestrians=n, pedestrian_mode=mode)
+        envs = [RoverEnv(world_n=world, n_pedestrians=n, pedestrian_mode=mode)
+                for n, mode in CROWD_ROWS]  # fmt: skip
+        for env in envs:
             time_steps(env, 200, args.seed)  # warm the crowd's route cache a little
-            crowd.append(time_steps(env, args.steps // 2, args.seed))
+        # interleaved blocks, so a change of load on a shared machine hits every row alike
+        block = max(200, args.steps // (2 * CROWD_ROUNDS))
+        speeds = np.array([[time_steps(env, block, args.seed + r) for env in envs]
+                           for r in range(CROWD_ROUNDS)])  # fmt: skip
+        for env in envs:
             env.close()
-        print(f"| {world} | {crowd[0]:,.0f} | {crowd[1]:,.0f} | {crowd[2]:,.0f} | "
-              f"{crowd[1] / crowd[0]:.0%} |")  # fmt: skip
+        p3, c3, c10, c20 = np.median(speeds, axis=0)
+        print(f"| {world} | {p3:,.0f} | {c3:,.0f} | {c10:,.0f} | {c20:,.0f} | {c10 / p3:.0%} | "
+              f"{c10 / c3:.0%} |")  # fmt: skip
     print()
     print(f"{args.steps} steps (random actions, control_dt {rows[0][4]} s) and "
           f"{args.resets} resets per world; camera: {args.frames} frames per mode, "
