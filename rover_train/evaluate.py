@@ -347,6 +347,19 @@ def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
     }
 
 
+def summarise_scenario(results: list[EpisodeResult]) -> dict[str, Any]:
+    """:func:`summarise` plus what the scenario suite's table adds: the shares of episodes
+    with pedestrian and with scenery contact, and the success's 95 % Wilson interval."""
+    from rover_train.suite import wilson_interval
+
+    summary = summarise(results)
+    n = len(results)
+    summary["success_ci95"] = list(wilson_interval(sum(r.success for r in results), n))
+    summary["pedestrian_contact_rate"] = sum(r.pedestrian_contact for r in results) / n
+    summary["scenery_contact_rate"] = sum(r.scenery_contact for r in results) / n
+    return summary
+
+
 def _table_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
     """(metric, value) rows of a :func:`summarise` summary, in the tables' order."""
 
@@ -572,7 +585,7 @@ def _main_suite(args: argparse.Namespace) -> int:
     try:
         rows = run_suite(
             scenarios,
-            lambda sc: _evaluate(args, sc.env_kwargs(), record=False)[0],
+            lambda sc: summarise_scenario(_evaluate(args, sc.env_kwargs(), record=False)[0]),
             progress=lambda sc, s: logging.getLogger("rover-eval").info(
                 "%s: success %.0f%%", sc.name, 100 * s["success_rate"]
             ),

@@ -22,7 +22,6 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from rover_env.scenarios import Scenario
-from rover_train.evaluate import EpisodeResult, summarise
 
 WILSON_Z = 1.96  # 95 % interval
 
@@ -43,28 +42,17 @@ def wilson_interval(successes: int, n: int, z: float = WILSON_Z) -> tuple[float,
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def summarise_scenario(results: list[EpisodeResult]) -> dict[str, Any]:
-    """:func:`rover_train.evaluate.summarise` plus the suite's contact shares and the
-    success interval."""
-    summary = summarise(results)
-    n = len(results)
-    lo, hi = wilson_interval(sum(r.success for r in results), n)
-    summary["success_ci95"] = [lo, hi]
-    summary["pedestrian_contact_rate"] = sum(r.pedestrian_contact for r in results) / n
-    summary["scenery_contact_rate"] = sum(r.scenery_contact for r in results) / n
-    return summary
-
-
 def run_suite(
     scenarios: Sequence[Scenario],
-    evaluate: Callable[[Scenario], list[EpisodeResult]],
+    evaluate: Callable[[Scenario], dict[str, Any]],
     progress: Callable[[Scenario, dict[str, Any]], None] | None = None,
 ) -> list[tuple[Scenario, dict[str, Any]]]:
-    """``evaluate(scenario)`` (the caller makes the env and runs the episodes) for each
-    scenario, summarised; ``progress`` hears each row as it is done."""
+    """``evaluate(scenario)`` for each scenario: the caller makes the env, runs the episodes
+    and summarises them (``rover_train.evaluate.summarise_scenario``); ``progress`` hears
+    each row as it is done."""
     rows = []
     for scenario in scenarios:
-        summary = summarise_scenario(evaluate(scenario))
+        summary = evaluate(scenario)
         rows.append((scenario, summary))
         if progress is not None:
             progress(scenario, summary)

@@ -25,7 +25,13 @@ import numpy as np
 
 from rover_train import zoo
 from rover_train.cli import add_deprecated_alias
-from rover_train.evaluate import EpisodeResult, format_table, run_episode, summarise
+from rover_train.evaluate import (
+    EpisodeResult,
+    format_table,
+    run_episode,
+    summarise,
+    summarise_scenario,
+)
 from rover_train.imitation.distill import RECIPES
 from rover_train.imitation.expert import MANNERS, ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
@@ -182,7 +188,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if scenarios is not None:
         from rover_train.suite import format_suite_table, run_suite, suite_json
 
-        rows = run_suite(scenarios, lambda sc: evaluate_on(sc.env_kwargs(), f" {sc.name}"))
+        rows = run_suite(
+            scenarios,
+            lambda sc: summarise_scenario(evaluate_on(sc.env_kwargs(), f" {sc.name}")),
+        )
         print(format_suite_table(rows, f"{who} on {args.entry}'s suite, seeds {args.seed}..{last}"))
         if args.json:
             print(json.dumps(suite_json(rows)))
