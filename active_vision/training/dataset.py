@@ -116,6 +116,10 @@ class DatasetConfig:
     are posed views."""
     appearance: str = "random"
     """Pedestrian appearance (``RoverSim(pedestrian_appearance=...)``)."""
+    pedestrian_mode: str = "pacing"
+    """How the pedestrians walk (``RoverSim(pedestrian_mode=...)``): the shipped networks'
+    frames were rendered with the out-and-back pacers, which stay the data's mode until
+    the perception is retrained on the crowd, although the envs' default is now ``crowd``."""
 
 
 @dataclass
@@ -214,6 +218,7 @@ class FrameRenderer:
 
         self.config = config
         self.sim = RoverSim(world=world, camera_size=(config.size, config.size),
+                            pedestrian_mode=config.pedestrian_mode,
                             pedestrian_appearance=config.appearance)
         self.world = self.sim.world
         self.fov = self.sim.camera_fov
