@@ -178,7 +178,9 @@ def pedestrians_xml(n: int, proxy: bool = False) -> str:
     and one upright capsule per figure, :data:`PROXY_RADIUS` wide and invisible (group
     :data:`GROUP_PROXY`), is what the LIDAR sees and the rover touches: one geom instead of
     six to cast rays at and collide with, so ten people cost the LIDAR less than three
-    figures do.
+    figures do. The proxy is opaque: MuJoCo's ray casts skip geoms whose alpha is 0 (so
+    a transparent proxy left the LIDAR blind to every crowd pedestrian); no renderer draws
+    its group.
     """
     g = GROUP_PEDESTRIAN if not proxy else GROUP_VISUAL
     solid = "" if not proxy else ' contype="0" conaffinity="0"'
@@ -198,7 +200,7 @@ def pedestrians_xml(n: int, proxy: bool = False) -> str:
             f'size="0.05" group="{g}"{solid} rgba="1 0 0 1"/>'
             + (
                 f'<geom name="{name}_proxy" type="capsule" fromto="0 0 {PROXY_RADIUS} 0 0 1.5" '
-                f'size="{PROXY_RADIUS}" group="{GROUP_PROXY}" rgba="0 0 0 0"/>'
+                f'size="{PROXY_RADIUS}" group="{GROUP_PROXY}" rgba="0.5 0.5 0.5 1"/>'
                 if proxy
                 else ""
             )

@@ -183,3 +183,22 @@ def test_groups_start_where_a_leader_leaves_its_members_no_room(
         members = crowd.group != np.arange(n)
         leaders = crowd.pos[crowd.group[members]]
         assert np.all(np.hypot(*(crowd.pos[members] - leaders).T) < 0.75)
+
+
+@pytest.mark.parametrize("mode", ["pacing", "crowd", "oblivious", "crossing", "groups"])
+def test_the_lidar_sees_a_pedestrian_ahead_in_every_mode(mode: str) -> None:
+    """A person stood 1.5 m ahead shows in the forward points at about 1.5 m less their
+    half width (the crowd modes' transparent proxy once let every ray through)."""
+    env = RoverEnv(world_n="maze", pedestrian_mode=mode)
+    try:
+        env.reset(seed=3)
+        sim = env.sim
+        for i in range(len(sim.pedestrian_positions)):
+            sim.place_pedestrian(i, 40.0, 40.0 + i, 0.0)
+        sim.set_rover_pose(-3.0, 0.0, 0.0)
+        ahead = slice(15, 17)  # the two points either side of the heading (32 points)
+        assert sim.lidar(32, 12.0)[ahead].min() > 2.5  # the corridor's wall, 2.9 m off
+        sim.place_pedestrian(0, -1.5, 0.0, 0.0)
+        assert 1.1 < sim.lidar(32, 12.0)[ahead].min() < 1.45
+    finally:
+        env.close()
