@@ -1,4 +1,4 @@
-"""The default pedestrians (``pacing``, the world's 3) are bit-identical to the pacers the
+"""The pacers (``pacing``, the world's 3) are bit-identical to the pacers the
 shipped perception network and zoo students were made on (issue 36).
 
 The hashes below were computed on the code before the crowd model existed: two LIDAR
@@ -26,7 +26,7 @@ PINNED = {
 
 
 def episodes_digest(world: str, **kwargs: object) -> str:
-    env = RoverEnv(world_n=world, length=STEPS, **kwargs)
+    env = RoverEnv(world_n=world, length=STEPS, pedestrian_mode="pacing", **kwargs)
     rng = np.random.default_rng(7)
     h = hashlib.sha256()
     try:
@@ -51,5 +51,5 @@ def episodes_digest(world: str, **kwargs: object) -> str:
 
 
 @pytest.mark.parametrize(("world", "appearance"), sorted(PINNED))
-def test_default_pedestrians_are_todays_pacers(world: str, appearance: str) -> None:
+def test_the_pacers_are_the_pacers_the_networks_were_made_on(world: str, appearance: str) -> None:
     assert episodes_digest(world, pedestrian_appearance=appearance) == PINNED[world, appearance]

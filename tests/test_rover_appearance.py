@@ -12,12 +12,12 @@ from rover_env.simulation import RoverSim
 
 @pytest.fixture(scope="module")
 def fixed() -> RoverSim:
-    return RoverSim("inspect")
+    return RoverSim("inspect", pedestrian_mode="pacing")
 
 
 @pytest.fixture(scope="module")
 def random() -> RoverSim:
-    return RoverSim("inspect", pedestrian_appearance="random")
+    return RoverSim("inspect", pedestrian_appearance="random", pedestrian_mode="pacing")
 
 
 def test_fixed_appearance_is_the_palette_and_the_default_figure(fixed: RoverSim) -> None:

@@ -18,7 +18,7 @@ CONTROL_DT = 0.05
 
 @pytest.fixture(scope="module")
 def maze() -> RoverSim:
-    sim = RoverSim("maze", camera_size=(96, 96))
+    sim = RoverSim("maze", camera_size=(96, 96), pedestrian_mode="pacing")
     yield sim
     sim.close()
 
@@ -136,7 +136,7 @@ def test_chase_view_renders(maze: RoverSim) -> None:
 
 
 def test_pedestrians_walk_at_walking_speed() -> None:
-    sim = RoverSim("inspect")
+    sim = RoverSim("inspect", pedestrian_mode="pacing")
     for seed in range(3):
         sim.reset(np.random.default_rng(seed))
         assert sim.pedestrians.n >= 2
