@@ -77,14 +77,14 @@ class EnvOptions:
     render_size: tuple[int, int] = RENDER_SIZE
     """(width, height) of ``render()`` frames."""
     pedestrian_mode: str = DEFAULT_MODE
-    """How the pedestrians walk: ``pacing`` (the default: straight out-and-back paths,
-    waiting when the rover is in the way; the figures the shipped perception and zoo were
-    made on), ``crowd`` (a social-force crowd walking to goals, routing around the scenery,
-    keeping apart and making room for the rover), ``oblivious`` (the same crowd, blind to
-    the rover), ``crossing`` (the crowd walking across the line from the rover's start to
-    its first goal, from the side: see ``Pedestrians.lay_crossings``) or ``groups`` (the
-    crowd in groups of 2-3). ``walk``, the old name of ``pacing``, is accepted with a
-    ``FutureWarning`` for one release."""
+    """How the pedestrians walk: ``crowd`` (the default: a social-force crowd walking to
+    goals, routing around the scenery, keeping apart and making room for the rover),
+    ``pacing`` (straight out-and-back paths, waiting when the rover is in the way; the
+    figures the shipped perception networks and zoo entries were made on), ``oblivious``
+    (the same crowd, blind to the rover), ``crossing`` (the crowd walking across the line
+    from the rover's start to its first goal, from the side: see
+    ``Pedestrians.lay_crossings``) or ``groups`` (the crowd in groups of 2-3). ``walk``, the
+    old name of ``pacing``, is accepted with a ``FutureWarning`` for one release."""
     n_pedestrians: int | None = None
     """Walking figures, 0 to 20; None: the world's own count (3)."""
     pedestrian_appearance: str = "fixed"

@@ -182,7 +182,7 @@ class RoverEnvFused(RoverEnvBase):
     (:class:`~rover_env.core.EnvOptions`): ``control_dt``, ``physics_dt``,
     ``reward_config`` (default ``RewardConfig.fused()``), ``render_mode``
     (``"rgb_array"``: chase camera), ``render_size``, ``n_pedestrians`` (0-20, default
-    the world's 3), ``pedestrian_mode`` ``"pacing"`` (default), ``"crowd"``,
+    the world's 3), ``pedestrian_mode`` ``"crowd"`` (default), ``"pacing"``,
     ``"oblivious"``, ``"crossing"`` or ``"groups"`` (see ``RoverEnv``), ``pedestrian_appearance``
     ``"fixed"`` (default, the seed's figures) or ``"random"`` (clothing colours, height,
     girth and gait phase drawn per episode from the reset seed).

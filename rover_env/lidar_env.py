@@ -144,17 +144,16 @@ class RoverEnv(RoverEnvBase):
 
     Keyword-only, common to every roverav env (:class:`~rover_env.core.EnvOptions`):
     ``control_dt`` (0.05 s simulated per step), ``physics_dt`` (0.025 s, largest physics
-    step), ``reward_config`` (``RewardConfig()``), ``render_mode`` (None or
-    ``"rgb_array"``: chase camera), ``render_size`` ((480, 360), width x height),
-    ``n_pedestrians`` (0-20; default the world's 3), ``pedestrian_mode`` (``"pacing"``,
-    the default: out-and-back walkers who wait for the rover; ``"crowd"``: a social-force
-    crowd walking to goals around the scenery, making room for the rover;
-    ``"oblivious"``: the same crowd, blind to the rover; ``"crossing"``: the crowd walking
-    across the line from the start to the first goal, from the side; ``"groups"``: the
-    crowd in groups of 2-3; ``"walk"`` is the deprecated name of ``"pacing"``),
-    ``pedestrian_appearance``
-    (``"fixed"``, or ``"random"``: clothing colours, height, girth and gait phase drawn
-    per episode from the reset seed).
+    step), ``reward_config`` (``RewardConfig()``), ``render_mode`` (None or ``"rgb_array"``:
+    chase camera), ``render_size`` ((480, 360), width x height), ``n_pedestrians`` (0-20;
+    default the world's 3), ``pedestrian_mode`` (``"crowd"``, the default: a social-force
+    crowd walking to goals around the scenery, making room for the rover; ``"pacing"``:
+    out-and-back walkers who wait for the rover, what the shipped perception networks were
+    trained on; ``"oblivious"``: the same crowd, blind to the rover; ``"crossing"``: the
+    crowd walking across the line from the start to the first goal, from the side;
+    ``"groups"``: the crowd in groups of 2-3; ``"walk"`` is the deprecated name of
+    ``"pacing"``), ``pedestrian_appearance`` (``"fixed"``, or ``"random"``: clothing
+    colours, height, girth and gait phase drawn per episode from the reset seed).
 
     ## Version history
 

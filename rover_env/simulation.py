@@ -152,7 +152,7 @@ class RoverSim:
         see :mod:`rover_env.pedestrians`).
     :param n_pedestrians: walking figures, 0 to 20 (None: the world's own count, 3); the
         model has exactly this many pedestrian bodies.
-    :param pedestrian_mode: how they walk: ``pacing`` (default), ``crowd``, ``oblivious``,
+    :param pedestrian_mode: how they walk: ``crowd`` (default), ``pacing``, ``oblivious``,
         ``crossing`` or ``groups`` (see :mod:`rover_env.pedestrians`).
     """
 

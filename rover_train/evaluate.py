@@ -450,9 +450,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--env", choices=sorted(ENV_IDS), default="lidar")
     p.add_argument("--world", choices=WORLD_CHOICES, default=DEFAULT_WORLD)
     p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=DEFAULT_MODE,
-                   help="pacing (out and back), crowd (social force, to goals, making room "
-                        "for the rover), oblivious (blind to the rover), crossing (across "
-                        "the rover's path) or groups")
+                   help="crowd (social force, to goals, making room for the rover; the "
+                        "default), pacing (out and back), oblivious (blind to the rover), "
+                        "crossing (across the rover's path) or groups")
     p.add_argument("--n-pedestrians", type=int, default=None,
                    help="pedestrians per world, 0 to 20 (default: the world's 3)")
     p.add_argument("--episodes", type=int, default=10)

@@ -70,8 +70,8 @@ class TrainArgs:
     world: str = field(default=DEFAULT_WORLD, metadata={"choices": WORLD_CHOICES})
     """World: inspect, moon (island) or maze."""
     pedestrian_mode: str = field(default=DEFAULT_MODE, metadata={"choices": PEDESTRIAN_MODES})
-    """How the pedestrians walk: pacing (out and back, waiting for the rover), crowd
-    (social force, to goals, making room for the rover), oblivious (the crowd, blind to
+    """How the pedestrians walk: crowd (social force, to goals, making room for the rover),
+    pacing (out and back, waiting for the rover), oblivious (the crowd, blind to
     the rover), crossing (the crowd crossing the rover's path from the sides) or groups."""
     n_pedestrians: int | None = None
     """Pedestrians per world, 0 to 20 (default: the world's 3)."""

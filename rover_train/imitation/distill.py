@@ -188,11 +188,13 @@ def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
     return DAggerRecipe(entry=entry, synthetic_goals=150, **teacher, **kw)
 
 
+_PACERS = {"pedestrian_mode": "pacing"}  # the pedestrians these entries were made among
+
 RECIPES: dict[str, DAggerRecipe] = {
-    "lidar-inspect": _recipe("lidar-inspect", members=5),
-    "lidar-maze": _recipe("lidar-maze", members=2, unmapped_scan=True),
-    "fused-inspect": _recipe("fused-inspect"),
-    "fused-maze": _recipe("fused-maze", members=3),
+    "lidar-inspect": _recipe("lidar-inspect", members=5, **_PACERS),
+    "lidar-maze": _recipe("lidar-maze", members=2, unmapped_scan=True, **_PACERS),
+    "fused-inspect": _recipe("fused-inspect", **_PACERS),
+    "fused-maze": _recipe("fused-maze", members=3, **_PACERS),
 }
 """The recipe each zoo entry is made with. Ensembles (members) were chosen on the
 diagnostic seeds; lidar-maze's students see the unmapped scan (34 collided diagnostic
