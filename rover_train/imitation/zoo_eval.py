@@ -186,11 +186,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     last = args.seed + args.episodes - 1
     if scenarios is not None:
-        from rover_train.suite import format_suite_table, run_suite, suite_json
+        from rover_train.suite import format_suite_row, format_suite_table, run_suite, suite_json
 
         rows = run_suite(
             scenarios,
             lambda sc: summarise_scenario(evaluate_on(sc.env_kwargs(), f" {sc.name}")),
+            progress=lambda sc, s: print("| " + " | ".join(format_suite_row(sc, s)) + " |",
+                                         flush=True),  # each row as it is done
         )
         print(format_suite_table(rows, f"{who} on {args.entry}'s suite, seeds {args.seed}..{last}"))
         if args.json:
