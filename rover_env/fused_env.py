@@ -136,7 +136,10 @@ class RoverEnvFused(RoverEnvBase):
     | progress (``reward_progress``) | (metres closer to the goal) x 0.9 |
     | heatmap (``reward_heatmap``) | -0.1 x sum of the heatmap's 4 centre columns (of 96) |
 
-    The centre columns scale with the width: ``round(4 * W / 96)`` columns.
+    The centre columns scale with the width: ``round(4 * W / 96)`` columns. With
+    ``RewardConfig(pedestrian_penalty_frame="heading")`` the heatmap term charges the sum
+    those columns would hold for a camera facing along the rover's heading, from the
+    pedestrians' true positions (``reward.heading_center_sum``), instead of the image's.
 
     A step that ends the episode returns only its penalty: flip -20, stuck-in-collision
     -20, stuck -25 (no 0.0001 m of motion over 5000 steps), out of bounds -10.
@@ -460,8 +463,14 @@ class RoverEnvFused(RoverEnvBase):
             return self._add_reward_term("goal", rw.goal_reward(True, cfg))
         self._add_reward_term("goal", 0.0)
         progress = self._add_reward_term("progress", rw.progress_reward(self.distance_delta, cfg))
-        heat = rw.heatmap_center_penalty(self._heatmap_center, cfg)
-        heat = self._add_reward_term("heatmap", heat)
+        if cfg.pedestrian_penalty_frame == rw.HEADING_FRAME:
+            x, y = float(self.position[0]), float(self.position[1])
+            charged = rw.heading_center_sum(x, y, float(self.orientation[2]),
+                                            self.sim.pedestrian_positions, self._size,
+                                            cfg.heatmap_center_columns)  # fmt: skip
+        else:
+            charged = self._heatmap_center
+        heat = self._add_reward_term("heatmap", rw.heatmap_center_penalty(charged, cfg))
         return progress + heat
 
     def _info(self, reward: float, reason: str) -> dict[str, Any]:

@@ -60,7 +60,9 @@ class RoverEnvFusedGaze(RoverEnvFused):
     ``reward_pan`` in ``info``: always 0 here (panning is free in the continuous env);
     :class:`DiscreteRoverEnvFusedGaze` charges ``RewardConfig.pan_penalty`` per pan move.
     Note that the heatmap penalty looks at the image's centre columns wherever the camera
-    points, as in the seed.
+    points, as in the seed: looking away from a pedestrian in the rover's way lowers it.
+    ``RewardConfig.fused(pedestrian_penalty_frame="heading")`` charges the pedestrians in
+    the rover's heading instead, wherever the camera looks.
 
     ## Episode end
 
@@ -151,12 +153,7 @@ class RoverEnvFusedGaze(RoverEnvFused):
         pan, target = self.sim.camera_pan, self.pan_target
         if pan == target:
             return
-        if self.pan_rate is None:
-            new = target
-        else:
-            travel = self.pan_rate * self.control_dt
-            new = pan + min(max(target - pan, -travel), travel)
-        self.sim.set_camera_pan(new)
+        self.sim.set_camera_pan(servo_step(pan, target, self.pan_rate, self.control_dt))
         self.pan_moves += self._counts_turns
 
     def _task_reward(self, obs: dict[str, np.ndarray]) -> float:
@@ -181,6 +178,16 @@ class RoverEnvFusedGaze(RoverEnvFused):
         if self.render_mode != "rgb_array" or self.closed:
             return super().render()  # warns, or raises EnvClosedError
         return self.sim.render_chase(*self.render_size, view_cone=True)
+
+
+def servo_step(pan: float, target: float, rate: float | None, dt: float) -> float:
+    """Where a pan head at ``pan`` (rad) turning towards ``target`` at ``rate`` rad/s is
+    after ``dt`` s (``rate=None``: at the target at once). The gaze envs' servo, and that of
+    anything that turns a sim's camera the way they do."""
+    if rate is None:
+        return target
+    travel = rate * dt
+    return pan + min(max(target - pan, -travel), travel)
 
 
 def type_name(value: Any) -> str:

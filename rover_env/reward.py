@@ -7,12 +7,14 @@ constructing ``RewardConfig(stuck_window=50)`` and passing it as ``reward_config
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from fused_image import FUSED_SIZE
 from rover_env import constants as c
+from rover_env import rover
 
 # termination_reason values (info["termination_reason"]; "" while the episode runs)
 FLIPPED = "flipped"
@@ -20,6 +22,21 @@ STUCK = "stuck"
 STUCK_IN_COLLISION = "stuck_in_collision"
 OUT_OF_BOUNDS = "out_of_bounds"
 TIME_LIMIT = "time_limit"  # truncation, not termination
+
+# RewardConfig.pedestrian_penalty_frame values
+IMAGE_FRAME = "image"
+HEADING_FRAME = "heading"
+PENALTY_FRAMES = (IMAGE_FRAME, HEADING_FRAME)
+
+# The pedestrians as heading_center_sum sees them: upright boards facing the camera
+PEDESTRIAN_HALF_WIDTH = 0.25  # m: torso (0.17 m) and an arm
+PEDESTRIAN_HEIGHT = 1.71  # m: the top of the head
+PEDESTRIAN_FILL = 0.6
+"""Share of its board's pixels a figure covers (legs and arms leave gaps): fitted so that
+:func:`heading_center_sum` over 150 random placements 1-6 m ahead in the inspect world
+equals the true pedestrian mask's centre-column sum (correlation 0.86)."""
+CAMERA_HEIGHT = rover.REST_HEIGHT + rover.CAMERA_Z  # m above flat ground
+_MIN_DEPTH = 0.05  # m: nearer than this (or behind) a pedestrian is not in front of the camera
 
 
 @dataclass(frozen=True)
@@ -47,6 +64,12 @@ class RewardConfig:
     """Fused envs: penalty per unit of pedestrian heatmap in the centre columns."""
     heatmap_center_columns: int = c.HEATMAP_CENTER_COLUMNS
     """Fused envs: how many centre columns of the heatmap count."""
+    pedestrian_penalty_frame: str = IMAGE_FRAME
+    """Fused envs: which way the heatmap term looks for pedestrians. ``image`` (the seed's):
+    the centre columns of the fused image's heatmap, wherever the camera points, so a gaze
+    agent lowers the penalty by looking away from a pedestrian; ``heading``: the same sum
+    for a camera facing along the rover's heading, from the pedestrians' true positions
+    (:func:`heading_center_sum`), so where the camera looks does not change it."""
     pan_penalty: float = c.PAN_PENALTY
     """Gaze envs: cost of one discrete camera pan move (subtracted from the reward)."""
     flip_threshold: float = c.FLIP_THRESHOLD
@@ -73,9 +96,14 @@ class RewardConfig:
         for name in ("success_distance", "stuck_threshold", "collision_distance"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.pedestrian_penalty_frame not in PENALTY_FRAMES:
+            raise ValueError(
+                f"pedestrian_penalty_frame must be one of {PENALTY_FRAMES}, got "
+                f"{self.pedestrian_penalty_frame!r}"
+            )
 
     @classmethod
-    def fused(cls, **overrides: float) -> RewardConfig:
+    def fused(cls, **overrides: float | str) -> RewardConfig:
         """The fused envs' values (seeds 000/002): stuck window 5000 steps / 0.0001 m,
         progress scale 0.9; ``overrides`` replace any field."""
         values: dict = {
@@ -117,6 +145,56 @@ def heatmap_center_sum(heatmap: np.ndarray, columns: int = c.HEATMAP_CENTER_COLU
     n = max(1, round(columns * width / FUSED_SIZE[1]))
     lo = (width - n) // 2
     return float(heatmap[:, lo : lo + n].sum())
+
+
+def heading_center_sum(
+    x: float,
+    y: float,
+    heading: float,
+    pedestrians: np.ndarray,
+    size: tuple[int, int] = FUSED_SIZE,
+    columns: int = c.HEATMAP_CENTER_COLUMNS,
+) -> float:
+    """:func:`heatmap_center_sum` of a perfect heatmap (1 on every pedestrian pixel) seen by
+    the rover's forward camera (``rover.CAMERA_X`` ahead of the rover at (x, y), its height,
+    vertical field of view and pitch, frames of ``size`` (H, W)) were it facing along
+    ``heading`` (rad, world frame) whatever its pan. ``pedestrians`` (P, 2) are their true
+    ground positions; each is an upright ``PEDESTRIAN_HALF_WIDTH`` x ``PEDESTRIAN_HEIGHT``
+    board facing the camera on flat ground, ``PEDESTRIAN_FILL`` of it covered, none hides
+    another. What the seed's heatmap term charges for a pedestrian ahead when the camera
+    looks ahead, in the rover's frame.
+    """
+    peds = np.asarray(pedestrians, dtype=np.float64).reshape(-1, 2)
+    if len(peds) == 0:
+        return 0.0
+    height, width = size
+    cos_h, sin_h = math.cos(heading), math.sin(heading)
+    dx = peds[:, 0] - (x + rover.CAMERA_X * cos_h)
+    dy = peds[:, 1] - (y + rover.CAMERA_X * sin_h)
+    ahead = dx * cos_h + dy * sin_h  # m along the heading
+    left = -dx * sin_h + dy * cos_h  # m to the left of it
+    front = ahead > _MIN_DEPTH
+    if not front.any():
+        return 0.0
+    ahead, left = ahead[front], left[front]
+    focal = 0.5 * height / math.tan(math.radians(rover.CAMERA_FOVY) / 2)  # px
+    # columns, from the image centre (right positive): the centre strip and each board
+    n = max(1, round(columns * width / FUSED_SIZE[1]))
+    lo = (width - n) // 2 - 0.5 * width
+    x0 = -focal * (left + PEDESTRIAN_HALF_WIDTH) / ahead
+    x1 = -focal * (left - PEDESTRIAN_HALF_WIDTH) / ahead
+    cols = np.clip(np.minimum(x1, lo + n) - np.maximum(x0, lo), 0.0, None)
+    # rows of the board's centre line (up positive), the camera pitched down
+    pitch = math.radians(rover.CAMERA_PITCH)
+    cos_p, sin_p = math.cos(pitch), math.sin(pitch)
+
+    def row(z: float) -> np.ndarray:
+        depth = ahead * cos_p - z * sin_p
+        up = ahead * sin_p + z * cos_p
+        return np.clip(focal * up / np.maximum(depth, 1e-9), -0.5 * height, 0.5 * height)
+
+    rows = row(PEDESTRIAN_HEIGHT - CAMERA_HEIGHT) - row(-CAMERA_HEIGHT)
+    return float(min(PEDESTRIAN_FILL * (cols * rows).sum(), n * height))
 
 
 def heatmap_center_penalty(center_sum: float, cfg: RewardConfig) -> float:

@@ -18,20 +18,36 @@ It knows what no policy observes: the world's obstacle footprints (from the
   last motion) and how close they come to obstacles. Standing still inside someone's
   personal space scores badly too, so a pedestrian that stopped for the rover gets room.
 
+- **Gaze.** With ``sees="camera"`` it reacts only to the pedestrians inside the forward
+  camera's view *as the camera points now*: the pan it is given (:meth:`PlannerExpert.act`'s
+  ``pan``; :meth:`~PlannerExpert.act_env` reads the sim's camera pan). ``gaze`` says where it
+  points the camera when it is asked for a gaze env's action: ``fixed``, straight ahead, or
+  ``active``, the gaze policy of :mod:`rover_train.imitation.gaze` (a pedestrian at risk,
+  else where the planned path turns, else a slow scan), chosen from the true state.
+
 The expert's action is ``[speed m/s, heading relative to the rover's yaw rad]``, the
-action of every continuous roverav env.
+action of every continuous roverav env, from :meth:`PlannerExpert.act`; for a gaze env
+(RoverEnvFusedGaze, or any env whose action space is the gaze env's ``Box`` of 3)
+``[speed, heading, pan target rad]``, from :meth:`PlannerExpert.act_gaze`.
+:meth:`PlannerExpert.act_env` gives whichever the env's action space takes. Three teachers
+come of this on the same episodes: the fixed teacher (``sees="camera"``, ``gaze="fixed"``),
+the gaze teacher (``sees="camera"``, ``gaze="active"``) and the all-seeing teacher
+(``sees="all"``); ``benchmarks/gaze_value.py`` compares them.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 
 from rover_env.controller import wrap_angle
 from rover_env.rover import CAMERA_FOVY
 from rover_env.worlds import WorldSpec, make_world
+from rover_train.imitation.gaze import GazeConfig, GazePolicy
 
 GRID_RES = 0.1  # m per grid cell
 GRID_MARGIN = 2.5  # m of map around the goal square
@@ -52,6 +68,7 @@ _SQRT2 = math.sqrt(2.0)
 CAMERA_HALF_FOV = math.radians(CAMERA_FOVY) / 2  # rad; square frames: horizontal = vertical
 PEDESTRIAN_RADIUS = 0.25  # m: a pedestrian this far off the view's edge still shows in it
 SEES = ("all", "camera")
+GAZES = ("fixed", "active")
 MANNERS = {
     "polite": {"personal_weight": 6.0, "zone": PERSONAL_SPACE + 0.15,
                "contact_distance": 0.6, "contact_cost": 5.0},
@@ -101,10 +118,18 @@ class ExpertConfig:
     (:func:`in_camera_view`): what a fused student can see. A teacher that yields to a
     pedestrian behind the rover gives its image student labels it cannot explain; the
     student learns to back off at places and moments instead, where nothing is there."""
+    gaze: str = "fixed"
+    """Where it points the camera when asked for a gaze env's action (:meth:`PlannerExpert.
+    act_gaze`): ``fixed``, straight ahead (pan target 0), or ``active``, the gaze policy
+    (:class:`~rover_train.imitation.gaze.GazePolicy`)."""
+    gaze_config: GazeConfig = field(default_factory=GazeConfig)
+    """The gaze policy's parameters (``gaze="active"``)."""
 
     def __post_init__(self) -> None:
         if self.sees not in SEES:
             raise ValueError(f"ExpertConfig.sees must be one of {SEES}, got {self.sees!r}")
+        if self.gaze not in GAZES:
+            raise ValueError(f"ExpertConfig.gaze must be one of {GAZES}, got {self.gaze!r}")
 
     @classmethod
     def with_manners(cls, manners: str, **kwargs: object) -> ExpertConfig:
@@ -116,16 +141,22 @@ class ExpertConfig:
 
 
 def in_camera_view(
-    x: float, y: float, yaw: float, pedestrians: np.ndarray, half_fov: float = CAMERA_HALF_FOV
+    x: float,
+    y: float,
+    yaw: float,
+    pedestrians: np.ndarray,
+    half_fov: float = CAMERA_HALF_FOV,
+    pan: float = 0.0,
 ) -> np.ndarray:
     """(P,) bool: pedestrians any part of which (a disc of ``PEDESTRIAN_RADIUS``) lies inside
-    the horizontal field of view of a forward camera at (x, y) looking along ``yaw``. The
-    sim's ``pedestrians_in_view`` tests the camera's actual pose instead; this one needs only
-    the rover's pose, so it also serves states drawn without driving (the sim's camera is not
-    updated there)."""
+    the horizontal field of view of the camera of a rover at (x, y) facing ``yaw``, its
+    camera turned ``pan`` rad (positive left) on its pan head. The sim's
+    ``pedestrians_in_view`` tests the camera's actual pose instead; this one needs only the
+    rover's pose and the pan, so it also serves states drawn without driving (the sim's
+    camera is not updated there)."""
     dx, dy = pedestrians[:, 0] - x, pedestrians[:, 1] - y
     dist = np.hypot(dx, dy)
-    off = np.abs((np.arctan2(dy, dx) - yaw + math.pi) % (2 * math.pi) - math.pi)
+    off = np.abs((np.arctan2(dy, dx) - (yaw + pan) + math.pi) % (2 * math.pi) - math.pi)
     margin = np.arcsin(np.clip(PEDESTRIAN_RADIUS / np.maximum(dist, 1e-6), 0.0, 1.0))
     return off <= half_fov + margin
 
@@ -209,7 +240,7 @@ class OccupancyGrid:
         j = int((y - self.y0) / self.res)
         return min(max(i, 0), self.shape[0] - 1), min(max(j, 0), self.shape[1] - 1)
 
-    def clearance_at(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    def clearance_at(self, xs: np.ndarray | float, ys: np.ndarray | float) -> np.ndarray:
         """Clearance of the cells under points (nearest cell; outside the grid: its edge)."""
         i = np.clip(((np.asarray(xs) - self.x0) / self.res).astype(int), 0, self.shape[0] - 1)
         j = np.clip(((np.asarray(ys) - self.y0) / self.res).astype(int), 0, self.shape[1] - 1)
@@ -266,9 +297,10 @@ class OccupancyGrid:
 class PlannerExpert:
     """The privileged expert for one world.
 
-    Use :meth:`act_env` with a roverav env (reads the rover's pose, the goal and the
-    pedestrians from the env), or :meth:`act` with those values directly. Call
-    :meth:`reset` at each episode start (it forgets pedestrian motion history).
+    Use :meth:`act_env` with a roverav env (reads the rover's pose, the goal, the
+    pedestrians and the camera's pan from the env, and answers in the env's action layout),
+    or :meth:`act` / :meth:`act_gaze` with those values directly. Call :meth:`reset` at each
+    episode start (it forgets pedestrian motion history and the gaze policy's scan).
     """
 
     def __init__(self, world: str | WorldSpec, config: ExpertConfig | None = None) -> None:
@@ -278,12 +310,18 @@ class PlannerExpert:
         self._fields: dict[tuple[float, float], CostToGo] = {}
         self._last_peds: np.ndarray | None = None
         self._last_time: float | None = None
+        self._velocities: np.ndarray | None = None
+        self.gaze = GazePolicy(self.config.gaze_config)
+        """The gaze policy (``config.gaze="active"``); its ``reason`` and ``focus`` say why it
+        chose the last pan target."""
         self.reset()
 
     def reset(self) -> None:
         self._last_peds = None
         self._last_time = None
-        self._detour = None
+        self._velocities = None
+        self.gaze.reset()
+        self._detour: CostToGo | None = None
         self._detour_until = -1.0
         self._progress_log: list[tuple[float, float]] = []
 
@@ -324,12 +362,16 @@ class PlannerExpert:
         goal: tuple[float, float],
         pedestrians: np.ndarray | None = None,
         time: float | None = None,
+        pan: float = 0.0,
     ) -> np.ndarray:
         """``[speed, relative heading]`` for a rover at ``position`` facing ``yaw``.
 
         :param pedestrians: (P, 2) true pedestrian positions (ignored unless
             ``config.pedestrian_aware``).
         :param time: simulated time (s), to estimate pedestrian velocities between calls.
+        :param pan: where the camera looks now (rad relative to ``yaw``, positive left):
+            with ``config.sees="camera"`` the pedestrians inside that view are the ones it
+            reacts to.
         """
         cfg = self.config
         x, y = float(position[0]), float(position[1])
@@ -340,6 +382,7 @@ class PlannerExpert:
         clear = float(self.grid.clearance_at(x, y))
         clear_factor = float(np.clip((clear - 0.2) / 0.5, 0.35, 1.0))
         speed *= clear_factor
+        self._velocities = None
         if cfg.pedestrian_aware and pedestrians is not None and len(pedestrians):
             peds = np.asarray(pedestrians, dtype=np.float64)[:, :2]
             vel = np.zeros_like(peds)
@@ -352,9 +395,10 @@ class PlannerExpert:
             ):
                 vel = (peds - self._last_peds) / (time - self._last_time)
             self._last_peds, self._last_time = peds.copy(), time
+            self._velocities = vel
             near = np.hypot(peds[:, 0] - x, peds[:, 1] - y) < cfg.trigger
             if cfg.sees == "camera":
-                near &= in_camera_view(x, y, yaw, peds)
+                near &= in_camera_view(x, y, yaw, peds, pan=pan)
             self._watch_stall(x, y, goal, peds, near, time)
             if near.any():
                 speed, heading = self._local_plan(
@@ -445,14 +489,53 @@ class PlannerExpert:
         best = int(np.argmax(score))
         return float(v[best]), float(h[best])
 
-    def act_env(self, env: object) -> np.ndarray:
-        """The expert action for the current state of a roverav env (or a wrapper of one)."""
+    def act_gaze(
+        self,
+        position: tuple[float, float],
+        yaw: float,
+        goal: tuple[float, float],
+        pedestrians: np.ndarray | None = None,
+        time: float | None = None,
+        pan: float = 0.0,
+    ) -> np.ndarray:
+        """``[speed, relative heading, pan target]``: the gaze env's action. The driving is
+        :meth:`act`'s (reacting to what the camera at ``pan`` shows when ``config.sees`` is
+        ``camera``); the pan target (rad relative to ``yaw``) is 0 with ``config.gaze=
+        "fixed"``, else the gaze policy's (:attr:`gaze`), which follows the plan at
+        ``config.max_speed``."""
+        speed, heading = self.act(position, yaw, goal, pedestrians, time, pan)
+        target = 0.0
+        if self.config.gaze == "active":
+            x, y = float(position[0]), float(position[1])
+            look = self.gaze.config
+            length = max(self.config.max_speed * look.horizon, look.path_look) + GRID_RES
+            path = np.asarray(self.field(goal).descent(x, y, length)).reshape(-1, 2)
+            peds = None if pedestrians is None else np.asarray(pedestrians)[:, :2]
+            target = self.gaze.target((x, y), yaw, pan, path, peds, self._velocities, time,
+                                      self.config.max_speed, float(heading))  # fmt: skip
+        return np.array([speed, heading, target], dtype=np.float32)
+
+    def act_env(self, env: Any) -> np.ndarray:
+        """The expert action for the current state of a roverav env (or a wrapper of one),
+        in the layout of ``env.action_space``: :meth:`act_gaze`'s 3 values for the gaze env's
+        ``Box`` of 3, else :meth:`act`'s 2. The camera's pan is read from the env's sim."""
         base = getattr(env, "unwrapped", env)
         pos = base.position
-        return self.act(
+        state = (
             (pos[0], pos[1]),
             float(base.orientation[2]),
             base.goal,
             base.sim.pedestrian_positions,
             base.sim.time,
+            float(base.sim.camera_pan),
         )
+        if takes_pan(env):
+            return self.act_gaze(*state)
+        return self.act(*state)
+
+
+def takes_pan(env: object) -> bool:
+    """Whether ``env``'s actions are the gaze env's ``[speed, heading, pan target]`` (a
+    ``Box`` of 3)."""
+    space = getattr(env, "action_space", None)
+    return isinstance(space, spaces.Box) and space.shape == (3,)
