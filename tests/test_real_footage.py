@@ -1,0 +1,117 @@
+"""The shipped perception on real pedestrian footage (issue 41): committed crops of OpenCV's
+``vtest.avi`` (``tests/data/real_footage/``, made by ``benchmarks/real_footage.py
+--write-test-data``; no download, no HOG here) through the daemon's ``Perception``, measured
+with the benchmark's rules: people found and box cover on the person crops, false heat on the
+people-free crops, against the bounds below."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from active_vision.backends import cpu_int8_support  # noqa: E402
+from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
+from benchmarks.real_footage import TEST_FREE, TEST_PEOPLE, figures  # noqa: E402
+from fused_image import CHANNEL_HEATMAP, FUSED_SIZE  # noqa: E402
+
+DATA = Path(__file__).resolve().parent / "data" / "real_footage"
+
+FOUND_MIN = 0.9
+"""Share of the person crops' people found: the issue's target (95 %) with one crop of slack
+(15 of 16 passes). Today's network finds 16/16 here (283/283 in the benchmark)."""
+COVER_MIN = 0.25
+"""Mean box cover, a regression bound: today 0.347 (fp32) / 0.354 (int8) on these crops. The
+issue's target is 0.4: raise this to it once the retrained perception reaches it."""
+FREE_MEDIAN_MAX = 0.06
+FREE_GT10_MAX = 0.125
+"""False heat on the people-free crops, regression bounds just above today's level: median hot
+area 4.25 % (fp32) / 4.8 % (int8), no crop over 10 % hot (at most 2 of 16 allowed); every crop
+is over 2 % hot today. To be tightened to the issue's target, median hot area <= 0.5 % and at
+most 10 % of crops over 2 % hot, once the perception is retrained with "not a person" data."""
+
+needs_int8_cpu = pytest.mark.skipif(
+    not cpu_int8_support()[0], reason=f"this CPU: {cpu_int8_support()[1]}"
+)
+
+
+@dataclass
+class Crops:
+    person: np.ndarray
+    """uint8 (P, 96, 96, 3) RGB."""
+    boxes: list[list[int]]
+    """x, y, w, h of each person crop's reference person."""
+    free: np.ndarray
+    """uint8 (F, 96, 96, 3) RGB."""
+
+
+def _rgb(name: str) -> np.ndarray:
+    bgr = cv2.imread(str(DATA / name), cv2.IMREAD_COLOR)
+    assert bgr is not None, f"cannot read {DATA / name}"
+    return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))
+
+
+@pytest.fixture(scope="module")
+def crops() -> Crops:
+    index = json.loads((DATA / "index.json").read_text())
+    return Crops(
+        person=np.stack([_rgb(e["file"]) for e in index["person"]]),
+        boxes=[list(e["box"]) for e in index["person"]],
+        free=np.stack([_rgb(e["file"]) for e in index["free"]]),
+    )
+
+
+def problems(person_heat: np.ndarray, boxes: list[list[int]], free_heat: np.ndarray) -> list[str]:
+    """What misses a bound, given the heatmaps of the person and people-free crops."""
+    f = figures(list(person_heat), [[b] for b in boxes], list(free_heat))
+    out = []
+    if f.found_share < FOUND_MIN:
+        out.append(f"people found {f.found}/{f.people} < {FOUND_MIN:.0%}")
+    if f.cover < COVER_MIN:
+        out.append(f"mean box cover {f.cover:.3f} < {COVER_MIN}")
+    if f.free_median > FREE_MEDIAN_MAX:
+        out.append(f"false heat: median hot area {f.free_median:.1%} > {FREE_MEDIAN_MAX:.0%}")
+    if f.free_gt10 > FREE_GT10_MAX:
+        out.append(f"false heat: {f.free_gt10:.0%} of crops over 10 % hot > {FREE_GT10_MAX:.0%}")
+    return out
+
+
+def test_the_committed_crops_are_what_the_readme_says(crops: Crops) -> None:
+    s = FUSED_SIZE[0]
+    assert crops.person.shape == (TEST_PEOPLE, s, s, 3)
+    assert crops.free.shape == (TEST_FREE, s, s, 3)
+    for x, y, w, h in crops.boxes:
+        assert 0 <= x and 0 <= y and w > 0 and h > 0 and x + w <= s and y + h <= s
+    assert sum(p.stat().st_size for p in DATA.iterdir()) < 1_000_000
+
+
+@pytest.mark.parametrize("precision", ["fp32", pytest.param("int8", marks=needs_int8_cpu)])
+def test_shipped_perception_on_real_crops(crops: Crops, precision: str) -> None:
+    p = Perception(
+        PerceptionConfig(threads=1, max_batch=TEST_PEOPLE, backend="onnx", precision=precision)
+    )
+    assert p.precision == precision
+    person = p(crops.person)[..., CHANNEL_HEATMAP].copy()
+    free = p(crops.free)[..., CHANNEL_HEATMAP].copy()
+    assert problems(person, crops.boxes, free) == []
+
+
+def test_the_bounds_fail_an_all_hot_and_an_all_cold_heatmap(crops: Crops) -> None:
+    shape = crops.person.shape[:3]
+    hot, cold = np.ones(shape, np.float32), np.zeros(shape, np.float32)
+    assert any("false heat" in m for m in problems(hot, crops.boxes, hot))
+    cold_says = problems(cold, crops.boxes, cold)
+    assert any("people found" in m for m in cold_says)
+    assert any("box cover" in m for m in cold_says)
+    # heat exactly on the reference boxes and nowhere else meets every bound
+    exact = cold.copy()
+    for i, (x, y, w, h) in enumerate(crops.boxes):
+        exact[i, y : y + h, x : x + w] = 1.0
+    assert problems(exact, crops.boxes, cold) == []
