@@ -1,7 +1,8 @@
 """RoverEnvBase: what RoverEnv and the two fused envs share.
 
 World and sim ownership, episode reset (spawn and goal sampled from the seed rectangles),
-the PID heading controller, the target readout, goals (+100, new goal, episode goes on),
+the PID heading controller, the target readout, goals (+100, new goal, episode goes on; or,
+with ``goal_ends_episode=True``, +100 and the episode ends there),
 the seed's safety checks (flip, stuck, stuck-in-collision, out of bounds) with per-env
 thresholds from :class:`~rover_env.reward.RewardConfig`, the info dict, and the chase-camera
 ``render()``. Subclasses choose the observation and the action decoding through the hooks
@@ -90,12 +91,24 @@ class EnvOptions:
     pedestrian_appearance: str = "fixed"
     """``"fixed"`` (the seed's look) or ``"random"`` (clothing colours, height, girth and
     gait phase drawn per episode, deterministic from the reset seed)."""
+    goal_ends_episode: bool = False
+    """False (the seed's): a reached goal pays ``goal_reward``, a new goal is drawn and the
+    episode goes on. True (an RL task like CrowdNav's, and what the evaluators count): the
+    step that reaches the goal pays its reward and ends the episode, ``terminated`` with
+    ``info["termination_reason"] == "goal"`` and ``info["is_success"]`` True; the goal is
+    not replaced, so ``info["goal"]`` and ``distance_to_goal`` are the reached one's."""
 
     def __post_init__(self) -> None:
         if not self.control_dt > 0:
             raise ValueError(f"control_dt must be > 0 s, got {self.control_dt}")
         if not self.physics_dt > 0:
             raise ValueError(f"physics_dt must be > 0 s, got {self.physics_dt}")
+        if not isinstance(self.goal_ends_episode, bool | np.bool_):
+            raise TypeError(
+                f"goal_ends_episode must be True or False, got {self.goal_ends_episode!r}: "
+                "True ends the episode at the first goal, False (the default) draws a new one"
+            )
+        object.__setattr__(self, "goal_ends_episode", bool(self.goal_ends_episode))
         object.__setattr__(self, "pedestrian_mode", pedestrian_mode(self.pedestrian_mode))
         if self.n_pedestrians is not None:
             object.__setattr__(self, "n_pedestrians", pedestrian_count(self.n_pedestrians))
@@ -153,7 +166,10 @@ class RoverEnvBase(gym.Env):
     ``self.odometry`` (linear, angular), ``self.reward_config``.
 
     Episode end: ``terminated`` for flip, stuck, stuck-in-collision and out of bounds
-    (reward = that penalty alone, as in the seed); ``truncated`` after ``length`` steps.
+    (reward = that penalty alone, as in the seed), and with ``goal_ends_episode`` for the
+    goal (reward = the step's task reward, goal reward included; a goal reached on the step
+    of a failure counts as the goal, as the evaluators count it); ``truncated`` after
+    ``length`` steps.
     The checks run after the physics step, so the step that causes a failure reports it
     (the seed checked at the top of the next step).
 
@@ -164,7 +180,8 @@ class RoverEnvBase(gym.Env):
     :param camera_size: forward camera (height, width).
     :param options: the keyword-only options of :class:`EnvOptions` (``control_dt``,
         ``physics_dt``, ``reward_config``, ``render_mode``, ``render_size``,
-        ``pedestrian_mode``, ``pedestrian_appearance``); subclasses forward theirs here.
+        ``pedestrian_mode``, ``n_pedestrians``, ``pedestrian_appearance``,
+        ``goal_ends_episode``); subclasses forward theirs here.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": int(round(1.0 / c.CONTROL_DT))}
@@ -190,6 +207,7 @@ class RoverEnvBase(gym.Env):
             raise ValueError(f"length must be >= 1 step, got {length}")
         self.options = opts
         self.pedestrian_mode = opts.pedestrian_mode
+        self.goal_ends_episode = opts.goal_ends_episode
         self.world_name = canonical_world_name(world_n)
         self.length = int(length)
         self.lidar_points = int(lidar_points)
@@ -448,10 +466,11 @@ class RoverEnvBase(gym.Env):
         # Progress is measured against the goal of this step, even if it was just reached.
         self.distance_delta = self._previous_distance - self.distance_to_goal
         self.goal_reached = self.distance_to_goal < self.reward_config.success_distance
-        if self.goal_reached:  # +100 and a new goal; the episode goes on
+        if self.goal_reached:  # +100, and a new goal unless the goal ends the episode
             self.goals_reached += 1
             log.debug("goal %d reached at step %d", self.goals_reached, self._steps)
-            self._sample_goal()
+            if not self.goal_ends_episode:
+                self._sample_goal()
         self._previous_distance = self.distance_to_goal
         obs = self._observe()
         self.collided = self._collision()
@@ -460,15 +479,20 @@ class RoverEnvBase(gym.Env):
         self._reward_terms = {}
         reward = self._task_reward(obs)
 
-        reason = self._termination()
+        if self.goal_reached and self.goal_ends_episode:
+            reason = rw.GOAL  # the task reward stands: goal reward and this step's terms
+        else:
+            reason = self._termination()
         terminated = bool(reason)
-        if terminated:
+        failed = terminated and reason != rw.GOAL
+        if failed:
             # The seed returns the penalty alone on a failing step.
             reward = rw.termination_penalty(reason, self.reward_config)
             for key in self._reward_terms:
                 self._reward_terms[key] = 0.0
+        if terminated:
             self._needs_reset = True
-        self._reward_terms["reward_termination"] = reward if terminated else 0.0
+        self._reward_terms["reward_termination"] = reward if failed else 0.0
         truncated = not terminated and self._steps >= self.length
         if truncated:
             reason = rw.TIME_LIMIT

@@ -150,10 +150,12 @@ class RoverEnvFused(RoverEnvBase):
     ## Episode end
 
     ``terminated`` on flip (|roll| or |pitch| > 1.48 rad), stuck, stuck-in-collision
-    (more than 5000 collision steps) and out of bounds; ``truncated`` after ``length``
-    steps. A daemon that dies mid-episode raises ``shm_protocol.WriterGoneError``
-    promptly; one that stalls raises ``FrameTimeoutError`` after ``frame_timeout``. Once
-    the daemon is back on the same name, ``reset()`` works again on the same env.
+    (more than 5000 collision steps) and out of bounds, and with ``goal_ends_episode=True``
+    on the goal (``termination_reason`` ``"goal"``, the goal reward, ``is_success``);
+    ``truncated`` after ``length`` steps. A daemon that dies mid-episode raises
+    ``shm_protocol.WriterGoneError`` promptly; one that stalls raises ``FrameTimeoutError``
+    after ``frame_timeout``. Once the daemon is back on the same name, ``reset()`` works
+    again on the same env.
 
     ## Info
 
@@ -188,7 +190,8 @@ class RoverEnvFused(RoverEnvBase):
     the world's 3), ``pedestrian_mode`` ``"crowd"`` (default), ``"pacing"``,
     ``"oblivious"``, ``"crossing"`` or ``"groups"`` (see ``RoverEnv``), ``pedestrian_appearance``
     ``"fixed"`` (default, the seed's figures) or ``"random"`` (clothing colours, height,
-    girth and gait phase drawn per episode from the reset seed).
+    girth and gait phase drawn per episode from the reset seed), ``goal_ends_episode``
+    (False, the seed's: a new goal after each; True: the first goal ends the episode).
     ``scan_topic``, ``imu_topic``, ``cmd_vel_topic``, ``lidar_points`` and
     ``max_lidar_range`` are accepted for compatibility with the seed and have no effect.
 

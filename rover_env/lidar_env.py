@@ -22,7 +22,9 @@ class RoverEnv(RoverEnvBase):
     terrain with rocks and hills where it can flip; ``island`` is an alias) or ``maze``
     (walls). Each world has at least two pedestrians walking back and forth at 1.0-1.5 m/s;
     they collide with the rover and the LIDAR sees them. The agent reaches a goal
-    (+100), gets a new one, and carries on until it fails or runs out of steps.
+    (+100), gets a new one, and carries on until it fails or runs out of steps (with
+    ``goal_ends_episode=True`` the first goal ends the episode: the RL task
+    ``rover-train --task nav`` trains on).
 
     One step is ``control_dt`` seconds of simulated time (0.05 s by default): the action
     is applied, the physics advanced, and the observation read. Nothing waits for the
@@ -68,6 +70,7 @@ class RoverEnv(RoverEnvBase):
     | Term (``info`` key) | Value |
     |------|-------|
     | goal (``reward_goal``) | +100 when the goal is closer than 0.5 m; a new goal is drawn |
+    | | (with ``goal_ends_episode=True``: the episode ends instead) |
     | progress (``reward_progress``) | (metres closer to the goal) x 0.3 x 1.5 |
     | velocity bonus (``reward_velocity``) | odometry linear velocity x 0.0025 |
     | turn penalty (``reward_turn``) | -0.0015 x abs(odometry angular velocity) |
@@ -104,6 +107,9 @@ class RoverEnv(RoverEnvBase):
     - ``stuck_in_collision``: more than 600 collision steps in the episode;
     - ``stuck``: moved less than 0.001 m over the last 600 steps;
     - ``out_of_bounds``: left the world's out-of-bounds rectangle.
+
+    With ``goal_ends_episode=True`` also ``goal``: the step that reaches the goal ends the
+    episode with its full reward (goal reward included) and ``info["is_success"]`` True.
 
     ``truncated`` (``time_limit``) after ``length`` steps. The checks run after the
     physics step, so the failing step reports the failure. Gymnasium semantics: the
@@ -153,7 +159,9 @@ class RoverEnv(RoverEnvBase):
     crowd walking across the line from the start to the first goal, from the side;
     ``"groups"``: the crowd in groups of 2-3; ``"walk"`` is the deprecated name of
     ``"pacing"``), ``pedestrian_appearance`` (``"fixed"``, or ``"random"``: clothing
-    colours, height, girth and gait phase drawn per episode from the reset seed).
+    colours, height, girth and gait phase drawn per episode from the reset seed),
+    ``goal_ends_episode`` (False, the seed's: a new goal after each; True: the first goal
+    ends the episode, ``terminated`` with ``termination_reason`` ``"goal"``).
 
     ## Version history
 

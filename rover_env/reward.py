@@ -22,6 +22,7 @@ STUCK = "stuck"
 STUCK_IN_COLLISION = "stuck_in_collision"
 OUT_OF_BOUNDS = "out_of_bounds"
 TIME_LIMIT = "time_limit"  # truncation, not termination
+GOAL = "goal"  # success: ends the episode only with the env option goal_ends_episode=True
 
 # RewardConfig.pedestrian_penalty_frame values
 IMAGE_FRAME = "image"
@@ -46,7 +47,8 @@ class RewardConfig:
     success_distance: float = c.SUCCESS_DISTANCE
     """Goal reached below this distance (m)."""
     goal_reward: float = c.GOAL_REWARD
-    """Reward for reaching a goal; a new goal is sampled and the episode continues."""
+    """Reward for reaching a goal; a new goal is sampled and the episode continues (or,
+    with the env option ``goal_ends_episode=True``, the episode ends there)."""
     min_goal_distance: float = 1.0
     """New goals are resampled until at least this far from the rover (m). Not in the seed
     (which could place a goal under the rover for a free +100); 0 restores the seed."""
