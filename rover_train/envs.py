@@ -1,4 +1,5 @@
-"""Building roverav envs for training and evaluation (single and vectorised)."""
+"""Building roverav envs for training and evaluation (single and vectorised), and the tasks
+(:data:`TASKS`) that say what an episode is."""
 
 from __future__ import annotations
 
@@ -6,10 +7,12 @@ import logging
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
 
+from rover_train.zoo.registry import EVAL_MAX_STEPS
 from shm_protocol.names import default_name
 
 log = logging.getLogger(__name__)
@@ -25,6 +28,45 @@ FUSED_KINDS = ("fused", "discrete", "fused-gaze", "fused-gaze-discrete")
 DISCRETE_KINDS = ("discrete", "fused-gaze-discrete")  # Discrete action spaces
 
 
+@dataclass(frozen=True)
+class Task:
+    """What an episode is: the env keywords a task sets (``rover-train --task``,
+    ``rover-eval --task``)."""
+
+    name: str
+    description: str
+    goal_ends_episode: bool = False
+    """The env option: the first goal ends the episode (else a new goal is drawn)."""
+    length: int | None = None
+    """Steps per episode; None: the env's own (2000 LIDAR, 6000 fused)."""
+
+
+NAV_LENGTH = EVAL_MAX_STEPS
+"""The nav task's episode: the evaluators' (rover_train.imitation.zoo_eval counts success at
+the first goal within 600 steps, 30 s; the planner expert needs about 10 s)."""
+DEFAULT_TASK = "seed"
+TASKS = {
+    "seed": Task("seed", "the seed's: goal after goal until a failure or the env's length "
+                 "(2000 steps LIDAR, 6000 fused)"),
+    "nav": Task("nav", f"one goal: the episode ends at it (success, the goal reward) or "
+                f"after {NAV_LENGTH} steps, as the evaluators count success",
+                goal_ends_episode=True, length=NAV_LENGTH),
+}  # fmt: skip
+"""The tasks by name: ``seed`` (the default, today's behaviour) and ``nav`` (the RL task that
+matches the evaluation episodes)."""
+
+
+def get_task(name: str) -> Task:
+    """The task called ``name``; ``ValueError`` naming the choices for another."""
+    try:
+        return TASKS[name]
+    except KeyError:
+        raise ValueError(
+            f"unknown task {name!r}; choose one of: "
+            + "; ".join(f"{t.name} ({t.description})" for t in TASKS.values())
+        ) from None
+
+
 def env_kwargs(
     kind: str,
     world: str,
@@ -38,16 +80,23 @@ def env_kwargs(
     size: tuple[int, int] | None = None,
     frame_timeout: float | None = None,
     report_latency: bool = False,
+    task: str = DEFAULT_TASK,
 ) -> dict[str, Any]:
     """Constructor keywords for env ``kind`` (a key of ``ENV_IDS``); ``size`` is the forward
     camera's (height, width); ``frame_timeout`` (fused kinds) the seconds to wait for each
     fused frame; ``report_latency`` (fused kinds) puts the wall-clock ``frame_latency_ms``
-    in ``info``."""
+    in ``info``; ``task`` (a key of :data:`TASKS`) sets ``goal_ends_episode`` and the
+    length, which ``length`` overrides."""
     if kind not in ENV_IDS:
         raise ValueError(f"unknown env kind {kind!r}; choose one of {sorted(ENV_IDS)}")
+    the_task = get_task(task)
     kwargs: dict[str, Any] = {"world_n": world}
+    if length is None:
+        length = the_task.length
     if length is not None:
         kwargs["length"] = length
+    if the_task.goal_ends_episode:
+        kwargs["goal_ends_episode"] = True
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
     if pedestrian_mode is not None:

@@ -5,6 +5,8 @@
 
 An evaluation episode ends at the first goal reached (success), at a termination (flip,
 stuck, out of bounds), at the env's length limit, or after ``--max-steps`` (a timeout).
+``--task`` builds the envs as rover-train's does (default: the model's, from metrics.json
+beside it, else ``seed``); ``--task nav`` is the zoo evaluators' episode (600 steps).
 Episode i is reset with seed ``--seed + i``, so two policies meet the same start/goal pairs.
 
 Metrics (the table, and ``--json``'s last line):
@@ -38,8 +40,9 @@ from rover_env.crowd import MAX_PEDESTRIANS
 from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
 from rover_env.reward import STUCK_IN_COLLISION
 from rover_env.worlds import WORLD_CHOICES
+from rover_train.algos import ALGOS, RECURRENT, RecurrentActor, algo_class
 from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
-from rover_train.envs import ENV_IDS, make_env
+from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
 from shm_protocol.names import default_name, default_slots
 
 VIDEO_PANEL = 256  # pixels per side of each video panel
@@ -76,8 +79,9 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
     """A callable obs -> action: the saved SB3 model, or uniform random actions.
 
     The random policy samples ``env.action_space``: seed it (``env.action_space.seed(s)``)
-    for a reproducible baseline, as :func:`main` does per episode. Raises
-    :class:`PolicyLoadError`.
+    for a reproducible baseline, as :func:`main` does per episode. A recurrent model
+    (recurrent-ppo) comes as a :class:`~rover_train.algos.RecurrentActor`, whose ``reset()``
+    :func:`run_episode` calls at each episode's start. Raises :class:`PolicyLoadError`.
     """
     if policy == "random":
         space = env.action_space
@@ -86,24 +90,31 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
         raise PolicyLoadError("give a model .zip or --policy random")
     if not model.is_file():
         raise PolicyLoadError(f"no model file at {model} (train one with rover-train)")
-    from stable_baselines3 import DQN, PPO, SAC
-
-    classes = {"ppo": PPO, "sac": SAC, "dqn": DQN}
     if algo is None:
-        meta = model.parent / "metrics.json"
-        if meta.is_file():
-            algo = json.loads(meta.read_text()).get("algo")
-    order = [algo] if algo else ["ppo", "sac", "dqn"]
+        algo = run_metrics(model).get("algo")
+    # without metrics.json: recurrent first (its load refuses a non-recurrent policy)
+    order = [algo] if algo else [*RECURRENT, *(a for a in ALGOS if a not in RECURRENT)]
     errors = []
     for name in order:
         try:
-            loaded = classes[name].load(model, device="cpu")
+            loaded = algo_class(name).load(model, device="cpu")
         except Exception as exc:  # noqa: BLE001 - try the next algorithm
             errors.append(f"{name}: {exc}")
             continue
         check_spaces(model, loaded, env)
+        if name in RECURRENT:
+            return RecurrentActor(loaded)
         return lambda obs: loaded.predict(obs, deterministic=True)[0]
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
+
+
+def run_metrics(model: Path | None) -> dict[str, Any]:
+    """The ``metrics.json`` rover-train wrote beside ``model`` ({} when there is none)."""
+    meta = model.parent / "metrics.json" if model is not None else None
+    if meta is None or not meta.is_file():
+        return {}
+    data = json.loads(meta.read_text())
+    return data if isinstance(data, dict) else {}
 
 
 def check_spaces(path: Path, model: Any, env: Any) -> None:
@@ -257,6 +268,9 @@ def run_episode(
     gets a labelled video frame per step (:func:`label_frame`) and then the last one again
     with the outcome (:func:`draw_outcome`), held ``OUTCOME_HOLD_S``."""
     obs, info = env.reset(seed=seed)
+    reset = getattr(act, "reset", None)
+    if callable(reset):  # a policy with a state (RecurrentActor): a new episode
+        reset()
     base = env.unwrapped
     pos = np.array(obs["pose"][:2], dtype=np.float64)
     start_distance = float(obs["target"][0])
@@ -444,9 +458,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("model", nargs="?", type=Path, help="a model .zip written by rover-train")
     p.add_argument("--policy", choices=["random"],
                    help="evaluate uniform random actions instead (seeded: --seed)")
-    p.add_argument(
-        "--algo", choices=["ppo", "sac", "dqn"], help="default: from metrics.json beside the model"
-    )
+    p.add_argument("--algo", choices=ALGOS, help="default: from metrics.json beside the model")
+    p.add_argument("--task", choices=tuple(TASKS), default=None,
+                   help="what an episode is, as rover-train --task: seed (the env's own "
+                        f"length) or nav ({NAV_LENGTH} steps, the zoo evaluators'); default: "
+                        f"the model's (metrics.json beside it), else {DEFAULT_TASK}")  # fmt: skip
     p.add_argument("--env", choices=sorted(ENV_IDS), default="lidar")
     p.add_argument("--world", choices=WORLD_CHOICES, default=DEFAULT_WORLD)
     p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=DEFAULT_MODE,
@@ -502,6 +518,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ValueError as exc:
             p.error(f"--suite: {exc}")
 
+    if args.task is None:
+        args.task = run_metrics(args.model).get("task", DEFAULT_TASK)
     if args.suite is not None:
         return _main_suite(args)
     try:
@@ -548,6 +566,7 @@ def _evaluate(
             for k in range(min(args.slots, args.episodes)):
                 envs.append(make_env(
                     args.env, world=env_kwargs["world_n"], slot=args.slot + k, name=args.name,
+                    task=args.task,
                     pedestrian_mode=env_kwargs["pedestrian_mode"],
                     n_pedestrians=env_kwargs["n_pedestrians"],
                     render_mode="rgb_array" if record and k == 0 else None,

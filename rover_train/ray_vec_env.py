@@ -354,6 +354,7 @@ def make_ray_vec_env(args: Any) -> RayVecEnv:
         world=args.world,
         envs_per_worker=args.envs_per_worker,
         length=args.length,
+        task=args.task,
         connect_timeout=max(args.connect_timeout, 30.0),
     )
     try:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from rover_train.envs import FUSED_KINDS, env_factory
+from rover_train.envs import DEFAULT_TASK, FUSED_KINDS, env_factory
 from shm_protocol import SHM_DIR, remove_segments, validate_name, writer_alive
 from shm_protocol.names import CAMERA_SUFFIX
 
@@ -47,6 +47,8 @@ class WorkerConfig:
     """Envs hosted by each worker (daemon slots per worker)."""
     length: int | None = None
     """Episode length override."""
+    task: str = DEFAULT_TASK
+    """What an episode is (``rover_train.envs.TASKS``)."""
     connect_timeout: float = 30.0
     """Seconds an env waits for its daemon's segments."""
     daemon_args: tuple[str, ...] = ("--threads", "1")
@@ -117,7 +119,7 @@ class EnvWorker:
         try:
             for j in range(cfg.envs_per_worker):
                 thunk = env_factory(cfg.kind, monitor_dir=None, world=cfg.world, slot=j,
-                                    name=self.name, length=cfg.length,
+                                    name=self.name, length=cfg.length, task=cfg.task,
                                     connect_timeout=cfg.connect_timeout)  # fmt: skip
                 self.envs.append(thunk())
         except BaseException:

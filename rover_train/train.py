@@ -2,6 +2,7 @@
 
     rover-train --env lidar --world maze --timesteps 200000
     rover-pair --slots 2 -- rover-train --env fused --n-envs 2 --timesteps 50000
+    rover-train --env lidar --task nav --algo recurrent-ppo   # one goal per episode, an LSTM
 
     rover-train --resume runs/train      # after Ctrl-C: the same run, to its requested steps
 
@@ -32,6 +33,7 @@ import numpy as np
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
 from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
 from rover_env.worlds import WORLD_CHOICES
+from rover_train.algos import ALGOS, ON_POLICY, RECURRENT, algo_class, contrib_missing, policy_name
 from rover_train.checkpoint import (
     Checkpoint,
     Checkpointer,
@@ -51,12 +53,19 @@ from rover_train.checkpoint import (
     restore_rng_states,
 )
 from rover_train.cli import LOG_LEVELS, build_parser, default_log_level, parse_into, plain
-from rover_train.envs import DISCRETE_KINDS, ENV_IDS, FUSED_KINDS, env_factory
+from rover_train.envs import (
+    DEFAULT_TASK,
+    DISCRETE_KINDS,
+    ENV_IDS,
+    FUSED_KINDS,
+    NAV_LENGTH,
+    TASKS,
+    env_factory,
+)
 from shm_protocol.names import default_name, default_slots
 
 log = logging.getLogger("rover_train")
 
-ALGOS = ("ppo", "sac", "dqn")
 EXIT_NO_DAEMON = 1
 
 
@@ -75,8 +84,13 @@ class TrainArgs:
     the rover), crossing (the crowd crossing the rover's path from the sides) or groups."""
     n_pedestrians: int | None = None
     """Pedestrians per world, 0 to 20 (default: the world's 3)."""
+    task: str = field(default=DEFAULT_TASK, metadata={"choices": tuple(TASKS)})
+    """What an episode is: seed (the seed's: goal after goal until a failure or the env's
+    length, 2000 lidar / 6000 fused) or nav (the evaluators' episode: it ends at the first
+    goal, with the goal reward and is_success, or after 600 steps)."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
-    """ppo (all envs), sac (lidar, fused) or dqn (discrete)."""
+    """ppo (all envs), recurrent-ppo (all envs: PPO with an LSTM policy, from sb3-contrib),
+    sac (lidar, fused) or dqn (discrete)."""
     timesteps: int = 100_000
     """Total environment steps to train for (over all envs)."""
     slots: int = field(default_factory=default_slots, metadata={"aliases": ("--n-envs",)})
@@ -100,7 +114,8 @@ class TrainArgs:
     """Daemon segment base name (fused envs); defaults to $ROVERAV_SHM_NAME set by rover-pair,
     else rl_observation."""
     length: int | None = None
-    """Episode length override (default: the env's own, 2000 lidar / 6000 fused)."""
+    """Episode length override (default: the task's, nav 600; seed: the env's own, 2000 lidar
+    / 6000 fused)."""
     connect_timeout: float = 10.0
     """Seconds to wait for the daemon's segments before giving up (fused envs)."""
     vec_env: str = field(default="auto", metadata={"choices": ("auto", "subproc", "dummy")})
@@ -118,11 +133,13 @@ class TrainArgs:
     """Torch intra-op threads of the trainer (small nets on CPU run best on one; the daemon
     and the env workers need the other cores)."""
     update_threads: int = 1
-    """PPO: torch threads for the gradient epochs, while envs and daemon are idle (0: every
-    core this process may use). More than 1 pays only on an otherwise idle machine: with
-    other work on the cores a 2-thread update measured slower. Rollouts keep --threads."""
-    log_level: str = field(default_factory=default_log_level,
-                           metadata={"choices": LOG_LEVELS, "parse": str.upper})
+    """PPO and recurrent-ppo: torch threads for the gradient epochs, while envs and daemon
+    are idle (0: every core this process may use). More than 1 pays only on an otherwise
+    idle machine: with other work on the cores a 2-thread update measured slower. Rollouts
+    keep --threads."""
+    log_level: str = field(
+        default_factory=default_log_level, metadata={"choices": LOG_LEVELS, "parse": str.upper}
+    )
     """Log level; defaults to $ROVERAV_LOG_LEVEL (set by rover-pair --log-level), else INFO."""
     # --- algorithm hyperparameters (written to metrics.json) -----------------------------
     learning_rate: float | None = None
@@ -130,17 +147,17 @@ class TrainArgs:
     gamma: float = 0.99
     """Discount factor (all algorithms)."""
     batch_size: int | None = None
-    """Minibatch size (default: ppo 256, sac 256, dqn 32)."""
+    """Minibatch size (default: ppo 256, recurrent-ppo 256, sac 256, dqn 32)."""
     n_steps: int = 1024
-    """PPO: rollout length per env."""
+    """PPO and recurrent-ppo: rollout length per env."""
     n_epochs: int = 10
-    """PPO: optimisation epochs per rollout."""
+    """PPO and recurrent-ppo: optimisation epochs per rollout."""
     gae_lambda: float = 0.95
-    """PPO: GAE lambda."""
+    """PPO and recurrent-ppo: GAE lambda."""
     clip_range: float = 0.2
-    """PPO: policy clip range."""
+    """PPO and recurrent-ppo: policy clip range."""
     ent_coef: float = 0.0
-    """PPO: entropy bonus coefficient."""
+    """PPO and recurrent-ppo: entropy bonus coefficient."""
     buffer_size: int | None = None
     """SAC/DQN: replay buffer size (default: sac 100000, dqn 50000)."""
     learning_starts: int = 1_000
@@ -151,6 +168,7 @@ class TrainArgs:
 
 _ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
     "ppo": {"learning_rate": 3e-4, "batch_size": 256},
+    "recurrent-ppo": {"learning_rate": 3e-4, "batch_size": 256},
     "sac": {"learning_rate": 3e-4, "batch_size": 256, "buffer_size": 100_000},
     "dqn": {"learning_rate": 1e-4, "batch_size": 32, "buffer_size": 50_000},
 }
@@ -162,7 +180,7 @@ def hyperparameters(args: TrainArgs) -> dict[str, Any]:
     hp: dict[str, Any] = {"learning_rate": args.learning_rate or d["learning_rate"],
                           "gamma": args.gamma,
                           "batch_size": args.batch_size or d["batch_size"]}  # fmt: skip
-    if args.algo == "ppo":
+    if args.algo in ON_POLICY:
         hp.update(n_steps=args.n_steps, n_epochs=args.n_epochs, gae_lambda=args.gae_lambda,
                   clip_range=args.clip_range, ent_coef=args.ent_coef)  # fmt: skip
     else:
@@ -173,8 +191,10 @@ def hyperparameters(args: TrainArgs) -> dict[str, Any]:
     return hp
 
 
-_EPILOG = ("Under rover-pair, --name and --slots default to the supervisor's. SIGINT/SIGTERM "
-           "save a checkpoint and exit 130/143; --resume RUN_DIR continues the run.")
+_EPILOG = (
+    "Under rover-pair, --name and --slots default to the supervisor's. SIGINT/SIGTERM "
+    "save a checkpoint and exit 130/143; --resume RUN_DIR continues the run."
+)
 RESUME_OPERATIONAL = ("name", "log_level", "progress", "device", "threads", "update_threads",
                       "connect_timeout",
                       "vec_env")  # fmt: skip
@@ -259,7 +279,15 @@ def validate(args: TrainArgs) -> str | None:
         )
     if args.slots < 1 or args.timesteps < 1:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
-    return _validate_ray(args) or _validate_values(args) or _validate_device(args)
+    if args.task not in TASKS:  # the CLI's choices say so too; TrainArgs built in code
+        return f"--task must be one of {', '.join(TASKS)}, got {args.task!r}"
+    return (contrib_missing(args.algo) or _validate_ray(args) or _validate_values(args)
+            or _validate_device(args))  # fmt: skip
+
+
+def n_envs(args: TrainArgs) -> int:
+    """How many envs the run steps: --slots, or with --ray workers x envs per worker."""
+    return args.workers * args.envs_per_worker if args.ray is not None else args.slots
 
 
 def _validate_ray(args: TrainArgs) -> str | None:
@@ -282,14 +310,28 @@ def _validate_values(args: TrainArgs) -> str | None:
     from shm_protocol import InvalidNameError, camera_name, slot_name
 
     if args.length is not None and args.length < 1:
-        return f"--length must be at least 1 step (or omit it for the env's own), got {args.length}"
-    if args.algo == "ppo" and args.n_steps * args.slots < 2:
+        return (f"--length must be at least 1 step (or omit it for the task's: nav {NAV_LENGTH}, "
+                f"seed the env's own), got {args.length}")  # fmt: skip
+    rollout = args.n_steps * n_envs(args)
+    if args.algo in ON_POLICY and rollout < 2:
         return (
-            f"--n-steps must be at least 2 for PPO (a rollout of n_steps x slots > 1 steps), "
-            f"got --n-steps {args.n_steps} with {args.slots} env(s)"
+            f"--n-steps must be at least 2 for --algo {args.algo} (a rollout of n_steps x "
+            f"slots > 1 steps), got --n-steps {args.n_steps} with {n_envs(args)} env(s)"
         )
-    positive = {"--batch-size": args.batch_size, "--n-epochs": args.n_epochs,
-                "--buffer-size": args.buffer_size, "--learning-rate": args.learning_rate}
+    batch = args.batch_size or _ALGO_DEFAULTS[args.algo]["batch_size"]
+    if args.algo in RECURRENT and batch > 0 and rollout % batch == 1:
+        return (
+            f"--batch-size {batch} leaves a minibatch of 1 step from a rollout of {rollout} "
+            f"(n_steps {args.n_steps} x {n_envs(args)} env(s)): {args.algo} normalises the "
+            "advantages per minibatch, which is NaN for one step. Choose a --batch-size that "
+            f"divides {rollout}, or another --n-steps"
+        )
+    positive = {
+        "--batch-size": args.batch_size,
+        "--n-epochs": args.n_epochs,
+        "--buffer-size": args.buffer_size,
+        "--learning-rate": args.learning_rate,
+    }
     for flag, value in positive.items():
         if value is not None and not value > 0:
             return f"{flag} must be > 0 (or omit it for the algorithm's default), got {value}"
@@ -364,6 +406,7 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
             slot=i,
             name=args.name,
             length=args.length,
+            task=args.task,
             connect_timeout=args.connect_timeout,
             append_monitor=append_monitor,
         )
@@ -380,19 +423,13 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
                          start_method="forkserver")  # fmt: skip
 
 
-def _algo_class(name: str) -> Any:
-    from stable_baselines3 import DQN, PPO, SAC
-
-    return {"ppo": PPO, "sac": SAC, "dqn": DQN}[name]
-
-
 def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
     """A new model for ``args`` (resumed runs are loaded by :func:`resume_model`)."""
     from rover_train.policies import RoverExtractor
 
-    cls = _algo_class(args.algo)
+    cls = algo_class(args.algo)
     common: dict[str, Any] = {
-        "policy": "MultiInputPolicy",
+        "policy": policy_name(args.algo),
         "env": venv,
         "seed": args.seed,
         "device": args.device,
@@ -406,7 +443,7 @@ def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
 def resume_model(args: TrainArgs, venv: Any, tb_dir: Path) -> tuple[Any, dict[str, Any]]:
     """The newest checkpoint of run ``args.logdir``, loaded onto ``venv`` with its RNGs, replay
     buffer and env episode RNGs restored; returns the model and the checkpoint's state."""
-    cls = _algo_class(args.algo)
+    cls = algo_class(args.algo)
     model, found, skipped = None, None, 0
     for found in find_checkpoints(args.logdir):  # newest first; say why each newer one is not
         if isinstance(found, SkippedCheckpoint):
@@ -425,8 +462,12 @@ def resume_model(args: TrainArgs, venv: Any, tb_dir: Path) -> tuple[Any, dict[st
         latest_checkpoint(args.logdir)  # raises the ResumeError that lists what is wrong
         raise ResumeError(f"--resume {args.logdir}: no checkpoint there loads (see above)")
     path, state = found.model_path, found.state
-    log.info("resuming from %s (%d steps)%s", path, state["num_timesteps"],
-             f": the newest checkpoint that loads ({skipped} skipped)" if skipped else "")
+    log.info(
+        "resuming from %s (%d steps)%s",
+        path,
+        state["num_timesteps"],
+        f": the newest checkpoint that loads ({skipped} skipped)" if skipped else "",
+    )
     if is_off_policy(model) and state.get("replay_buffer"):
         try:
             if found.replay_problem:
@@ -583,7 +624,7 @@ def train(args: TrainArgs) -> dict[str, Any]:
             record.save(run_dir)
             remaining = args.timesteps - start_steps
             callbacks = [metrics_cb, make_checkpoint_callback(checkpointer)]
-            if args.algo == "ppo" and args.update_threads != args.threads:
+            if args.algo in ON_POLICY and args.update_threads != args.threads:
                 callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
             start = time.perf_counter()
             if remaining > 0 and not stop.requested:
@@ -635,6 +676,7 @@ def train(args: TrainArgs) -> dict[str, Any]:
         "env": args.env,
         "env_id": ENV_IDS[args.env],
         "world": args.world,
+        "task": args.task,
         "algo": args.algo,
         "status": record.status,
         "exit_status": stop.exit_status() if stop.requested else 0,

@@ -1,0 +1,87 @@
+"""The algorithms rover-train trains and rover-eval loads, by name.
+
+``recurrent-ppo`` is sb3-contrib's ``RecurrentPPO`` with its ``MultiInputLstmPolicy`` (an
+LSTM over the ``RoverExtractor`` features, for the Dict observations); the others are
+Stable-Baselines3's own. Both packages come with ``pip install 'roverav[train]'``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+ALGOS = ("ppo", "recurrent-ppo", "sac", "dqn")
+ON_POLICY = ("ppo", "recurrent-ppo")
+"""Rollout-and-update algorithms (``--n-steps``, ``--n-epochs``, ...)."""
+RECURRENT = ("recurrent-ppo",)
+"""Algorithms whose policy carries a state from step to step (reset at episode starts)."""
+_POLICIES = {"recurrent-ppo": "MultiInputLstmPolicy"}
+DEFAULT_POLICY = "MultiInputPolicy"
+CONTRIB_PACKAGE = "sb3_contrib"
+CONTRIB_INSTALL = "pip install -c constraints.txt 'roverav[train]' (it brings sb3-contrib)"
+
+
+def policy_name(algo: str) -> str:
+    """The SB3 policy ``algo`` is built with for the roverav Dict observations."""
+    return _POLICIES.get(algo, DEFAULT_POLICY)
+
+
+def contrib_missing(algo: str) -> str | None:
+    """For an algorithm from sb3-contrib that is not installed: what to do; else None."""
+    import importlib.util
+
+    if algo in RECURRENT and importlib.util.find_spec(CONTRIB_PACKAGE) is None:
+        return f"--algo {algo} needs sb3-contrib, which is not installed: {CONTRIB_INSTALL}"
+    return None
+
+
+def algo_class(name: str) -> Any:
+    """The model class of algorithm ``name`` (a member of :data:`ALGOS`)."""
+    if name not in ALGOS:
+        raise ValueError(f"unknown algorithm {name!r}; choose one of {ALGOS}")
+    if name == "recurrent-ppo":
+        problem = contrib_missing(name)
+        if problem:
+            raise ImportError(problem)
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
+    from stable_baselines3 import DQN, PPO, SAC
+
+    return {"ppo": PPO, "sac": SAC, "dqn": DQN}[name]
+
+
+class RecurrentActor:
+    """A recurrent model as an ``obs -> action`` callable for one env: it keeps the LSTM
+    state from step to step; :meth:`reset` starts an episode (call it after each
+    ``env.reset()``; ``rover_train.evaluate.run_episode`` does)."""
+
+    def __init__(self, model: Any, deterministic: bool = True) -> None:
+        self.model = model
+        self.deterministic = deterministic
+        self.reset()
+
+    def reset(self) -> None:
+        self._state: Any = None
+        self._episode_start = np.ones((1,), dtype=bool)
+
+    def __call__(self, obs: Any) -> Any:
+        action, self._state = self.model.predict(
+            obs, state=self._state, episode_start=self._episode_start,
+            deterministic=self.deterministic,
+        )  # fmt: skip
+        self._episode_start = np.zeros((1,), dtype=bool)
+        return action
+
+
+__all__ = [
+    "ALGOS",
+    "DEFAULT_POLICY",
+    "ON_POLICY",
+    "RECURRENT",
+    "RecurrentActor",
+    "algo_class",
+    "contrib_missing",
+    "policy_name",
+]

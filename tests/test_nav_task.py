@@ -1,0 +1,160 @@
+"""The nav task (issue 38): ``goal_ends_episode`` on the envs, ``--task`` on rover-train and
+rover-eval, and ``--algo recurrent-ppo`` (a tiny run that checkpoints and resumes)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import cast
+
+import numpy as np
+import pytest
+
+from rover_env import RoverEnv
+from rover_env.reward import GOAL
+from rover_train.envs import NAV_LENGTH, TASKS, env_kwargs, get_task
+from rover_train.train import TrainArgs, parse_args, validate
+from rover_train.zoo import EVAL_MAX_STEPS
+
+SEED = 2  # inspect: this spawn has 12 m of free LIDAR straight ahead (asserted below)
+GOAL_AHEAD_M = 1.2
+FORWARD = np.array([1.0, 0.0], dtype=np.float32)  # full speed, keep the heading
+
+
+def _drive_to_goal(env: RoverEnv) -> list[tuple[float, bool, bool, dict]]:
+    """Reset on SEED with the goal GOAL_AHEAD_M straight ahead, drive at it until the goal
+    is reached or the episode ends; every step's (reward, terminated, truncated, info)."""
+    obs, _ = env.reset(seed=SEED)
+    n = len(obs["lidar"])
+    assert obs["lidar"][n // 2 - 2 : n // 2 + 2].min() > 3 * GOAL_AHEAD_M  # nothing ahead
+    x, y, yaw = float(obs["pose"][0]), float(obs["pose"][1]), float(obs["imu"][2])
+    goal = (x + GOAL_AHEAD_M * math.cos(yaw), y + GOAL_AHEAD_M * math.sin(yaw))
+    obs, _ = env.reset(seed=SEED, options={"goal": goal})
+    steps = []
+    for _ in range(200):
+        _, reward, terminated, truncated, info = env.step(FORWARD)
+        steps.append((reward, terminated, truncated, info))
+        if terminated or truncated or info["goals_reached"]:
+            break
+    return steps
+
+
+def test_goal_ends_the_episode_on_the_step_it_is_reached() -> None:
+    ended = RoverEnv(world_n="inspect", n_pedestrians=0, goal_ends_episode=True)
+    seed = RoverEnv(world_n="inspect", n_pedestrians=0)
+    try:
+        assert ended.goal_ends_episode and not seed.goal_ends_episode
+        a, b = _drive_to_goal(ended), _drive_to_goal(seed)
+        assert len(a) == len(b) > 1  # the same drive: the goal falls on the same step
+        for _, terminated, truncated, info in a[:-1]:
+            assert not terminated and not truncated and not info["is_success"]
+            assert info["distance_to_goal"] >= ended.reward_config.success_distance
+        reward, terminated, truncated, info = a[-1]
+        assert terminated and not truncated
+        assert info["termination_reason"] == GOAL and info["is_success"]
+        assert info["goals_reached"] == 1 and info["distance_to_goal"] < 0.5
+        assert info["reward_goal"] == ended.reward_config.goal_reward
+        assert info["reward_termination"] == 0.0
+        assert reward > ended.reward_config.goal_reward  # the goal plus the step's progress
+        with pytest.raises(RuntimeError, match="reset"):
+            ended.step(FORWARD)
+        # the seed's behaviour (the default): the same step pays the same, the episode goes on
+        s_reward, s_terminated, s_truncated, s_info = b[-1]
+        assert s_info["goals_reached"] == 1 and s_info["is_success"]
+        assert not s_terminated and not s_truncated and s_info["termination_reason"] == ""
+        assert s_reward == pytest.approx(reward)
+        assert s_info["goal"] != info["goal"]  # a new goal was drawn
+        seed.step(FORWARD)  # and the episode goes on
+    finally:
+        ended.close()
+        seed.close()
+
+
+@pytest.mark.parametrize("value", ["yes", 1, None])
+def test_goal_ends_episode_refuses_what_is_not_a_bool(value: object) -> None:
+    with pytest.raises(TypeError, match="goal_ends_episode must be True or False"):
+        RoverEnv(goal_ends_episode=value)
+
+
+def test_tasks_set_the_env_keywords() -> None:
+    assert NAV_LENGTH == EVAL_MAX_STEPS  # the evaluators' episode
+    nav = env_kwargs("lidar", "maze", task="nav")
+    assert nav["goal_ends_episode"] is True and nav["length"] == NAV_LENGTH
+    assert env_kwargs("lidar", "maze", task="nav", length=50)["length"] == 50  # --length wins
+    seed = env_kwargs("lidar", "maze")
+    assert "goal_ends_episode" not in seed and "length" not in seed  # the env's own
+    fused = env_kwargs("fused", "maze", task="nav")
+    assert fused["goal_ends_episode"] is True and fused["length"] == NAV_LENGTH
+    with pytest.raises(ValueError, match="unknown task 'navigate'.*seed.*nav"):
+        get_task("navigate")
+
+
+def test_cli_task_flag_builds_envs_that_end_at_the_goal() -> None:
+    args = parse_args(["--task", "nav"])
+    assert args.task == "nav" and TASKS[args.task].goal_ends_episode
+    assert parse_args([]).task == "seed"
+    import rover_train.envs as envs
+
+    env = envs.make_env(args.env, world=args.world, task=args.task, n_pedestrians=0)
+    try:
+        base = cast(RoverEnv, env.unwrapped)
+        assert base.goal_ends_episode and base.length == NAV_LENGTH
+    finally:
+        env.close()
+
+
+def test_cli_refuses_an_unknown_task(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        parse_args(["--task", "navigate"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--task" in err and "'navigate'" in err and "nav" in err
+    assert "--task must be one of seed, nav" in str(validate(TrainArgs(task="navigate")))
+
+
+def test_recurrent_ppo_validation() -> None:
+    assert validate(TrainArgs(algo="recurrent-ppo")) is None
+    problem = validate(TrainArgs(algo="recurrent-ppo", n_steps=1))
+    assert problem is not None and "--n-steps must be at least 2" in problem
+    problem = validate(TrainArgs(algo="recurrent-ppo", n_steps=65, batch_size=64))
+    assert problem is not None and "minibatch of 1 step" in problem and "65" in problem
+    assert validate(TrainArgs(algo="ppo", n_steps=65, batch_size=64)) is None  # PPO copes
+
+
+def test_recurrent_ppo_nav_run_checkpoints_and_resumes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """In-process (one interpreter start instead of four): train, resume, evaluate."""
+    from rover_train import evaluate
+    from rover_train.train import train
+
+    caplog.set_level(logging.INFO, logger="rover_train")
+    small = ["--env", "lidar", "--algo", "recurrent-ppo", "--task", "nav", "--n-steps", "64",
+             "--batch-size", "32", "--n-epochs", "1", "--no-progress", "--checkpoint-every", "64",
+             "--logdir", str(tmp_path)]  # fmt: skip
+    metrics = train(parse_args([*small, "--timesteps", "128"]))
+    assert metrics["status"] == "complete"
+    names = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
+    assert names == ["recurrent-ppo_128_steps.state.pkl", "recurrent-ppo_128_steps.zip",
+                     "recurrent-ppo_64_steps.state.pkl", "recurrent-ppo_64_steps.zip"]  # fmt: skip
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["algo"] == "recurrent-ppo" and metrics["task"] == "nav"
+    # a resume keeps the task, and refuses another
+    with pytest.raises(SystemExit) as refused:
+        parse_args(["--resume", str(tmp_path), "--task", "seed", "--timesteps", "192"])
+    assert refused.value.code == 2 and "--task was 'nav'" in capsys.readouterr().err
+    resumed = parse_args(["--resume", str(tmp_path), "--timesteps", "192", "--no-progress"])
+    assert resumed.task == "nav" and resumed.algo == "recurrent-ppo"
+    caplog.clear()
+    train(resumed)
+    assert "resuming from" in caplog.text and "recurrent-ppo_128_steps.zip" in caplog.text
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["timesteps"] == 192 and metrics["resumes"] == 1
+    assert metrics["task"] == "nav" and metrics["args"]["task"] == "nav"
+    # rover-eval loads it as a recurrent policy and takes the task from metrics.json
+    code = evaluate.main([str(tmp_path / "model.zip"), "--env", "lidar", "--episodes", "1",
+                          "--max-steps", "20", "--json"])  # fmt: skip
+    assert code == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["episodes"] == 1
