@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_train import zoo
 from rover_train.cli import add_deprecated_alias
 from rover_train.evaluate import (
@@ -126,6 +127,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="with --expert: its pedestrian terms (default: those of the entry's teacher)",
     )  # fmt: skip
     p.add_argument("--random", action="store_true", help="evaluate a seeded random policy")
+    p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=None,
+                   help="the pedestrians (default: the env's, the crowd; pacing: those the "
+                        "entries were made among)")  # fmt: skip
     p.add_argument("--file", help="a student file instead of the shipped entry")
     name = p.add_argument(
         "--name", help="daemon name for fused entries (default: $ROVERAV_SHM_NAME, set by "
@@ -199,7 +203,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(json.dumps(suite_json(rows)))
         return 0
     t0 = time.monotonic()
-    results = evaluate_on({}, "")
+    results = evaluate_on(
+        {} if args.pedestrian_mode is None else {"pedestrian_mode": args.pedestrian_mode}, ""
+    )
     wall = time.monotonic() - t0
     summary = summarise(results)
     summary["wall_s"] = wall
