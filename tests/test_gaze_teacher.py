@@ -4,8 +4,10 @@ that charges pedestrians in the rover's heading instead of the image's centre.""
 
 from __future__ import annotations
 
+import json
 import math
 import uuid
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -208,3 +210,22 @@ def test_looking_away_lowers_the_seed_penalty_but_not_the_heading_one() -> None:
     assert heading[-math.pi / 3] == pytest.approx(heading[0.0], rel=0.02)
     # the same order as the seed's term when the camera looks ahead
     assert 0.2 < heading[0.0] / image[0.0] < 5.0
+
+
+def test_gaze_value_benchmark_reports_every_teacher_with_intervals(tmp_path: Path) -> None:
+    """benchmarks/gaze_value.py, shortened: one row per teacher, each figure inside its
+    interval, and the paired difference of the same episodes."""
+    from benchmarks.gaze_value import TEACHERS, main
+
+    out = tmp_path / "gaze_value.json"
+    assert main(["--episodes", "2", "--max-steps", "40", "--scenarios", "inspect-crowd-3",
+                 "--json", str(out)]) == 0  # fmt: skip
+    report = json.loads(out.read_text())["scenarios"]["inspect-crowd-3"]
+    assert list(report["rows"]) == list(TEACHERS)
+    for row in report["rows"].values():
+        assert row["episodes"] == 2 and 0 < row["steps"] <= 80
+        for key in ("success", "pedestrian_collisions", "intrusion", "nearest_in_view"):
+            value, lo, hi = row[key]
+            assert lo - 1e-9 <= value <= hi + 1e-9 and 0.0 <= lo and hi <= 1.0
+    assert set(report["gaze_minus_fixed"]) == {"success", "pedestrian_collisions",
+                                               "nearest_in_view"}  # fmt: skip

@@ -255,9 +255,7 @@ class WithPanHead(gym.Wrapper):
         obs, info = self.env.reset(**kwargs)
         return self._observation(obs), self._info(info)
 
-    def step(
-        self, action: Any
-    ) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         a = np.asarray(action, dtype=np.float64).reshape(-1)
         if a.shape != (3,) or not np.all(np.isfinite(a)):
             raise ValueError(
