@@ -19,7 +19,8 @@ key                   shape / dtype        meaning
 ``seed``              () int64             the seed the file was made from
 ====================  ===================  =============================================
 
-A file is a pure function of ``(seed, frames, worlds, size, drive_fraction, appearance)``.
+A file is a pure function of ``(seed, frames, worlds, size, drive_fraction, appearance,
+pedestrian_mode, n_pedestrians)``.
 The first ``round(frames * drive_fraction)`` frames (70 % by default) are **driving**
 frames: short episodes recorded while the rover drives (:mod:`active_vision.training.driving`:
 random smooth driving, approaching a pedestrian, driving into walls and rocks, watching a
@@ -120,6 +121,10 @@ class DatasetConfig:
     """How the pedestrians walk (``RoverSim(pedestrian_mode=...)``): the shipped networks'
     frames were rendered with the out-and-back pacers, which stay the data's mode until
     the perception is retrained on the crowd, although the envs' default is now ``crowd``."""
+    n_pedestrians: int | None = None
+    """Pedestrians in each world (``RoverSim(n_pedestrians=...)``; None: the world's own, 3).
+    With ``pedestrian_mode``, what ``evaluate --pedestrian-mode crowd --pedestrians 10``
+    renders its split with (issue 36: the targets at 3 and at 10 people)."""
 
 
 @dataclass
@@ -193,6 +198,10 @@ def dataset_path(out_dir: Path, config: DatasetConfig) -> Path:
     tag = "-".join(config.worlds)
     drive = f"_d{round(100 * config.drive_fraction)}" + (
         "" if config.appearance == "random" else f"_{config.appearance}")
+    if config.pedestrian_mode != "pacing" or config.n_pedestrians is not None:
+        # other pedestrians: another file (the pacers' 3 keep the names they always had)
+        drive += f"_p{config.pedestrian_mode}" + (
+            "" if config.n_pedestrians is None else str(config.n_pedestrians))
     return Path(out_dir) / (f"av_{tag}_s{config.seed}_n{config.frames}_{config.size}px"
                             f"{drive}_v{DATASET_VERSION}.npz")
 
@@ -219,6 +228,7 @@ class FrameRenderer:
         self.config = config
         self.sim = RoverSim(world=world, camera_size=(config.size, config.size),
                             pedestrian_mode=config.pedestrian_mode,
+                            n_pedestrians=config.n_pedestrians,
                             pedestrian_appearance=config.appearance)
         self.world = self.sim.world
         self.fov = self.sim.camera_fov

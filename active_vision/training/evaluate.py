@@ -18,6 +18,9 @@ of the network: where a threshold other than 0.5 would put the operating point.
 ONNX Runtime instead of the fp32 network in torch (the JSON line says which: ``precision``).
 ``--depth-bands`` also prints, per world, the depth figures by true depth and by image row
 (:func:`depth_bands`): where the depth channel goes wrong.
+``--pedestrian-mode crowd --pedestrians 10`` renders (and caches under its own file name)
+the split with those pedestrians instead of the world's 3 pacers: issue 36's crowds, where
+the targets are held at 3 and at 10 people.
 
 Definitions (``THRESHOLD`` = 0.5, ``MIN_PEDESTRIAN_PX`` = 30, ``MIN_BLOB_PX`` = 5):
 
@@ -79,6 +82,7 @@ from active_vision.training.dataset import (
     build,
 )
 from fused_image import DEPTH_MAX_M, channel_to_depth
+from rover_env.pedestrians import PEDESTRIAN_MODES
 
 logger = logging.getLogger(__name__)
 
@@ -395,13 +399,18 @@ def format_sweep(sweep: dict[float, dict[str, dict[str, float]]]) -> str:
 
 
 def heldout(data_dir: Path = DEFAULT_DATA_DIR, frames: int = HELDOUT_FRAMES,
-            worlds: Sequence[str] = WORLDS, split: str = "heldout") -> Dataset:
+            worlds: Sequence[str] = WORLDS, split: str = "heldout",
+            pedestrian_mode: str = DatasetConfig.pedestrian_mode,
+            n_pedestrians: int | None = None) -> Dataset:
     """The held-out split, or with ``split="validation"`` the validation split (driving
-    frames only; rendered on first use, then reused from ``data_dir``)."""
+    frames only; rendered on first use, then reused from ``data_dir``), with the
+    pedestrians walking by ``pedestrian_mode``, ``n_pedestrians`` of them (None: the
+    world's 3); a setting other than the 3 pacers is cached under its own file name."""
     if split not in SPLIT_SEEDS:
         raise ValueError(f"split {split!r}: give one of {', '.join(SPLIT_SEEDS)}")
     cfg = DatasetConfig(frames=frames, seed=SPLIT_SEEDS[split], worlds=tuple(worlds),
-                        drive_fraction=1.0)
+                        drive_fraction=1.0, pedestrian_mode=pedestrian_mode,
+                        n_pedestrians=n_pedestrians)
     return Dataset.load(build(data_dir, cfg))
 
 
@@ -469,6 +478,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="driving frames to evaluate on when --data is not given: the "
                    "held-out split (the figures reported) or the validation split (to choose "
                    "between networks on)")
+    p.add_argument("--pedestrian-mode", default=DatasetConfig.pedestrian_mode,
+                   choices=PEDESTRIAN_MODES,
+                   help="how the split's pedestrians walk when --data is not given (a mode "
+                   "other than pacing, or --pedestrians, renders and caches its own file)")
+    p.add_argument("--pedestrians", type=int, default=None, metavar="N",
+                   help="pedestrians in each world of the split (default: the world's 3)")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--precision", choices=PRECISIONS, default="fp32",
                    help="fp32: the torch network; int8: its int8 ONNX model (made by "
@@ -488,7 +503,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level.upper(), format="%(levelname)s %(name)s: %(message)s")
     data = (Dataset.load(args.data) if args.data
-            else heldout(args.data_dir, args.frames, split=args.split))
+            else heldout(args.data_dir, args.frames, split=args.split,
+                         pedestrian_mode=args.pedestrian_mode, n_pedestrians=args.pedestrians))
     model = load_model(args.weights)
     m = evaluate(model, data, threads=args.threads, precision=args.precision,
                  weights=args.weights)
@@ -498,6 +514,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.depth_bands:
         print(format_depth_bands(depth_bands(model, data, threads=args.threads)))
     out: dict[str, object] = {**m.summary(), "precision": args.precision,
+                              "pedestrian_mode": args.pedestrian_mode,
+                              "n_pedestrians": args.pedestrians,
                               "frames": m.frames, "pedestrians": m.pedestrians,
                               "empty_frames": m.empty_frames, "abs_rel_near": m.abs_rel_near,
                               "worst": m.worst(),
