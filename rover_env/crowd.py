@@ -572,7 +572,7 @@ class Crowd:
         diff = z[:, None] - z[None, :]  # i minus j
         d = np.abs(diff)
         d[self._eye] = np.inf
-        nij = diff / d
+        nij = diff / np.maximum(d, 1e-9)  # people placed on one spot: no direction, no NaN
         rel = nij * ez.conj()[:, None]  # the direction to i from j, in i's walking frame
         cos_phi = -rel.real
         mag = A_PED * np.exp((MIN_SEPARATION + 0.1 - d) * (1.0 / B_PED))
