@@ -13,7 +13,7 @@ of roverav: install them in a scratch venv and point this script at it,
     python -m venv /tmp/crowdvenv && /tmp/crowdvenv/bin/pip install pyrvo jupedsim pysocialforce
     python benchmarks/crowd_step.py --site /tmp/crowdvenv/lib/python3.11/site-packages
 
-Packages that do not import are reported as such; roverav's own ``rover_env.crowd`` (numpy,
+Packages that do not import are reported as such; roverav's own ``rover_env.crowd`` (numba,
 with routes on a grid, solid bodies and the rover) always runs.
 """
 
@@ -148,7 +148,7 @@ CANDIDATES: dict[str, tuple[str, Callable[[], Result], str, str]] = {
         "jupedsim", lambda: run_jupedsim("SocialForceModel"),
         "walkable polygon (shapely)", "LGPL-3.0+"),
     "PySocialForce": ("pysocialforce", run_pysocialforce, "line segments", "MIT"),
-    "roverav rover_env.crowd": ("numpy", run_roverav, "world footprints, grid routes", "ours"),
+    "roverav rover_env.crowd": ("numba", run_roverav, "world footprints, grid routes", "ours"),
 }  # fmt: skip
 
 

@@ -1,4 +1,4 @@
-"""Crowd: pedestrians who walk to goals, as a social-force model vectorised in numpy.
+"""Crowd: pedestrians who walk to goals, as a social-force model (its loop compiled by numba).
 
 The model is Helbing & Molnár's social force (1995): each person accelerates towards a
 desired velocity (its speed, towards the next waypoint of its route) with relaxation time
@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from rover_env import crowd_kernel
 from rover_env.worlds.spec import Rect, WorldSpec
 
 CROWD_DT = 0.1  # s: the model's fixed step (CrowdNav steps 0.25 s); poses move at 10 Hz
@@ -88,10 +89,12 @@ _SQRT2 = math.sqrt(2.0)
 _MOVES = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
 
 
-def _clamp(a: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """``np.clip(a, lo, hi)`` without its per-call overhead (tens of µs in numpy 2: the crowd
-    calls it on a handful of numbers several times a step)."""
-    return np.minimum(np.maximum(a, lo), hi)
+# The constants of one step, in the order rover_env.crowd_kernel.step unpacks them.
+KERNEL_CONSTANTS = (
+    TAU, SLOW_DOWN_DISTANCE, A_PED, B_PED, MIN_SEPARATION, LAMBDA, GROUP_REPULSION_FACTOR,
+    A_SIDE, A_OBS, B_OBS, BODY_RADIUS, A_ROVER, B_ROVER, ROVER_RADIUS, ROVER_LAMBDA,
+    ROVER_LOOKAHEAD, A_ROVER_SIDE, A_COHERENCE, MAX_STEP,
+)  # fmt: skip
 
 
 class CrowdPlacementError(ValueError):
@@ -323,15 +326,19 @@ class Crowd:
         self._clock = 0.0  # simulated time not yet stepped (< CROWD_DT)
         self._rover_prev: tuple[float, float] | None = None
         self._rng = np.random.default_rng(0)
-        self._eye = np.eye(n, dtype=bool)
-        self._same_group = self._eye.copy()
         self._group_sizes = np.ones(n)
-        self._rows = np.arange(n)
-        self._target_cell: np.ndarray | None = None
+        self._planned = False  # _target and _target_cell hold a plan for the current goals
+        self._target_cell = np.full(n, -1, dtype=np.intp)  # the cell headed for (-1: goal)
+        self._target = np.zeros((n, 2))  # the point each walker heads for
         self._here: np.ndarray | None = None  # map.lookup(pos), while pos stays
         self._route_left = np.zeros(n)
-        self._target = np.zeros(n, dtype=np.complex128)
+        self._to_goal = np.zeros(n)
+        self._rover = np.zeros(4)  # the kernel's view of the rover: x, y, vx, vy
         self._plan_age = PLAN_EVERY
+        m = self.map
+        self._grid = (float(m.area.x[0]), float(m.area.y[0]), CELL, m.nx, m.ny)
+        ox, oy = m.field_origin
+        self._field = (float(ox), float(oy), FIELD_CELL, m.field.shape[1], m.field.shape[0])
         self._cap = MAX_SPEED_FACTOR * self.speed
         self._arrive = np.full(n, ARRIVAL_DISTANCE)
         area = world.pedestrian_area
@@ -364,7 +371,7 @@ class Crowd:
         self.alternate[:] = np.nan
         self.touching[:] = False
         self._paused[:] = False
-        self._target_cell = None
+        self._planned = False
         self._here = None
         self._clock = 0.0
         self._rover_prev = avoid
@@ -375,7 +382,6 @@ class Crowd:
     def _regroup(self) -> None:
         """Derived group tables after ``group`` changed."""
         n = self.n
-        self._same_group = self.group[:, None] == self.group[None, :]
         self._group_sizes = np.bincount(self.group, minlength=n).astype(float)
         # a group has arrived when a member is this close to the goal
         self._arrive = ARRIVAL_DISTANCE + 0.3 * (self._group_sizes[self.group] - 1)
@@ -463,7 +469,7 @@ class Crowd:
         self.pause[i] = 0.0
         self.speed[i] = speed
         self._cap = MAX_SPEED_FACTOR * self.speed
-        self._target_cell = None
+        self._planned = False
         self._here = None
         self.alternate[i] = back
         self._goal_at(i, np.array(end))
@@ -497,7 +503,7 @@ class Crowd:
         self.pinned[:], self.alternate[:], self._paused[:] = s.pinned, s.alternate, s.paused
         self.group[:] = s.group
         self._regroup()
-        self._target_cell = None
+        self._planned = False
         self._here = None
         for i, cell in enumerate(s.goal_cell):
             if cell != self.goal_cell[i]:
@@ -532,108 +538,39 @@ class Crowd:
         return steps
 
     def _plan(self) -> None:
-        """Each walker's next target cell: two moves down its route (-1: its goal point)."""
-        m, n = self.map, self.n
-        rows = self._rows
-        cells = m.nearest_free[m.cell_of(self.pos)]
-        nb = m.neighbours[cells]
-        nxt = nb[rows, np.argmin(m.weights[cells] + self._route[rows[:, None], nb], axis=1)]
-        nb2 = m.neighbours[nxt]
-        nxt2 = nb2[rows, np.argmin(m.weights[nxt] + self._route[rows[:, None], nb2], axis=1)]
-        last = (cells == self.goal_cell) | (nxt == self.goal_cell) | (nxt2 >= len(m.free))
-        self._target_cell = np.where(last, -1, nxt2)
-        target = np.where(last[:, None], self.goal, m.centres[nxt2 % len(m.free)])
-        self._target = target[:, 0] + 1j * target[:, 1]  # the point each walker heads for
-        self._route_left = self._route[rows, cells]
+        """Each walker's next target: two moves down its route (its goal point in the last
+        cells)."""
+        m = self.map
+        crowd_kernel.plan(
+            self.pos, self._grid, m.nearest_free, m.neighbours, m.weights, self._route,
+            self.goal_cell, self.goal, m.centres, self._target, self._target_cell,
+            self._route_left,
+        )  # fmt: skip
         self._plan_age = 0
-        del n
+        self._planned = True
 
     def _step(self, rover_xy: tuple[float, float] | None, rover_v: np.ndarray) -> None:
         n = self.n
         if n == 0:
             return
-        m, dt = self.map, CROWD_DT
-        pos = self.pos
-        if self._plan_age >= PLAN_EVERY or self._target_cell is None:
+        dt = CROWD_DT
+        if self._plan_age >= PLAN_EVERY or not self._planned:
             self._plan()
         self._plan_age += 1
-        # positions, velocities and goals as complex numbers (x + iy): views, not copies,
-        # and half the array operations of (n, 2) arithmetic
-        z = pos.view(np.complex128)[:, 0]
-        vz = self.vel.view(np.complex128)[:, 0]
-        to_target = self._target - z
-        ez = to_target / np.maximum(np.abs(to_target), 1e-9)  # where each walker heads
-        to_goal = np.abs(self.goal.view(np.complex128)[:, 0] - z)
         standing = (self.pause > 0.0) | self.pinned
-        desired = self.speed * np.minimum(1.0, to_goal * (1.0 / SLOW_DOWN_DISTANCE))
-        desired[standing] = 0.0
-        force = (desired * ez - vz) * (1.0 / TAU)
-        # other people
-        diff = z[:, None] - z[None, :]  # i minus j
-        d = np.abs(diff)
-        d[self._eye] = np.inf
-        nij = diff / np.maximum(d, 1e-9)  # people placed on one spot: no direction, no NaN
-        rel = nij * ez.conj()[:, None]  # the direction to i from j, in i's walking frame
-        cos_phi = -rel.real
-        mag = A_PED * np.exp((MIN_SEPARATION + 0.1 - d) * (1.0 / B_PED))
-        if self.grouped:
-            mag[self._same_group] *= GROUP_REPULSION_FACTOR
-        mag *= LAMBDA + (1.0 - LAMBDA) * 0.5 * (1.0 + cos_phi)
-        # ... and a step aside from those ahead, away from their side (dead ahead: right)
-        side = np.copysign(A_SIDE, rel.imag)  # j to i's right (imag >= 0): i steps left
-        force += (mag * nij).sum(axis=1) + 1j * ez * (
-            np.maximum(cos_phi, 0.0) * mag * side
-        ).sum(axis=1)  # fmt: skip
-        closest = float(d.min()) if n > 1 else math.inf
-        # groups: coherence towards the centre of the group
-        if self.grouped:
-            sizes = self._group_sizes
-            centre = np.bincount(self.group, z.real, minlength=n) + 1j * np.bincount(
-                self.group, z.imag, minlength=n
-            )
-            off = centre[self.group] / sizes[self.group] - z
-            far = np.abs(off)
-            thr = 0.5 * (sizes[self.group] - 1)
-            force += A_COHERENCE * (far > thr) * off / np.maximum(far, 1e-9)
-        # scenery
-        scenery = self.here()
-        clear = scenery[:, 0]
-        force += A_OBS * np.exp((BODY_RADIUS - clear) * (1.0 / B_OBS)) * (
-            scenery[:, 1] + 1j * scenery[:, 2]
+        rover = self._rover
+        if rover_xy is None:
+            rover[0] = math.nan
+        else:
+            rover[:2], rover[2:] = rover_xy, rover_v
+        here = self.here()
+        to_goal = self._to_goal
+        crowd_kernel.step(
+            KERNEL_CONSTANTS, dt, self.pos, self.vel, self.heading, self.walked, self._target,
+            self.goal, self.speed, self._cap, standing, self.pinned, self.group,
+            self._group_sizes, self.grouped, rover, self.sees_rover, here, self._field,
+            self.map.table, self.map.corners, self._lo, self._hi, self.touching, to_goal,
         )  # fmt: skip
-        # the rover, for those who see it: from its point of closest approach
-        rz = None if rover_xy is None else complex(rover_xy[0], rover_xy[1])
-        if rz is not None and self.sees_rover:
-            r = z - rz
-            rv = vz - complex(rover_v[0], rover_v[1])
-            vv = np.maximum(rv.real**2 + rv.imag**2, 1e-9)
-            t_star = _clamp(-(r * rv.conj()).real / vv, 0.0, ROVER_LOOKAHEAD)
-            near = r + rv * t_star
-            dn = np.maximum(np.abs(near), 1e-9)
-            nr = near / dn
-            rr = nr * ez.conj()
-            cos_r = -rr.real
-            mag_r = A_ROVER * np.exp((ROVER_RADIUS + BODY_RADIUS - dn) * (1.0 / B_ROVER)) * (
-                ROVER_LAMBDA + (1.0 - ROVER_LAMBDA) * 0.5 * (1.0 + cos_r)
-            )
-            side_r = np.copysign(A_ROVER_SIDE, rr.imag)
-            force += mag_r * nr + 1j * ez * (np.maximum(cos_r, 0.0) * mag_r * side_r)
-        # integrate (semi-implicit Euler), speed capped
-        new_v = vz + force * dt
-        new_v *= np.minimum(1.0, self._cap / np.maximum(np.abs(new_v), 1e-9))
-        if self.pinned.any():
-            new_v[self.pinned] = 0.0
-        new_pos = np.empty_like(pos)
-        new_pos.view(np.complex128)[:, 0] = z + new_v * dt
-        self._solid(new_pos, rz, closest, clear)
-        step = new_pos - pos
-        np.multiply(step, 1.0 / dt, out=self.vel)
-        moved = np.hypot(step[:, 0], step[:, 1])
-        self.walked += moved
-        fast = moved > 0.2 * dt
-        self.heading[fast] = np.arctan2(step[fast, 1], step[fast, 0])
-        pos[:] = new_pos
-        self._here = m.lookup(pos)
         # goals: arrival, pauses, stalls (a Python loop only for the walkers concerned)
         self.pause = np.maximum(self.pause - dt, 0.0)
         left = self._route_left
@@ -666,37 +603,3 @@ class Crowd:
                     self._new_goal(i)
                 else:
                     self.stall[members] = 0.0
-
-    def _solid(
-        self, pos: np.ndarray, rz: complex | None, closest: float, clear: np.ndarray
-    ) -> None:
-        """Bodies are solid: apart from each other, out of the rover's footprint, out of the
-        scenery, inside the area (in place). ``closest`` and ``clear``: the pair distance
-        and clearances before the step (a walker moves at most ``MAX_STEP`` m)."""
-        z = pos.view(np.complex128)[:, 0]  # a view: moving z moves pos
-        if closest < MIN_SEPARATION + 2.0 * MAX_STEP:
-            for _ in range(2):
-                diff = z[:, None] - z[None, :]
-                d = np.abs(diff)
-                d[self._eye] = np.inf
-                short = np.maximum(MIN_SEPARATION - d, 0.0)
-                if not np.count_nonzero(short):
-                    break
-                z += (0.5 * short / np.maximum(d, 1e-9) * diff).sum(axis=1)
-        self.touching[:] = False
-        if rz is not None:
-            r = z - rz
-            d = np.abs(r)
-            inside = d < ROVER_RADIUS + BODY_RADIUS
-            if np.count_nonzero(inside):
-                self.touching[:] = inside
-                z[inside] += r[inside] * ((ROVER_RADIUS + BODY_RADIUS - d[inside])
-                                          / np.maximum(d[inside], 1e-9))  # fmt: skip
-        risky = clear < BODY_RADIUS + MAX_STEP + 0.1
-        if np.count_nonzero(risky):
-            c, g = self.map.clearance(pos[risky])
-            deep = c < BODY_RADIUS
-            if np.count_nonzero(deep):
-                idx = np.flatnonzero(risky)[deep]
-                pos[idx] += g[deep] * (BODY_RADIUS - c[deep])[:, None]
-        np.minimum(np.maximum(pos, self._lo, out=pos), self._hi, out=pos)
