@@ -333,6 +333,7 @@ class Crowd:
         self._here: np.ndarray | None = None  # map.lookup(pos), while pos stays
         self._route_left = np.zeros(n)
         self._to_goal = np.zeros(n)
+        self._due = np.zeros(n, dtype=bool)
         self._rover = np.zeros(4)  # the kernel's view of the rover: x, y, vx, vy
         self._plan_age = PLAN_EVERY
         m = self.map
@@ -572,14 +573,11 @@ class Crowd:
             self.map.table, self.map.corners, self._lo, self._hi, self.touching, to_goal,
         )  # fmt: skip
         # goals: arrival, pauses, stalls (a Python loop only for the walkers concerned)
-        self.pause = np.maximum(self.pause - dt, 0.0)
-        left = self._route_left
-        improved = left < self.best - 0.5
-        self.best = np.where(improved, left, self.best)
-        self.stall = np.where(improved | standing, 0.0, self.stall + dt)
-        due = ((to_goal < self._arrive) & (self.pause <= 0.0)) | (self.stall > STUCK_TIME)
-        due &= ~self.pinned
-        if not due.any():
+        due = self._due
+        if not crowd_kernel.goal_clocks(
+            dt, STUCK_TIME, standing, self.pinned, self.pause, self.best, self.stall,
+            self._route_left, to_goal, self._arrive, due,
+        ):  # fmt: skip
             return
         self._plan_age = PLAN_EVERY  # replan next step
         for i in sorted(set(self.group[due].tolist())):  # their leaders

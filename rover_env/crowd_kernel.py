@@ -242,6 +242,40 @@ def step(
 
 
 @njit(cache=True, error_model="numpy")
+def goal_clocks(
+    dt: float,
+    stuck_time: float,
+    standing: np.ndarray,
+    pinned: np.ndarray,
+    pause: np.ndarray,
+    best: np.ndarray,
+    stall: np.ndarray,
+    route_left: np.ndarray,
+    to_goal: np.ndarray,
+    arrive: np.ndarray,
+    due: np.ndarray,
+) -> bool:
+    """After a step: pauses run down, progress along the route (0.5 m better than the best
+    so far) resets the stall clock, and ``due`` marks who has arrived (and is not pausing)
+    or has stalled for ``stuck_time``. Returns whether anyone is due."""
+    anyone = False
+    for i in range(pause.shape[0]):
+        pause[i] = max(pause[i] - dt, 0.0)
+        if route_left[i] < best[i] - 0.5:
+            best[i] = route_left[i]
+            stall[i] = 0.0
+        elif standing[i]:
+            stall[i] = 0.0
+        else:
+            stall[i] += dt
+        due[i] = not pinned[i] and (
+            (to_goal[i] < arrive[i] and pause[i] <= 0.0) or stall[i] > stuck_time
+        )
+        anyone = anyone or due[i]
+    return anyone
+
+
+@njit(cache=True, error_model="numpy")
 def _bilinear(
     x: float, y: float, field: tuple[float, float, float, int, int], corners: np.ndarray
 ) -> tuple[float, float, float]:
@@ -259,3 +293,45 @@ def _bilinear(
         out[c] = top + b * (bottom - top)
     norm = max(math.hypot(out[1], out[2]), 1e-9)
     return out[0], out[1] / norm, out[2] / norm
+
+
+@njit(cache=True, error_model="numpy")
+def pose_figures(
+    pos: np.ndarray,
+    heading: np.ndarray,
+    vel: np.ndarray,
+    walked: np.ndarray,
+    here: np.ndarray,
+    gait: np.ndarray,
+    hip: np.ndarray,
+    legs: tuple[float, float, float],
+    order: np.ndarray,
+    mocap_pos: np.ndarray,
+    mocap_quat: np.ndarray,
+) -> None:
+    """Each walker's three mocap poses (upper body; left and right leg at the hips, swung
+    in opposite phase while walking) written into MuJoCo's ``mocap_pos``/``mocap_quat``
+    rows ``order[3 i]``, ``order[3 i + 1]``, ``order[3 i + 2]``; the feet on the ground
+    height of ``here``. ``legs``: (swing amplitude rad, step length m, hip half width m)."""
+    swing_amp, step_length, half_width = legs
+    for i in range(pos.shape[0]):
+        x, y, z, yaw = pos[i, 0], pos[i, 1], here[i, 3], heading[i]
+        swing = 0.0
+        if abs(vel[i, 0]) + abs(vel[i, 1]) > 0.05:
+            swing = swing_amp * math.sin(math.pi * walked[i] / step_length + gait[i])
+        cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+        cos_yaw, sin_yaw = math.cos(yaw), math.sin(yaw)
+        cp, sp = math.cos(0.5 * swing), math.sin(0.5 * swing)
+        r = order[3 * i]
+        mocap_pos[r, 0], mocap_pos[r, 1], mocap_pos[r, 2] = x, y, z
+        mocap_quat[r, 0], mocap_quat[r, 1], mocap_quat[r, 2], mocap_quat[r, 3] = cy, 0.0, 0.0, sy
+        for leg in range(2):
+            side, sign = (half_width, 1.0) if leg == 0 else (-half_width, -1.0)
+            r = order[3 * i + 1 + leg]
+            mocap_pos[r, 0] = x - sin_yaw * side
+            mocap_pos[r, 1] = y + cos_yaw * side
+            mocap_pos[r, 2] = z + hip[i]
+            mocap_quat[r, 0] = cy * cp
+            mocap_quat[r, 1] = -sy * sp * sign
+            mocap_quat[r, 2] = cy * sp * sign
+            mocap_quat[r, 3] = sy * cp

@@ -33,6 +33,7 @@ from typing import NamedTuple
 import mujoco
 import numpy as np
 
+from rover_env import crowd_kernel
 from rover_env.crowd import MAX_PEDESTRIANS, Crowd, CrowdState
 from rover_env.worlds.spec import GROUP_PEDESTRIAN, GROUP_VISUAL, WorldSpec
 
@@ -280,8 +281,6 @@ class Pedestrians:
         self._gait = [0.0] * self.n
         self._hip_arr = np.full(self.n, HIP_HEIGHT)
         self._gait_arr = np.zeros(self.n)
-        self._pose_pos = np.zeros((self.n, 3, 3))
-        self._pose_quat = np.zeros((self.n, 3, 4))
         self.appearance: list[Appearance] = []
         self.mode = mode
         self._crowd: Crowd | None = None
@@ -569,33 +568,13 @@ class Pedestrians:
         self._data.mocap_quat[self._order] = quat_rows
 
     def _write_crowd_poses(self, crowd: Crowd) -> None:
-        """Mocap poses of the crowd's walkers, vectorised (ten or twenty figures)."""
-        x, y, yaw = crowd.pos[:, 0], crowd.pos[:, 1], crowd.heading
-        moving = np.abs(crowd.vel).sum(axis=1) > 0.05
-        swing = np.where(
-            moving, LEG_SWING * np.sin(np.pi * crowd.walked / STEP_LENGTH + self._gait_arr), 0.0
-        )
-        z = crowd.here()[:, 3]
+        """Mocap poses of the crowd's walkers (compiled: ten or twenty figures)."""
         self.positions[:] = crowd.pos
-        self.headings[:] = yaw
-        cy, sy = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
-        cos_yaw, sin_yaw = np.cos(yaw), np.sin(yaw)
-        cp, sp = np.cos(0.5 * swing), np.sin(0.5 * swing)
-        hip = z + self._hip_arr
-        pos = self._pose_pos
-        quat = self._pose_quat
-        pos[:, 0, 0], pos[:, 0, 1], pos[:, 0, 2] = x, y, z
-        quat[:, 0, 0], quat[:, 0, 3] = cy, sy
-        # both legs at once: columns 1 (left, +HIP_HALF_WIDTH) and 2 (right, swung back)
-        pos[:, 1:, 0] = x[:, None] - sin_yaw[:, None] * _LEG_SIDES
-        pos[:, 1:, 1] = y[:, None] + cos_yaw[:, None] * _LEG_SIDES
-        pos[:, 1:, 2] = hip[:, None]
-        quat[:, 1:, 0] = (cy * cp)[:, None]
-        quat[:, 1:, 1] = (-sy * sp)[:, None] * _LEG_SIGNS
-        quat[:, 1:, 2] = (cy * sp)[:, None] * _LEG_SIGNS
-        quat[:, 1:, 3] = (sy * cp)[:, None]
-        self._data.mocap_pos[self._order] = pos.reshape(-1, 3)
-        self._data.mocap_quat[self._order] = quat.reshape(-1, 4)
+        self.headings[:] = crowd.heading
+        crowd_kernel.pose_figures(
+            crowd.pos, crowd.heading, crowd.vel, crowd.walked, crowd.here(), self._gait_arr,
+            self._hip_arr, _LEGS, self._order, self._data.mocap_pos, self._data.mocap_quat,
+        )  # fmt: skip
 
     def _pose(
         self,
@@ -625,8 +604,7 @@ class Pedestrians:
             quat_rows.append([cy * cp, -sy * sp, cy * sp, sy * cp])
 
 
-_LEG_SIDES = np.array([HIP_HALF_WIDTH, -HIP_HALF_WIDTH])  # m: left and right hip offsets
-_LEG_SIGNS = np.array([1.0, -1.0])  # the legs swing in opposite phase
+_LEGS = (LEG_SWING, STEP_LENGTH, HIP_HALF_WIDTH)  # crowd_kernel.pose_figures' gait
 
 
 def _position(path: _Path, walked: float) -> tuple[float, float, float, float]:
