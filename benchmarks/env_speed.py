@@ -40,13 +40,14 @@ if __package__ in (None, ""):
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
+from benchmarks.machine import cpu_name  # noqa: E402
 from fused_image import FUSED_SIZE  # noqa: E402
 from rover_env import WORLD_NAMES, RoverEnv  # noqa: E402  (sets MUJOCO_GL=egl first)
 
 SEED_RESET_S = 100 * 0.1 + 1.0  # the seed's reset: 100 spins of 0.1 s, then sleep(1)
 SEED_REAL_TIME = 1.0  # the seed's steps run at wall-clock speed
 CROWD_ROWS = ((3, "pacing"), (3, "crowd"), (10, "crowd"), (20, "crowd"))  # (n, mode) columns
-CROWD_ROUNDS = 5  # interleaved rounds of the crowd table (medians)
+CROWD_ROUNDS = 16  # interleaved rounds of the crowd table (medians): the VM's speed drifts
 
 
 @dataclass
@@ -62,17 +63,6 @@ class Args:
     cpu: int = 0
     """Core to pin this process to (-1: do not pin)."""
     seed: int = 0
-
-
-def cpu_model() -> str:
-    """The CPU's model name (``lscpu``'s), else the machine type."""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def pin(cpu: int) -> str:
@@ -128,8 +118,7 @@ def main(argv: list[str] | None = None) -> None:
     if args_ns.quick:
         args = Args(steps=4000, resets=100, frames=100, cpu=args_ns.cpu)
     where = pin(args.cpu)
-    print(f"# RoverEnv speed: {cpu_model()}, "
-          f"{os.cpu_count()} CPUs, {where}; python {platform.python_version()}")  # fmt: skip
+    print(f"# RoverEnv speed: {cpu_name()}, {where}; python {platform.python_version()}")
 
     rows, cams = [], []
     for world in WORLD_NAMES:

@@ -48,7 +48,6 @@ import argparse
 import dataclasses
 import json
 import math
-import platform
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -61,6 +60,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.machine import cpu_name  # noqa: E402
 from rover_env import RoverEnv  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
 from rover_env.scenarios import Scenario, select_scenarios  # noqa: E402
@@ -279,16 +279,6 @@ def format_difference(d: dict[str, list[float]]) -> str:
             f"{pts(d['nearest_in_view'])}")  # fmt: skip
 
 
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--episodes", type=int, default=DEFAULT_EPISODES, help="per row")
@@ -317,7 +307,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"--scenarios: {exc}")
     last = args.seed + args.episodes - 1
     print(f"gaze_value: {args.episodes} episodes a row (seeds {args.seed}..{last}, at most "
-          f"{args.max_steps} steps), {args.manners} teachers; CPU {cpu_model()}")  # fmt: skip
+          f"{args.max_steps} steps), {args.manners} teachers; CPU {cpu_name()}")  # fmt: skip
     report: dict[str, Any] = {"args": {k: str(v) for k, v in vars(args).items()}, "scenarios": {}}
     t0 = time.monotonic()
     for scenario in scenarios:

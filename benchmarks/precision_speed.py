@@ -43,22 +43,13 @@ sys.path.insert(0, str(ROOT))
 
 from active_vision.backends import PRECISIONS  # noqa: E402
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
+from benchmarks.machine import cpu_name  # noqa: E402
 
 BATCHES = (1, 8)
 FIGURES = ("iou", "recall", "false_positive_rate", "abs_rel", "delta1")
 TOLERANCES = {"iou": 0.01, "recall": 0.01, "abs_rel": 0.005, "delta1": 0.005}
 """Largest loss of int8 against fp32 per world (issue 40); no tolerance on false positives
 (their target, <= 0.02, still holds per world)."""
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip() + f" ({os.cpu_count()} CPUs)"
-    except OSError:
-        pass
-    return "unknown CPU"
 
 
 def interleaved(runners: dict[str, object], batch: int, iters: int, repeats: int

@@ -100,6 +100,7 @@ import numpy as np  # noqa: E402
 from active_vision.backends import PRECISIONS  # noqa: E402
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
 from active_vision.training.evaluate import MIN_BLOB_PX, THRESHOLD  # noqa: E402
+from benchmarks.machine import cpu_name  # noqa: E402
 from fused_image import (  # noqa: E402
     CHANNEL_DEPTH,
     CHANNEL_HEATMAP,
@@ -602,17 +603,6 @@ def measure(p: Perception, fp: Footage) -> dict[str, Figures]:
 
 
 # --- output ------------------------------------------------------------------------------
-
-
-def cpu_name() -> str:
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=False).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name:"):
-                return line.split(":", 1)[1].strip() + f" ({os.cpu_count()} CPUs)"
-    except OSError:
-        pass
-    return "unknown CPU"
 
 
 def _pct(x: float, digits: int = 0) -> str:
