@@ -129,7 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--random", action="store_true", help="evaluate a seeded random policy")
     p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=None,
                    help="the pedestrians (default: the env's, the crowd; pacing: those the "
-                        "entries were made among)")  # fmt: skip
+                        "fused entries were made among)")  # fmt: skip
     p.add_argument("--file", help="a student file instead of the shipped entry")
     name = p.add_argument(
         "--name", help="daemon name for fused entries (default: $ROVERAV_SHM_NAME, set by "
