@@ -14,11 +14,11 @@ Measured per world (``inspect``, ``moon``, ``maze``), in this process pinned to 
 A second table times the forward camera (96x96) the fused envs render every step: RGB,
 RGB + metric depth, RGB + depth + pedestrian mask.
 
-A third table (issue 36) times RoverEnv's steps/s with today's 3 pacing pedestrians (the
-default) against 3, 10 and 20 walkers of the social-force crowd (``pedestrian_mode="crowd"``),
-in interleaved rounds (medians), and the ratios crowd 10 / pacing 3 (the target is >= 80 %)
-and crowd 10 / crowd 3. On a shared machine the absolute numbers move with the load; the
-ratios less so.
+A third table (issue 36) times RoverEnv's steps/s with the 3 pacing pedestrians (the default
+when the crowd came) against 3, 10 and 20 walkers of the social-force crowd (the default
+now), in interleaved rounds (medians), and the ratios crowd 10 / pacing 3 (the target is
+>= 80 %) and crowd 10 / crowd 3, taken within each round (median, quartiles in brackets):
+this VM's speed drifts 2x within minutes, the ratio of rows run a second apart far less.
 
     python benchmarks/env_speed.py            # about 30 s
     python benchmarks/env_speed.py --quick    # about 8 s
@@ -47,7 +47,7 @@ from rover_env import WORLD_NAMES, RoverEnv  # noqa: E402  (sets MUJOCO_GL=egl f
 SEED_RESET_S = 100 * 0.1 + 1.0  # the seed's reset: 100 spins of 0.1 s, then sleep(1)
 SEED_REAL_TIME = 1.0  # the seed's steps run at wall-clock speed
 CROWD_ROWS = ((3, "pacing"), (3, "crowd"), (10, "crowd"), (20, "crowd"))  # (n, mode) columns
-CROWD_ROUNDS = 16  # interleaved rounds of the crowd table (medians): the VM's speed drifts
+CROWD_ROUNDS = 40  # interleaved rounds of the crowd table: the VM's speed drifts 2x
 
 
 @dataclass
@@ -85,6 +85,12 @@ def time_steps(env: gym.Env, n: int, seed: int) -> float:
         if terminated or truncated:
             env.reset()
     return n / stepping
+
+
+def _ratio(r: np.ndarray) -> str:
+    """Median of per-round ratios, with their quartiles."""
+    q1, med, q3 = np.percentile(r, (25, 50, 75))
+    return f"{med:.0%} ({q1:.0%}-{q3:.0%})"
 
 
 def time_resets(env: RoverEnv, n: int, seed: int) -> np.ndarray:
@@ -158,14 +164,16 @@ def main(argv: list[str] | None = None) -> None:
         for env in envs:
             time_steps(env, 200, args.seed)  # warm the crowd's route cache a little
         # interleaved blocks, so a change of load on a shared machine hits every row alike
-        block = max(200, args.steps // (2 * CROWD_ROUNDS))
+        block = max(100, args.steps // (2 * CROWD_ROUNDS))
         speeds = np.array([[time_steps(env, block, args.seed + r) for env in envs]
                            for r in range(CROWD_ROUNDS)])  # fmt: skip
         for env in envs:
             env.close()
         p3, c3, c10, c20 = np.median(speeds, axis=0)
-        print(f"| {world} | {p3:,.0f} | {c3:,.0f} | {c10:,.0f} | {c20:,.0f} | {c10 / p3:.0%} | "
-              f"{c10 / c3:.0%} |")  # fmt: skip
+        # ratios within each round (the rows ran seconds apart), then their median and quartiles
+        vs_p3, vs_c3 = _ratio(speeds[:, 2] / speeds[:, 0]), _ratio(speeds[:, 2] / speeds[:, 1])
+        print(f"| {world} | {p3:,.0f} | {c3:,.0f} | {c10:,.0f} | {c20:,.0f} | {vs_p3} | "
+              f"{vs_c3} |")  # fmt: skip
     print()
     print(f"{args.steps} steps (random actions, control_dt {rows[0][4]} s) and "
           f"{args.resets} resets per world; camera: {args.frames} frames per mode, "
