@@ -56,7 +56,13 @@ from stable_baselines3.common.vec_env.base_vec_env import (
 )
 from stable_baselines3.common.vec_env.util import dict_to_obs
 
-from rover_train.ray_worker import RUN_PREFIX_STEM, EnvWorker, WorkerConfig, sweep_segments
+from rover_train.ray_worker import (
+    RUN_PREFIX_STEM,
+    EnvWorker,
+    WorkerConfig,
+    sweep_segments,
+    worker_config,
+)
 from shm_protocol import validate_name
 
 log = logging.getLogger(__name__)
@@ -349,14 +355,7 @@ def make_ray_vec_env(args: Any) -> RayVecEnv:
     connects to (or starts) the cluster; the env shuts a cluster it started down on close."""
     _stop_on_sigterm()
     owns = connect(args.ray or None, num_cpus=int(args.workers * WORKER_CPUS))
-    cfg = WorkerConfig(
-        kind=args.env,
-        world=args.world,
-        envs_per_worker=args.envs_per_worker,
-        length=args.length,
-        task=args.task,
-        connect_timeout=max(args.connect_timeout, 30.0),
-    )
+    cfg = worker_config(args)
     try:
         venv = RayVecEnv(cfg, args.workers, owns_ray=owns)
     except BaseException:

@@ -49,6 +49,10 @@ class WorkerConfig:
     """Episode length override."""
     task: str = DEFAULT_TASK
     """What an episode is (``rover_train.envs.TASKS``)."""
+    pedestrian_mode: str | None = None
+    """Who walks (``rover_env`` ``pedestrian_mode``; None: the env's default)."""
+    n_pedestrians: int | None = None
+    """How many walk (None: the world's default)."""
     connect_timeout: float = 30.0
     """Seconds an env waits for its daemon's segments."""
     daemon_args: tuple[str, ...] = ("--threads", "1")
@@ -57,6 +61,21 @@ class WorkerConfig:
     """How often a worker restarts a daemon that exits."""
     daemon_ready_timeout: float = 120.0
     """Seconds to wait for a daemon's ready line."""
+
+
+def worker_config(args: Any) -> WorkerConfig:
+    """The workers' config of a ``rover-train --ray`` run (``args``: its ``TrainArgs``): the
+    same env, world, task and pedestrians as a local run of those flags."""
+    return WorkerConfig(
+        kind=args.env,
+        world=args.world,
+        envs_per_worker=args.envs_per_worker,
+        length=args.length,
+        task=args.task,
+        pedestrian_mode=args.pedestrian_mode,
+        n_pedestrians=args.n_pedestrians,
+        connect_timeout=max(args.connect_timeout, 30.0),
+    )
 
 
 def sweep_segments(prefix: str, only_dead: bool = False) -> list[str]:
@@ -120,6 +139,8 @@ class EnvWorker:
             for j in range(cfg.envs_per_worker):
                 thunk = env_factory(cfg.kind, monitor_dir=None, world=cfg.world, slot=j,
                                     name=self.name, length=cfg.length, task=cfg.task,
+                                    pedestrian_mode=cfg.pedestrian_mode,
+                                    n_pedestrians=cfg.n_pedestrians,
                                     connect_timeout=cfg.connect_timeout)  # fmt: skip
                 self.envs.append(thunk())
         except BaseException:

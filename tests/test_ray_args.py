@@ -70,3 +70,23 @@ def test_sweep_keeps_a_live_daemons_segments(shm_name: str) -> None:
         keeper.stop()
     with pytest.raises(ValueError):
         sweep_segments("bad/name")
+
+
+def test_ray_workers_build_the_pedestrians_and_task_of_the_flags() -> None:
+    """rover-train --ray once dropped --pedestrian-mode and --n-pedestrians: its workers
+    built the default crowd whatever the flags said."""
+    from rover_train.ray_worker import EnvWorker, worker_config
+
+    args = parse_args(["--ray", "--world", "maze", "--task", "nav", "--pedestrian-mode",
+                       "oblivious", "--n-pedestrians", "5"])  # fmt: skip
+    cfg = worker_config(args)
+    assert (cfg.kind, cfg.world, cfg.task) == ("lidar", "maze", "nav")
+    assert (cfg.pedestrian_mode, cfg.n_pedestrians) == ("oblivious", 5)
+    worker = EnvWorker(cfg, 0, "rraytest")  # in this process: a LIDAR worker needs no Ray
+    try:
+        env = worker.envs[0].unwrapped
+        assert env.options.pedestrian_mode == "oblivious"
+        assert env.options.n_pedestrians == 5 and env.options.goal_ends_episode
+        assert len(env.sim.pedestrians.positions) == 5
+    finally:
+        worker.close()
