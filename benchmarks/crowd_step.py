@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -107,7 +109,12 @@ def run_jupedsim(model_name: str) -> Result:
 
 
 def run_pysocialforce() -> Result:
-    import pysocialforce as psf
+    cwd = os.getcwd()
+    os.chdir(tempfile.mkdtemp())  # its logger opens ./file.log on import
+    try:
+        import pysocialforce as psf
+    finally:
+        os.chdir(cwd)
 
     logging.disable(logging.CRITICAL)  # it logs numba's compilation at DEBUG
     start, goal = scene()
