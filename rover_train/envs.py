@@ -184,12 +184,19 @@ class DaemonRecovery(gym.Wrapper):
 
 
 def env_factory(
-    kind: str, monitor_dir: str | None = None, append_monitor: bool = False, **kwargs: Any
+    kind: str,
+    monitor_dir: str | None = None,
+    append_monitor: bool = False,
+    shaping: str = "none",
+    gamma: float = 0.99,
+    **kwargs: Any,
 ) -> Callable[[], gym.Env]:
     """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker.
 
-    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``: ``EpisodeRng`` lets a
-    resumed run restart each episode in flight from its start. ``append_monitor`` appends
+    The stack is ``[GeodesicShaping(]Monitor(EpisodeRng([DaemonRecovery(]env[)]))[)]``:
+    ``EpisodeRng`` lets a resumed run restart each episode in flight from its start;
+    ``shaping="geodesic"`` adds :class:`rover_train.shaping.GeodesicShaping` with the
+    learner's ``gamma`` (the Monitor still logs the env's own reward). ``append_monitor`` appends
     to the slot's ``monitor.csv`` (a resumed run) instead of starting it afresh. Fused envs
     are made with ``report_latency=True``: the trainer logs ``charts/frame_latency_ms``.
     """
@@ -213,6 +220,13 @@ def env_factory(
         filename = None
         if monitor_dir is not None:
             filename = os.path.join(monitor_dir, f"slot{kwargs.get('slot', 0)}")
-        return Monitor(env, filename=filename, override_existing=not append_monitor)
+        env = Monitor(env, filename=filename, override_existing=not append_monitor)
+        if shaping == "geodesic":  # outside the Monitor: it logs the env's own reward
+            from rover_train.shaping import GeodesicShaping
+
+            env = GeodesicShaping(env, gamma)
+        elif shaping != "none":
+            raise ValueError(f"unknown shaping {shaping!r}; choose one of: none, geodesic")
+        return env
 
     return _thunk
