@@ -117,7 +117,7 @@ class CrowdMap:
     field_origin: tuple[float, float]
     field: np.ndarray  # (fy, fx) clearance (m) at FIELD_CELL spacing
     table: np.ndarray  # (fy * fx, 4) clearance, unit gradient (x, y), ground z; flat
-    corners: np.ndarray  # (fy * fx, 3) clearance and raw gradient, flat (bilinear lookups)
+    corners: np.ndarray  # (fy * fx, 3) clearance and raw gradient, flat (crowd_kernel's bilinear)
 
     @property
     def capacity(self) -> int:
@@ -140,23 +140,6 @@ class CrowdMap:
         ij = ((xy - self.field_origin) * (1.0 / FIELD_CELL) + 0.5).astype(np.intp)
         np.minimum(np.maximum(ij, 0, out=ij), (fx - 1, fy - 1), out=ij)
         return self.table[ij[:, 1] * fx + ij[:, 0]]
-
-    def clearance(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(clearance (n,), unit gradient (n, 2)) at each point: bilinear in the field, from
-        the four corners of ``corners`` around it."""
-        fy, fx = self.field.shape
-        uv = (xy - self.field_origin) * (1.0 / FIELD_CELL)
-        np.minimum(np.maximum(uv, 0.0, out=uv), (fx - 1.000001, fy - 1.000001), out=uv)
-        ij = uv.astype(np.intp)
-        frac = uv - ij
-        k = ij[:, 1] * fx + ij[:, 0]
-        f = self.corners
-        c00, c10, c01, c11 = f[k], f[k + 1], f[k + fx], f[k + (fx + 1)]
-        a, b = frac[:, :1], frac[:, 1:]
-        top = c00 + a * (c10 - c00)
-        out = top + b * (c01 + a * (c11 - c01) - top)
-        norm = np.hypot(out[:, 1], out[:, 2])[:, None]
-        return out[:, 0], out[:, 1:] / np.maximum(norm, 1e-9)
 
     def route_distances(self, goal: int) -> np.ndarray:
         """(C + 1,) route length (m) from every cell to free cell ``goal`` (inf where none;
