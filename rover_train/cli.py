@@ -147,8 +147,9 @@ def build_parser(cls: type | Sequence[type], prog: str, description: str,
             has_log_level |= f.name == "log_level"
             tp, _optional = _base_type(hints[f.name])
             default = _field_default(f, instance)
-            kwargs: dict[str, Any] = {"default": default,
-                                      "help": docs.get(f.name, f.metadata.get("help", ""))}
+            # argparse expands %-formats in help: a docstring's "70 %" must reach it as "%%"
+            text = docs.get(f.name, f.metadata.get("help", "")).replace("%", "%%")
+            kwargs: dict[str, Any] = {"default": default, "help": text}
             if "choices" in f.metadata:
                 kwargs["choices"] = tuple(f.metadata["choices"])
             if "nargs" in f.metadata:  # e.g. an optional value: --ray [ADDRESS]

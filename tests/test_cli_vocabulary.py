@@ -20,10 +20,12 @@ COMMANDS = {
     "rover-train": ["-m", "rover_train.train"],
     "rover-eval": ["-m", "rover_train.evaluate"],
 }
+RECIPE_COMMANDS = {"perception-train": ["-m", "active_vision.training.train"]}
 
 
 def _help(cmd: str) -> str:
-    res = subprocess.run([sys.executable, *COMMANDS[cmd], "--help"], capture_output=True,
+    argv = {**COMMANDS, **RECIPE_COMMANDS}[cmd]
+    res = subprocess.run([sys.executable, *argv, "--help"], capture_output=True,
                          text=True, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
                          timeout=120)  # fmt: skip
     assert res.returncode == 0, res.stderr
@@ -64,6 +66,11 @@ def test_rover_train_help_is_generated_from_the_dataclass() -> None:
     for name in ("timesteps", "gae_lambda", "exploration_fraction"):
         assert "--" + name.replace("_", "-") in text
         assert docs[name].split(".")[0] in text
+
+
+def test_recipe_help_prints_percent_signs() -> None:
+    """argparse expands %-formats in help texts: a docstring's "70 %" crashed --help once."""
+    assert "70 % driving" in " ".join(_help("perception-train").split())
 
 
 def test_spawn_daemon_is_ready_drains_and_cleans_up(shm_name: str) -> None:
