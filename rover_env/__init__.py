@@ -4,6 +4,7 @@ Importing this package sets ``MUJOCO_GL=egl`` (unless already set) before MuJoCo
 so rendering works headless, and registers the ``roverav/`` env ids:
 
 - ``roverav/RoverEnv-v0``: :class:`RoverEnv` (LIDAR)
+- ``roverav/RoverEnvDiscrete-v0``: :class:`RoverEnvDiscrete` (LIDAR, Discrete(60) relative)
 - ``roverav/RoverEnvFused-v0``: :class:`RoverEnvFused` (needs the av-daemon)
 - ``roverav/RoverEnvFusedDiscrete-v0``: :class:`DiscreteRoverEnvFused`
 - ``roverav/RoverEnvFusedGaze-v0``: :class:`RoverEnvFusedGaze` (drive and pan the camera)
@@ -29,6 +30,7 @@ from rover_env.errors import EnvClosedError  # noqa: E402
 from rover_env.fused_env import AUTO_SLOT, RoverEnvFused, served_slots  # noqa: E402
 from rover_env.gaze_discrete_env import DiscreteRoverEnvFusedGaze  # noqa: E402
 from rover_env.gaze_env import RoverEnvFusedGaze  # noqa: E402
+from rover_env.lidar_discrete_env import RoverEnvDiscrete  # noqa: E402
 from rover_env.lidar_env import RoverEnv  # noqa: E402
 from rover_env.pedestrians import PEDESTRIAN_MODES, Appearance  # noqa: E402
 from rover_env.readouts import (  # noqa: E402
@@ -47,6 +49,7 @@ from rover_env.worlds import WORLD_NAMES, WorldSpec, make_world  # noqa: E402
 _FUSED = {"slot": AUTO_SLOT}  # registered keywords of the fused ids
 _ENVS = {
     "roverav/RoverEnv-v0": ("rover_env.lidar_env:RoverEnv", {}),
+    "roverav/RoverEnvDiscrete-v0": ("rover_env.lidar_discrete_env:RoverEnvDiscrete", {}),
     "roverav/RoverEnvFused-v0": ("rover_env.fused_env:RoverEnvFused", _FUSED),
     "roverav/RoverEnvFusedDiscrete-v0": ("rover_env.discrete_env:DiscreteRoverEnvFused", _FUSED),
     "roverav/RoverEnvFusedGaze-v0": ("rover_env.gaze_env:RoverEnvFusedGaze", _FUSED),
@@ -76,6 +79,7 @@ __all__ = [
     "ObstacleMap",
     "RewardConfig",
     "RoverEnv",
+    "RoverEnvDiscrete",
     "RoverEnvBase",
     "RoverEnvFused",
     "RoverEnvFusedGaze",

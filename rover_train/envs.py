@@ -3,29 +3,34 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
 from rover_train.zoo.registry import EVAL_MAX_STEPS
 from shm_protocol.names import default_name
 
+if TYPE_CHECKING:
+    from rover_env.reward import RewardConfig
+
 log = logging.getLogger(__name__)
 
 ENV_IDS = {
     "lidar": "roverav/RoverEnv-v0",
+    "lidar-discrete": "roverav/RoverEnvDiscrete-v0",
     "fused": "roverav/RoverEnvFused-v0",
     "discrete": "roverav/RoverEnvFusedDiscrete-v0",
     "fused-gaze": "roverav/RoverEnvFusedGaze-v0",
     "fused-gaze-discrete": "roverav/RoverEnvFusedGazeDiscrete-v0",
 }
 FUSED_KINDS = ("fused", "discrete", "fused-gaze", "fused-gaze-discrete")
-DISCRETE_KINDS = ("discrete", "fused-gaze-discrete")  # Discrete action spaces
+DISCRETE_KINDS = ("lidar-discrete", "discrete", "fused-gaze-discrete")  # Discrete action spaces
 
 
 @dataclass(frozen=True)
@@ -39,18 +44,36 @@ class Task:
     """The env option: the first goal ends the episode (else a new goal is drawn)."""
     length: int | None = None
     """Steps per episode; None: the env's own (2000 LIDAR, 6000 fused)."""
+    reward: dict[str, float] = field(default_factory=dict)
+    """``RewardConfig`` fields the task sets (the rest stay the env's own)."""
+
+    def reward_config(self, kind: str) -> RewardConfig | None:
+        """The env's ``reward_config`` under this task (None: the env's default)."""
+        if not self.reward:
+            return None
+        from rover_env.reward import RewardConfig
+
+        base = RewardConfig.fused() if kind in FUSED_KINDS else RewardConfig()
+        return dataclasses.replace(base, **self.reward)
 
 
 NAV_LENGTH = EVAL_MAX_STEPS
 """The nav task's episode: the evaluators' (rover_train.imitation.zoo_eval counts success at
 the first goal within 600 steps, 30 s; the planner expert needs about 10 s)."""
+NAV_PROGRESS_SCALE = 10.0
+"""The nav task's progress reward per metre nearer the goal (the seed's: 0.45). With the
+seed's 0.45 a step's progress is worth 0.02 against the goal's 100: PPO from scratch never
+learned to drive at the goal (docs/journal.md)."""
 DEFAULT_TASK = "seed"
 TASKS = {
     "seed": Task("seed", "the seed's: goal after goal until a failure or the env's length "
                  "(2000 steps LIDAR, 6000 fused)"),
-    "nav": Task("nav", f"one goal: the episode ends at it (success, the goal reward) or "
-                f"after {NAV_LENGTH} steps, as the evaluators count success",
-                goal_ends_episode=True, length=NAV_LENGTH),
+    "nav": Task("nav", f"one goal: the episode ends at it (success, the goal reward), at "
+                f"the first collision (the stuck-in-collision penalty) or after {NAV_LENGTH} "
+                f"steps, as the evaluators count success; progress pays "
+                f"{NAV_PROGRESS_SCALE:g} per metre",
+                goal_ends_episode=True, length=NAV_LENGTH,
+                reward={"collision_limit": 0, "distance_delta_scale": NAV_PROGRESS_SCALE}),
 }  # fmt: skip
 """The tasks by name: ``seed`` (the default, today's behaviour) and ``nav`` (the RL task that
 matches the evaluation episodes)."""
@@ -97,6 +120,9 @@ def env_kwargs(
         kwargs["length"] = length
     if the_task.goal_ends_episode:
         kwargs["goal_ends_episode"] = True
+    reward_config = the_task.reward_config(kind)
+    if reward_config is not None:
+        kwargs["reward_config"] = reward_config
     if render_mode is not None:
         kwargs["render_mode"] = render_mode
     if pedestrian_mode is not None:
@@ -187,16 +213,12 @@ def env_factory(
     kind: str,
     monitor_dir: str | None = None,
     append_monitor: bool = False,
-    shaping: str = "none",
-    gamma: float = 0.99,
     **kwargs: Any,
 ) -> Callable[[], gym.Env]:
     """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker.
 
-    The stack is ``[GeodesicShaping(]Monitor(EpisodeRng([DaemonRecovery(]env[)]))[)]``:
-    ``EpisodeRng`` lets a resumed run restart each episode in flight from its start;
-    ``shaping="geodesic"`` adds :class:`rover_train.shaping.GeodesicShaping` with the
-    learner's ``gamma`` (the Monitor still logs the env's own reward). ``append_monitor`` appends
+    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``: ``EpisodeRng`` lets a
+    resumed run restart each episode in flight from its start. ``append_monitor`` appends
     to the slot's ``monitor.csv`` (a resumed run) instead of starting it afresh. Fused envs
     are made with ``report_latency=True``: the trainer logs ``charts/frame_latency_ms``.
     """
@@ -220,13 +242,6 @@ def env_factory(
         filename = None
         if monitor_dir is not None:
             filename = os.path.join(monitor_dir, f"slot{kwargs.get('slot', 0)}")
-        env = Monitor(env, filename=filename, override_existing=not append_monitor)
-        if shaping == "geodesic":  # outside the Monitor: it logs the env's own reward
-            from rover_train.shaping import GeodesicShaping
-
-            env = GeodesicShaping(env, gamma)
-        elif shaping != "none":
-            raise ValueError(f"unknown shaping {shaping!r}; choose one of: none, geodesic")
-        return env
+        return Monitor(env, filename=filename, override_existing=not append_monitor)
 
     return _thunk

@@ -1,12 +1,11 @@
 """A world's map for planning: an occupancy grid with a traversal cost per cell, and the
 cost-to-go field of a goal on it (the geodesic distance, weighted away from the walls).
 
-The planner expert (:mod:`rover_train.imitation.expert`) plans on it, and
-:class:`rover_train.shaping.GeodesicShaping` takes its cost-to-go as a potential for
-training. The grid covers the world's goal square plus a margin (``GRID_RES`` m cells).
-Each cell's cost grows as its clearance from the nearest footprint falls below
-``PREFERRED_CLEARANCE``, and is prohibitive below ``HARD_CLEARANCE`` (the seed's collision
-test is a LIDAR return under 0.3 m from the rover's centre).
+The planner expert (:mod:`rover_train.imitation.expert`) plans on it. The grid covers the
+world's goal square plus a margin (``GRID_RES`` m cells). Each cell's cost grows as its
+clearance from the nearest footprint falls below ``PREFERRED_CLEARANCE``, and is
+prohibitive below ``HARD_CLEARANCE`` (the seed's collision test is a LIDAR return under
+0.3 m from the rover's centre).
 """
 
 from __future__ import annotations

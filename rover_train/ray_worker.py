@@ -53,10 +53,6 @@ class WorkerConfig:
     """Who walks (``rover_env`` ``pedestrian_mode``; None: the env's default)."""
     n_pedestrians: int | None = None
     """How many walk (None: the world's default)."""
-    shaping: str = "none"
-    """Training reward shaping (``rover_train.shaping.SHAPINGS``)."""
-    gamma: float = 0.99
-    """The learner's discount (the shaping's)."""
     connect_timeout: float = 30.0
     """Seconds an env waits for its daemon's segments."""
     daemon_args: tuple[str, ...] = ("--threads", "1")
@@ -78,8 +74,6 @@ def worker_config(args: Any) -> WorkerConfig:
         task=args.task,
         pedestrian_mode=args.pedestrian_mode,
         n_pedestrians=args.n_pedestrians,
-        shaping=args.shaping,
-        gamma=args.gamma,
         connect_timeout=max(args.connect_timeout, 30.0),
     )
 
@@ -147,7 +141,6 @@ class EnvWorker:
                                     name=self.name, length=cfg.length, task=cfg.task,
                                     pedestrian_mode=cfg.pedestrian_mode,
                                     n_pedestrians=cfg.n_pedestrians,
-                                    shaping=cfg.shaping, gamma=cfg.gamma,
                                     connect_timeout=cfg.connect_timeout)  # fmt: skip
                 self.envs.append(thunk())
         except BaseException:

@@ -62,7 +62,6 @@ from rover_train.envs import (
     TASKS,
     env_factory,
 )
-from rover_train.shaping import SHAPINGS
 from shm_protocol.names import default_name, default_slots
 
 log = logging.getLogger("rover_train")
@@ -117,10 +116,6 @@ class TrainArgs:
     length: int | None = None
     """Episode length override (default: the task's, nav 600; seed: the env's own, 2000 lidar
     / 6000 fused)."""
-    shaping: str = field(default="none", metadata={"choices": SHAPINGS})
-    """Training reward: none (the env's own) or geodesic (plus a potential-based term on the
-    path distance to the goal, rover_train.shaping; for training only, the logged returns
-    and every evaluation stay the env's)."""
     connect_timeout: float = 10.0
     """Seconds to wait for the daemon's segments before giving up (fused envs)."""
     vec_env: str = field(default="auto", metadata={"choices": ("auto", "subproc", "dummy")})
@@ -414,8 +409,6 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
             task=args.task,
             connect_timeout=args.connect_timeout,
             append_monitor=append_monitor,
-            shaping=args.shaping,
-            gamma=args.gamma,
         )
         for i in range(args.slots)
     ]

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from rover_env import RoverEnv
-from rover_env.reward import GOAL
-from rover_train.envs import NAV_LENGTH, TASKS, env_kwargs, get_task
+from rover_env.reward import GOAL, STUCK_IN_COLLISION, RewardConfig
+from rover_train.envs import NAV_LENGTH, NAV_PROGRESS_SCALE, TASKS, env_kwargs, get_task, make_env
 from rover_train.train import TrainArgs, parse_args, validate
 from rover_train.zoo import EVAL_MAX_STEPS
 
@@ -85,10 +85,51 @@ def test_tasks_set_the_env_keywords() -> None:
     assert env_kwargs("lidar", "maze", task="nav", length=50)["length"] == 50  # --length wins
     seed = env_kwargs("lidar", "maze")
     assert "goal_ends_episode" not in seed and "length" not in seed  # the env's own
+    reward = nav["reward_config"]
+    assert reward.collision_limit == 0 and reward.distance_delta_scale == NAV_PROGRESS_SCALE
+    assert reward.goal_reward == RewardConfig().goal_reward  # the rest is the env's own
+    assert "reward_config" not in seed
     fused = env_kwargs("fused", "maze", task="nav")
     assert fused["goal_ends_episode"] is True and fused["length"] == NAV_LENGTH
+    f_reward = fused["reward_config"]  # the fused envs' own constants under the task's
+    assert f_reward.stuck_window == RewardConfig.fused().stuck_window
+    assert f_reward.collision_limit == 0 and f_reward.distance_delta_scale == NAV_PROGRESS_SCALE
     with pytest.raises(ValueError, match="unknown task 'navigate'.*seed.*nav"):
         get_task("navigate")
+
+
+def _drive_into_the_scenery(task: str) -> list[dict]:
+    """Full speed straight on from seed 0 in the maze (no pedestrians) until the episode
+    ends or 40 steps after the first collision; every step's info."""
+    env = make_env("lidar", world="maze", task=task, n_pedestrians=0)
+    infos: list[dict] = []
+    try:
+        env.reset(seed=0)
+        first = None
+        for step in range(NAV_LENGTH):
+            _, _, terminated, truncated, info = env.step(FORWARD)
+            infos.append(info)
+            if info["collision"] and first is None:
+                first = step
+            if terminated or truncated or (first is not None and step > first + 40):
+                break
+    finally:
+        env.close()
+    return infos
+
+
+def test_nav_task_ends_at_the_first_collision_and_pays_progress_by_its_scale() -> None:
+    nav, seed = _drive_into_the_scenery("nav"), _drive_into_the_scenery("seed")
+    first = next(i for i, info in enumerate(seed) if info["collision"])
+    assert len(seed) > first + 40  # the seed's task drives on against the wall
+    assert len(nav) == first + 1  # the same drive, ended by the first collision
+    last = nav[-1]
+    assert last["collision"] and last["termination_reason"] == STUCK_IN_COLLISION
+    assert last["reward_termination"] == RewardConfig().general_penalty
+    for n, s in zip(nav[:first], seed[:first], strict=True):  # the same steps, rescaled
+        assert n["reward_progress"] == pytest.approx(
+            s["reward_progress"] * NAV_PROGRESS_SCALE / RewardConfig().distance_delta_scale)
+    assert sum(info["reward_progress"] for info in nav[:first]) > 1.0  # it drove nearer
 
 
 def test_cli_task_flag_builds_envs_that_end_at_the_goal() -> None:
