@@ -17,7 +17,8 @@ from rover_env import AUTO_SLOT, RoverEnvFused, served_slots
 from shm_protocol import SegmentBusyError
 
 ROVERAV_IDS = sorted(i for i in gym.registry if i.startswith("roverav/"))
-FUSED_IDS = [i for i in ROVERAV_IDS if i != "roverav/RoverEnv-v0"]
+LIDAR_IDS = ("roverav/RoverEnv-v0", "roverav/RoverEnvDiscrete-v0")
+FUSED_IDS = [i for i in ROVERAV_IDS if i not in LIDAR_IDS]
 SLOTS = 2
 
 
@@ -37,7 +38,9 @@ def _kwargs(env_id: str, daemon: Daemon) -> dict[str, object]:
 
 
 def test_every_roverav_id_is_tested() -> None:
-    assert len(ROVERAV_IDS) == 5 and "roverav/RoverEnv-v0" in ROVERAV_IDS
+    assert len(ROVERAV_IDS) == 6 and set(LIDAR_IDS) <= set(ROVERAV_IDS)
+    for env_id in LIDAR_IDS:
+        assert gym.spec(env_id).kwargs == {}  # no daemon, no slot
     for env_id in FUSED_IDS:
         assert gym.spec(env_id).kwargs == {"slot": AUTO_SLOT}
 
