@@ -79,6 +79,13 @@ class SeedActionTable:
     speed_levels = SPEED_LEVELS
     direction_angles = DIRECTION_ANGLES
 
+    def _table_entry(self, action: Any) -> tuple[float, float]:
+        """(speed m/s, heading rad) of the table cell a flat action in ``0..59`` names; the
+        heading is absolute in the fused env, relative to the yaw in RoverEnvDiscrete."""
+        speed_idx, direction_idx = decode_action(action)
+        log.debug("action %r -> speed_idx %d, direction_idx %d", action, speed_idx, direction_idx)
+        return self._seed_command(speed_idx, direction_idx)
+
     def _seed_command(self, speed_idx: int, direction_idx: int) -> tuple[float, float]:
         """(speed m/s, absolute heading rad) of a cell of the table."""
         return float(self.speed_levels[speed_idx]), float(self.direction_angles[direction_idx])
@@ -111,6 +118,4 @@ class DiscreteRoverEnvFused(SeedActionTable, RoverEnvFused):
         self.action_space = spaces.Discrete(N_SEED_ACTIONS)
 
     def _decode_action(self, action: Any) -> tuple[float, float]:
-        speed_idx, direction_idx = decode_action(action)
-        log.debug("action %r -> speed_idx %d, direction_idx %d", action, speed_idx, direction_idx)
-        return self._seed_command(speed_idx, direction_idx)
+        return self._table_entry(action)

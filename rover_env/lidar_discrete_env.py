@@ -10,15 +10,12 @@ filters out, did not (docs/journal.md).
 
 from __future__ import annotations
 
-import logging
 from typing import Any
 
 from gymnasium import spaces
 
-from rover_env.discrete_env import N_SEED_ACTIONS, SeedActionTable, decode_action
+from rover_env.discrete_env import N_SEED_ACTIONS, SeedActionTable
 from rover_env.lidar_env import RoverEnv
-
-log = logging.getLogger(__name__)
 
 
 class RoverEnvDiscrete(SeedActionTable, RoverEnv):
@@ -48,7 +45,5 @@ class RoverEnvDiscrete(SeedActionTable, RoverEnv):
         self.action_space = spaces.Discrete(N_SEED_ACTIONS)
 
     def _decode_action(self, action: Any) -> tuple[float, float]:
-        speed_idx, direction_idx = decode_action(action)
-        log.debug("action %r -> speed_idx %d, direction_idx %d", action, speed_idx, direction_idx)
-        speed, relative = self._seed_command(speed_idx, direction_idx)
+        speed, relative = self._table_entry(action)
         return speed, float(self.orientation[2]) + relative
