@@ -148,11 +148,12 @@ class RoverEnvBase(gym.Env):
         ``velocities`` entries.
     ``_collision() -> bool``
         Whether this step counts as a collision (penalty, and the stuck-in-collision
-        count). Default: LIDAR minimum below ``reward_config.collision_distance``.
+        count). Default: LIDAR minimum (kept as ``nearest_range``) below
+        ``reward_config.collision_distance``.
     ``_task_reward(obs) -> float``
         The non-terminal reward. Default: goal + progress + velocity bonus + turn penalty +
-        collision penalty (the seed's table). Record each extra term with
-        :meth:`_add_reward_term` so it shows in ``info``.
+        collision penalty (the seed's table) + clearance penalty (off in the seed). Record
+        each extra term with :meth:`_add_reward_term` so it shows in ``info``.
     ``_on_reset() -> None``
         Called after the sim and the goal are reset, before the first ``_observe`` (e.g. to
         drop stale shared-memory frames). Default: nothing.
@@ -270,8 +271,8 @@ class RoverEnvBase(gym.Env):
         raise NotImplementedError
 
     def _collision(self) -> bool:
-        scan = self.sim.lidar(self.lidar_points, self.max_lidar_range)
-        return float(scan.min()) < self.reward_config.collision_distance
+        self.nearest_range = float(self.sim.lidar(self.lidar_points, self.max_lidar_range).min())
+        return self.nearest_range < self.reward_config.collision_distance
 
     def _task_reward(self, obs: dict[str, np.ndarray]) -> float:
         cfg = self.reward_config
@@ -281,12 +282,14 @@ class RoverEnvBase(gym.Env):
         terms["reward_velocity"] = rw.velocity_bonus(float(self.odometry[0]), cfg)
         terms["reward_turn"] = rw.turn_penalty(float(self.odometry[1]), cfg)
         terms["reward_collision"] = rw.collision_penalty(self.collided, cfg)
+        terms["reward_clearance"] = rw.clearance_penalty(self.nearest_range, cfg)
         return (
             terms["reward_goal"]
             + terms["reward_progress"]
             + terms["reward_velocity"]
             + terms["reward_turn"]
             + terms["reward_collision"]
+            + terms["reward_clearance"]
         )
 
     def _on_reset(self) -> None:
@@ -352,6 +355,7 @@ class RoverEnvBase(gym.Env):
         self.collision_count = 0
         self.goal_reached = False
         self.collided = False
+        self.nearest_range = float(self.max_lidar_range)
         self.pedestrian_contact = False
         self.distance_delta = 0.0
         self._steps = 0

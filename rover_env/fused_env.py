@@ -230,6 +230,12 @@ class RoverEnvFused(RoverEnvBase):
             )
         if not frame_timeout > 0:
             raise ValueError(f"frame_timeout must be > 0 s, got {frame_timeout}")
+        cfg = options.get("reward_config")
+        if cfg is not None and cfg.clearance_penalty:
+            raise ValueError(
+                "reward_config.clearance_penalty is a LIDAR term: the fused envs count "
+                "collisions by contact and never pay it; leave it 0 (use RoverEnv for it)"
+            )
         self._base = rl_obs_name
         self._set_slot(0 if auto else int(slot))
         self.frame_timeout = float(frame_timeout)

@@ -75,6 +75,8 @@ class RoverEnv(RoverEnvBase):
     | velocity bonus (``reward_velocity``) | odometry linear velocity x 0.0025 |
     | turn penalty (``reward_turn``) | -0.0015 x abs(odometry angular velocity) |
     | collision (``reward_collision``) | -0.5 when the LIDAR minimum is below 0.3 m |
+    | clearance (``reward_clearance``) | not in the seed (0): ``clearance_penalty`` x metres |
+    | | the LIDAR minimum lies inside ``clearance_distance`` |
 
     A step that ends the episode returns only its penalty (as in the seed):
     flip -20, stuck-in-collision -20, stuck -25, out of bounds -10
@@ -207,13 +209,13 @@ class RoverEnv(RoverEnvBase):
             }
         )
         self.action_space = float_box(c.ACTION_LOW, c.ACTION_HIGH)
-        self._scan_min = self.max_lidar_range
+        self.nearest_range = float(self.max_lidar_range)
 
     def _observe(self) -> dict[str, np.ndarray]:
         scan = self.sim.lidar(self.lidar_points, self.max_lidar_range)
-        self._scan_min = float(scan.min())
+        self.nearest_range = float(scan.min())
         return {"lidar": scan, **self._state_observation()}
 
     def _collision(self) -> bool:
         # The scan of this step's observation: the seed's "LIDAR min < 0.3 m".
-        return self._scan_min < self.reward_config.collision_distance
+        return self.nearest_range < self.reward_config.collision_distance

@@ -56,6 +56,12 @@ class RewardConfig:
     """A step is a collision when the LIDAR minimum is below this (m)."""
     collision_penalty: float = c.COLLISION_PENALTY
     """Per collision step."""
+    clearance_distance: float = 0.0
+    """LIDAR envs: a step whose LIDAR minimum lies below this (m) pays ``clearance_penalty``
+    per metre inside it. Not in the seed (0: no term); the nav task (rover_train) sets it,
+    so that RL learns to keep off the panels before it touches one."""
+    clearance_penalty: float = 0.0
+    """Per metre of the LIDAR minimum inside ``clearance_distance``, per step (negative)."""
     distance_delta_scale: float = c.DISTANCE_DELTA_SCALE
     """Progress reward per metre closer to the goal (seed: 0.3 * 1.5; fused: 0.9)."""
     linear_velocity_scale: float = c.LINEAR_VELOCITY_SCALE
@@ -95,7 +101,11 @@ class RewardConfig:
             raise ValueError(f"stuck_window must be >= 1 step, got {self.stuck_window}")
         if self.collision_limit < 0:
             raise ValueError(f"collision_limit must be >= 0, got {self.collision_limit}")
-        for name in ("success_distance", "stuck_threshold", "collision_distance"):
+        if self.clearance_penalty > 0:
+            raise ValueError(f"clearance_penalty is a penalty: it must be <= 0, got "
+                             f"{self.clearance_penalty}")
+        for name in ("success_distance", "stuck_threshold", "collision_distance",
+                     "clearance_distance"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.pedestrian_penalty_frame not in PENALTY_FRAMES:
@@ -138,6 +148,12 @@ def turn_penalty(angular_velocity: float, cfg: RewardConfig) -> float:
 
 def collision_penalty(collided: bool, cfg: RewardConfig) -> float:
     return cfg.collision_penalty if collided else 0.0
+
+
+def clearance_penalty(nearest: float, cfg: RewardConfig) -> float:
+    """``clearance_penalty`` times the metres by which the LIDAR minimum ``nearest`` lies
+    inside ``clearance_distance`` (0 outside it, and with the term off)."""
+    return cfg.clearance_penalty * max(0.0, cfg.clearance_distance - nearest)
 
 
 def heatmap_center_sum(heatmap: np.ndarray, columns: int = c.HEATMAP_CENTER_COLUMNS) -> float:

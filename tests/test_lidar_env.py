@@ -155,7 +155,7 @@ def test_info_keys(maze_env: RoverEnv) -> None:
         "steps", "total_steps", "reward", "goals_reached", "is_success", "collision",
         "termination_reason", "distance_to_goal", "min_pedestrian_distance",
         "reward_goal", "reward_progress", "reward_velocity", "reward_turn",
-        "reward_collision", "reward_termination",
+        "reward_collision", "reward_clearance", "reward_termination",
     ):  # fmt: skip
         assert key in info, key
     assert info["steps"] == 1 and info["reward"] == reward

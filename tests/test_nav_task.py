@@ -14,7 +14,16 @@ import pytest
 
 from rover_env import RoverEnv
 from rover_env.reward import GOAL, STUCK_IN_COLLISION, RewardConfig
-from rover_train.envs import NAV_LENGTH, NAV_PROGRESS_SCALE, TASKS, env_kwargs, get_task, make_env
+from rover_train.envs import (
+    NAV_CLEARANCE,
+    NAV_CLEARANCE_PENALTY,
+    NAV_LENGTH,
+    NAV_PROGRESS_SCALE,
+    TASKS,
+    env_kwargs,
+    get_task,
+    make_env,
+)
 from rover_train.train import TrainArgs, parse_args, validate
 from rover_train.zoo import EVAL_MAX_STEPS
 
@@ -87,6 +96,8 @@ def test_tasks_set_the_env_keywords() -> None:
     assert "goal_ends_episode" not in seed and "length" not in seed  # the env's own
     reward = nav["reward_config"]
     assert reward.collision_limit == 0 and reward.distance_delta_scale == NAV_PROGRESS_SCALE
+    assert reward.clearance_distance == NAV_CLEARANCE
+    assert reward.clearance_penalty == NAV_CLEARANCE_PENALTY < 0
     assert reward.goal_reward == RewardConfig().goal_reward  # the rest is the env's own
     assert "reward_config" not in seed
     fused = env_kwargs("fused", "maze", task="nav")
@@ -94,21 +105,23 @@ def test_tasks_set_the_env_keywords() -> None:
     f_reward = fused["reward_config"]  # the fused envs' own constants under the task's
     assert f_reward.stuck_window == RewardConfig.fused().stuck_window
     assert f_reward.collision_limit == 0 and f_reward.distance_delta_scale == NAV_PROGRESS_SCALE
+    assert f_reward.clearance_penalty == 0  # a LIDAR term: the fused envs count contacts
     with pytest.raises(ValueError, match="unknown task 'navigate'.*seed.*nav"):
         get_task("navigate")
 
 
 def _drive_into_the_scenery(task: str) -> list[dict]:
     """Full speed straight on from seed 0 in the maze (no pedestrians) until the episode
-    ends or 40 steps after the first collision; every step's info."""
+    ends or 40 steps after the first collision; every step's info, with its LIDAR minimum
+    as ``lidar_min``."""
     env = make_env("lidar", world="maze", task=task, n_pedestrians=0)
     infos: list[dict] = []
     try:
         env.reset(seed=0)
         first = None
         for step in range(NAV_LENGTH):
-            _, _, terminated, truncated, info = env.step(FORWARD)
-            infos.append(info)
+            obs, _, terminated, truncated, info = env.step(FORWARD)
+            infos.append({**info, "lidar_min": float(obs["lidar"].min())})
             if info["collision"] and first is None:
                 first = step
             if terminated or truncated or (first is not None and step > first + 40):
@@ -130,6 +143,34 @@ def test_nav_task_ends_at_the_first_collision_and_pays_progress_by_its_scale() -
         assert n["reward_progress"] == pytest.approx(
             s["reward_progress"] * NAV_PROGRESS_SCALE / RewardConfig().distance_delta_scale)
     assert sum(info["reward_progress"] for info in nav[:first]) > 1.0  # it drove nearer
+
+
+def test_nav_task_charges_lidar_clearance_before_the_collision() -> None:
+    nav, seed = _drive_into_the_scenery("nav"), _drive_into_the_scenery("seed")
+    assert all(info["reward_clearance"] == 0.0 for info in seed)  # not in the seed
+    inside = 0
+    for info in nav[:-1]:  # the last step returns its termination penalty alone
+        expected = NAV_CLEARANCE_PENALTY * max(0.0, NAV_CLEARANCE - info["lidar_min"])
+        assert info["reward_clearance"] == pytest.approx(expected, abs=1e-6)
+        inside += info["lidar_min"] < NAV_CLEARANCE
+    assert inside >= 3  # charged on the approach, before the wall is touched
+    assert nav[-2]["reward_clearance"] < NAV_CLEARANCE_PENALTY * (NAV_CLEARANCE - 0.4)
+    for info in nav[:-1]:
+        parts = sum(v for k, v in info.items() if k.startswith("reward_"))
+        assert parts == pytest.approx(info["reward"])  # the term is in the reward
+
+
+def test_clearance_config_is_checked() -> None:
+    with pytest.raises(ValueError, match="clearance_penalty is a penalty: it must be <= 0"):
+        RewardConfig(clearance_distance=0.6, clearance_penalty=2.0)
+    with pytest.raises(ValueError, match="clearance_distance must be >= 0"):
+        RewardConfig(clearance_distance=-0.1)
+    assert RewardConfig().clearance_penalty == 0.0  # the seed's reward has no such term
+    from rover_env import RoverEnvFused
+
+    with pytest.raises(ValueError, match="clearance_penalty is a LIDAR term.*leave it 0"):
+        RoverEnvFused(reward_config=RewardConfig.fused(clearance_distance=0.6,
+                                                       clearance_penalty=-2.0))
 
 
 def test_cli_task_flag_builds_envs_that_end_at_the_goal() -> None:
