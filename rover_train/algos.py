@@ -52,10 +52,12 @@ def algo_class(name: str) -> Any:
     return {"ppo": PPO, "sac": SAC, "dqn": DQN}[name]
 
 
-class RecurrentActor:
-    """A recurrent model as an ``obs -> action`` callable for one env: it keeps the LSTM
-    state from step to step; :meth:`reset` starts an episode (call it after each
-    ``env.reset()``; ``rover_train.evaluate.run_episode`` does)."""
+class ModelAgent:
+    """A Stable-Baselines3 model driving one env, deterministic by default: ``act(obs)`` (or
+    calling it) -> action, keeping a recurrent policy's LSTM state from step to step;
+    :meth:`reset` starts an episode (call it after each ``env.reset()``;
+    ``rover_train.evaluate.run_episode`` does). It is a zoo ``Agent``
+    (``rover_train.zoo.load`` returns one for an RL entry)."""
 
     def __init__(self, model: Any, deterministic: bool = True) -> None:
         self.model = model
@@ -74,13 +76,15 @@ class RecurrentActor:
         self._episode_start = np.zeros((1,), dtype=bool)
         return action
 
+    act = __call__
+
 
 __all__ = [
     "ALGOS",
     "DEFAULT_POLICY",
     "ON_POLICY",
     "RECURRENT",
-    "RecurrentActor",
+    "ModelAgent",
     "algo_class",
     "contrib_missing",
     "policy_name",

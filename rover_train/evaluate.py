@@ -40,7 +40,7 @@ from rover_env.crowd import MAX_PEDESTRIANS
 from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
 from rover_env.reward import STUCK_IN_COLLISION
 from rover_env.worlds import WORLD_CHOICES
-from rover_train.algos import ALGOS, RECURRENT, RecurrentActor, algo_class
+from rover_train.algos import ALGOS, RECURRENT, ModelAgent, algo_class
 from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
 from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
 from shm_protocol.names import default_name, default_slots
@@ -80,7 +80,7 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
 
     The random policy samples ``env.action_space``: seed it (``env.action_space.seed(s)``)
     for a reproducible baseline, as :func:`main` does per episode. A recurrent model
-    (recurrent-ppo) comes as a :class:`~rover_train.algos.RecurrentActor`, whose ``reset()``
+    (recurrent-ppo) comes as a :class:`~rover_train.algos.ModelAgent`, whose ``reset()``
     :func:`run_episode` calls at each episode's start. Raises :class:`PolicyLoadError`.
     """
     if policy == "random":
@@ -103,7 +103,7 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
             continue
         check_spaces(model, loaded, env)
         if name in RECURRENT:
-            return RecurrentActor(loaded)
+            return ModelAgent(loaded)
         return lambda obs: loaded.predict(obs, deterministic=True)[0]
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
 
@@ -269,7 +269,7 @@ def run_episode(
     with the outcome (:func:`draw_outcome`), held ``OUTCOME_HOLD_S``."""
     obs, info = env.reset(seed=seed)
     reset = getattr(act, "reset", None)
-    if callable(reset):  # a policy with a state (RecurrentActor): a new episode
+    if callable(reset):  # a policy with a state (ModelAgent): a new episode
         reset()
     base = env.unwrapped
     pos = np.array(obs["pose"][:2], dtype=np.float64)

@@ -62,6 +62,7 @@ from rover_train.envs import (
     TASKS,
     env_factory,
 )
+from rover_train.recipe import RecipeError, read_recipe, write_recipe
 from shm_protocol.names import default_name, default_slots
 
 log = logging.getLogger("rover_train")
@@ -108,6 +109,9 @@ class TrainArgs:
     resume: Path | None = None
     """A run directory (an earlier --logdir) to continue from its newest checkpoint, with its
     own arguments, to its requested --timesteps (give --timesteps again to extend it)."""
+    recipe: Path | None = None
+    """A model .zip that rover-train wrote (a zoo RL entry, a run's model.zip): train it anew
+    with the arguments stored in it; flags given as well override those."""
     progress: bool = True
     """Show a progress bar."""
     name: str = field(default_factory=default_name, metadata={"aliases": ("--shm-name",)})
@@ -203,6 +207,27 @@ RESUME_EXTENDABLE = ("timesteps", "checkpoint_every", "slots")
 """Fields a resumed run keeps from the run unless given again on the command line."""
 
 
+_NOT_RECIPE = ("resume", "recipe", *RESUME_OPERATIONAL)
+"""Fields a recipe does not store: where the run came from, and how this machine runs it."""
+
+
+def recipe_args(given: TrainArgs, argv: Sequence[str] | None) -> TrainArgs:
+    """The arguments stored in ``given.recipe``, with this invocation's operational fields
+    and every flag given on the command line in place of the stored value."""
+    assert given.recipe is not None
+    saved = read_recipe(given.recipe)
+    explicit = explicit_fields(argv)
+    fields: dict[str, Any] = {}
+    for name in TrainArgs.__dataclass_fields__:
+        value = getattr(given, name)
+        if name not in _NOT_RECIPE and name not in explicit and name in saved:
+            value = saved[name]
+            if name == "logdir":
+                value = Path(value)
+        fields[name] = value
+    return TrainArgs(**fields)
+
+
 def _parser() -> Any:
     return build_parser(TrainArgs, "rover-train", __doc__.split("\n")[0], epilog=_EPILOG)
 
@@ -210,6 +235,13 @@ def _parser() -> Any:
 def parse_args(argv: Sequence[str] | None = None) -> TrainArgs:
     p = _parser()
     args = parse_into(TrainArgs, p, argv)
+    if args.resume is not None and args.recipe is not None:
+        p.error("--resume continues a run and --recipe starts one: give one of them")
+    if args.recipe is not None:
+        try:
+            args = recipe_args(args, argv)
+        except RecipeError as exc:
+            p.error(f"--recipe: {exc}")
     if args.resume is not None:
         try:
             args = resume_args(args, argv)
@@ -250,6 +282,8 @@ def resume_args(given: TrainArgs, argv: Sequence[str] | None) -> TrainArgs:
             fields[name] = explicit[name]
         elif name in ("resume", "logdir"):
             fields[name] = run_dir
+        elif name == "recipe":  # the run is under way: where it started does not matter
+            fields[name] = None
         else:
             value = saved.get(name, f.default)
             if isinstance(getattr(given, name), Path) and value is not None:
@@ -650,6 +684,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
                 checkpointer.save("final", status="complete")
                 with durable_path(run_dir / "model.zip") as tmp:
                     model.save(tmp)
+                    write_recipe(tmp, {k: v for k, v in plain(args).items()
+                                       if k not in _NOT_RECIPE})
         except BaseException:
             record.status = "failed"
             record.save(run_dir)

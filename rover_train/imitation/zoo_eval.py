@@ -130,7 +130,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=None,
                    help="the pedestrians (default: the env's, the crowd; pacing: those the "
                         "fused entries were made among)")  # fmt: skip
-    p.add_argument("--file", help="a student file instead of the shipped entry")
+    p.add_argument("--file", help="a file made like the entry instead of the shipped one (a "
+                   "student .pt; for an rl-* entry a rover-train model .zip)")
     name = p.add_argument(
         "--name", help="daemon name for fused entries (default: $ROVERAV_SHM_NAME, set by "
         "rover-pair)"
@@ -151,6 +152,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     spec = zoo.ENTRIES[args.entry]
+    if args.expert and spec.trainer == zoo.RL:
+        p.error(f"--expert: the planner expert drives RoverEnv, and {args.entry} its discrete "
+                f"twin; evaluate the expert on the same episodes with: zoo_eval "
+                f"lidar-{spec.world} --expert")
     scenarios = None
     if args.suite is not None:
         from rover_env.scenarios import select_scenarios
@@ -167,9 +172,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         who = "random policy"
     else:
         who = args.file or f"zoo {args.entry}"
-    student = None if (args.expert or args.random) else (
-        zoo.StudentAgent.load(args.file) if args.file else zoo.load(args.entry)
-    )  # fmt: skip
+    student = None if (args.expert or args.random) else zoo.load(args.entry, args.file)
 
     def agent_for(env: Any) -> zoo.Agent:
         if args.expert:

@@ -8,21 +8,26 @@
     agent.reset()
     obs, reward, terminated, truncated, info = env.step(agent.act(obs))
 
-Each entry is a student distilled from the privileged planner expert
-(:mod:`rover_train.imitation.expert`) by DAgger
-(:mod:`rover_train.imitation.distill`); ``command(name)`` is
-the one command that reproduces its file. Fused entries need the daemon for their env.
+The ``lidar-*`` and ``fused-*`` entries are students distilled from the privileged planner
+expert (:mod:`rover_train.imitation.expert`) by DAgger (:mod:`rover_train.imitation.distill`);
+the ``rl-*`` entries are Stable-Baselines3 models trained from the env's reward by
+``rover-train`` (:class:`rover_train.algos.ModelAgent` drives them). ``command(name)`` is the
+one command that reproduces an entry's file. Fused entries need the daemon for their env.
 """
 
 from __future__ import annotations
 
 import os
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
 from rover_train.zoo.agent import Agent, FeatureSpec, StudentAgent, StudentNet
-from rover_train.zoo.registry import ENTRIES, EVAL_MAX_STEPS, EVAL_SEED_BASE, EntrySpec
+from rover_train.zoo.registry import ENTRIES, EVAL_MAX_STEPS, EVAL_SEED_BASE, RL, EntrySpec
+
+if TYPE_CHECKING:
+    from rover_train.algos import ModelAgent
 
 
 class UnknownEntryError(KeyError):
@@ -52,7 +57,7 @@ def command(name: str) -> str:
     (``--recipe FILE``); for an entry whose file is missing, the command that makes it from
     its recipe in the lab's table."""
     spec = _spec(name)
-    if not spec.path.is_file():
+    if not spec.path.is_file() or spec.trainer == RL:
         return spec.command
     recipe = StudentAgent.read_meta(spec.path).get("recipe")
     if recipe is None:
@@ -71,20 +76,30 @@ def make_env(name: str, **overrides: Any) -> gym.Env:
     return gym.make(ENV_IDS[spec.kind], **{**spec.env_kwargs, **overrides})
 
 
-def load(name: str) -> StudentAgent:
+def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent | ModelAgent:
     """The agent of entry ``name``: ``agent.reset()`` per episode, ``agent.act(obs)`` (an
-    :class:`Agent`; the concrete :class:`StudentAgent` also saves, fine-tunes and says
-    what it is in ``meta``)."""
+    :class:`Agent`). A student comes as a :class:`StudentAgent`, which also saves, fine-tunes
+    and says what it is in ``meta``; an RL entry as a :class:`rover_train.algos.ModelAgent`.
+
+    :param path: another file made like the entry (a candidate) instead of the shipped one.
+    """
     spec = _spec(name)
-    if not spec.path.is_file():
+    file = spec.path if path is None else Path(path)
+    if not file.is_file():
         raise FileNotFoundError(
-            f"zoo entry {name!r} has no file at {spec.path}; make it with: {spec.command}"
+            f"zoo entry {name!r} has no file at {file}; make it with: {spec.command}"
         )
-    return StudentAgent.load(spec.path)
+    if spec.trainer != RL:
+        return StudentAgent.load(file)
+    from rover_train.algos import ModelAgent, algo_class
+    from rover_train.recipe import read_recipe
+
+    return ModelAgent(algo_class(read_recipe(file)["algo"]).load(file, device="cpu"))
 
 
 __all__ = [
     "ENTRIES",
+    "RL",
     "EVAL_MAX_STEPS",
     "EVAL_SEED_BASE",
     "Agent",

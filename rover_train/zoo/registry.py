@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -16,31 +17,42 @@ EVAL_MAX_STEPS = 600
 """An evaluation episode ends at the first goal, a termination or 600 steps (30 s)."""
 
 
+DAGGER = "dagger"
+RL = "rl"
+
+
 @dataclass(frozen=True)
 class EntrySpec:
     """One zoo entry: what it drives and where its file is. How it is made (its recipe)
-    is stored in the file (``rover_train.imitation.distill.DAggerRecipe``).
+    is stored in the file: a student's ``rover_train.imitation.distill.DAggerRecipe``, an
+    RL model's rover-train arguments (``rover_train.recipe``).
 
-    :param kind: ``lidar`` (RoverEnv) or ``fused`` (RoverEnvFused).
+    :param name: the entry's name (``zoo.load(name)``).
+    :param kind: the env (a ``rover-train --env`` name): ``lidar`` (RoverEnv) or ``fused``
+        (RoverEnvFused) for the students, ``lidar-discrete`` for the RL entries.
     :param world: the world it was trained in.
     :param env_kwargs: constructor keywords of the env it was trained for.
+    :param trainer: ``dagger``: a student distilled from the planner expert (``<name>.pt``);
+        ``rl``: a Stable-Baselines3 model trained on the env's reward by rover-train
+        (``<name>.zip``).
     """
 
+    name: str
     kind: str
     world: str
     env_kwargs: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def name(self) -> str:
-        return f"{self.kind}-{self.world}"
+    trainer: str = DAGGER
 
     @property
     def path(self) -> Path:
-        return ENTRY_DIR / f"{self.name}.pt"
+        return ENTRY_DIR / f"{self.name}{'.zip' if self.trainer == RL else '.pt'}"
 
     @property
     def command(self) -> str:
-        """The command that makes the entry from its recipe in the lab's table."""
+        """The command that makes the entry from its recipe in the lab's table (an RL entry:
+        from the recipe in its file)."""
+        if self.trainer == RL:
+            return f"rover-train --recipe {os.path.relpath(self.path)}"
         return self.distill_command(self.name)
 
     def distill_command(self, args: str) -> str:
@@ -53,7 +65,12 @@ class EntrySpec:
 
 
 ENTRIES: dict[str, EntrySpec] = {
-    f"{kind}-{world}": EntrySpec(kind=kind, world=world, env_kwargs={"world_n": world})
+    f"{kind}-{world}": EntrySpec(f"{kind}-{world}", kind, world, {"world_n": world})
     for kind in ("lidar", "fused")
     for world in ("inspect", "maze")
 }
+ENTRIES.update(
+    (f"rl-lidar-{world}",
+     EntrySpec(f"rl-lidar-{world}", "lidar-discrete", world, {"world_n": world}, trainer=RL))
+    for world in ("inspect", "maze")
+)  # fmt: skip

@@ -1,0 +1,43 @@
+"""A trained model's recipe: the rover-train arguments that made it, stored inside its .zip.
+
+``rover-train`` writes them into every finished run's ``model.zip`` (a member that
+Stable-Baselines3 ignores), so a model copied anywhere (a zoo RL entry) still says how it
+was made, and ``rover-train --recipe FILE`` trains it again.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+RECIPE_MEMBER = "rover_train_args.json"
+"""The member of a model .zip that holds the arguments of the run that made it."""
+
+
+class RecipeError(ValueError):
+    """A file that holds no rover-train recipe (the message names the file and the fix)."""
+
+
+def write_recipe(model_zip: Path, args: dict[str, Any]) -> None:
+    """Store ``args`` (JSON-able run arguments) in ``model_zip`` as its recipe."""
+    with zipfile.ZipFile(model_zip, "a") as archive:
+        archive.writestr(RECIPE_MEMBER, json.dumps(args, indent=2))
+
+
+def read_recipe(model_zip: Path) -> dict[str, Any]:
+    """The run arguments :func:`write_recipe` stored in ``model_zip``."""
+    try:
+        with zipfile.ZipFile(model_zip) as archive:
+            data = json.loads(archive.read(RECIPE_MEMBER))
+    except FileNotFoundError:
+        raise RecipeError(f"{model_zip}: no such file") from None
+    except (zipfile.BadZipFile, KeyError, ValueError) as exc:
+        raise RecipeError(
+            f"{model_zip} is not a model .zip with a rover-train recipe ({exc}); give a zoo RL "
+            "entry (rover_train/zoo/entries/rl-*.zip) or the model.zip of a finished run"
+        ) from None
+    if not isinstance(data, dict):
+        raise RecipeError(f"{model_zip}: its {RECIPE_MEMBER} is not a JSON object")
+    return data

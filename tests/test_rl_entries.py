@@ -1,0 +1,114 @@
+"""RL models as zoo entries: the recipe rover-train stores in every model.zip, ``rover-train
+--recipe FILE``, and ``zoo.load`` / ``zoo_eval`` on an ``rl-*`` entry (issue 38)."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from rover_train import zoo
+from rover_train.algos import ModelAgent
+from rover_train.imitation import zoo_eval
+from rover_train.recipe import RECIPE_MEMBER, RecipeError, read_recipe
+from rover_train.train import parse_args, train
+
+TINY = ["--env", "lidar-discrete", "--world", "inspect", "--task", "nav", "--n-steps", "64",
+        "--batch-size", "32", "--n-epochs", "1", "--no-progress", "--checkpoint-every", "0",
+        "--timesteps", "64", "--seed", "3"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished 64-step PPO run on the RL entries' env."""
+    out = tmp_path_factory.mktemp("rl_entry")
+    metrics = train(parse_args([*TINY, "--logdir", str(out)]))
+    assert metrics["status"] == "complete"
+    return out
+
+
+def test_a_finished_model_holds_the_arguments_that_made_it(run_dir: Path) -> None:
+    recipe = read_recipe(run_dir / "model.zip")
+    assert recipe["env"] == "lidar-discrete" and recipe["task"] == "nav"
+    assert recipe["timesteps"] == 64 and recipe["seed"] == 3 and recipe["n_steps"] == 64
+    assert recipe["logdir"] == str(run_dir)
+    for where_or_how in ("resume", "recipe", "threads", "progress", "name"):
+        assert where_or_how not in recipe  # not what the model is, but how a machine ran it
+    assert recipe == {k: v for k, v in json.loads((run_dir / "run.json").read_text())["args"]
+                      .items() if k in recipe}  # fmt: skip
+
+
+def test_recipe_flag_trains_the_stored_arguments_and_flags_override(
+    run_dir: Path, tmp_path: Path
+) -> None:
+    model = run_dir / "model.zip"
+    again = parse_args(["--recipe", str(model)])
+    assert (again.env, again.world, again.task, again.seed) == ("lidar-discrete", "inspect",
+                                                                 "nav", 3)  # fmt: skip
+    assert again.timesteps == 64 and again.logdir == run_dir and again.resume is None
+    assert again.progress  # an operational field: this invocation's, not the recipe's
+    other = parse_args(["--recipe", str(model), "--seed", "4", "--logdir", str(tmp_path)])
+    assert other.seed == 4 and other.logdir == tmp_path and other.n_steps == 64
+
+
+def test_recipe_flag_refuses_a_file_without_a_recipe(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    plain_zip = tmp_path / "other.zip"
+    with zipfile.ZipFile(plain_zip, "w") as archive:
+        archive.writestr("data", "{}")
+    for bad in (plain_zip, tmp_path / "missing.zip", Path(__file__)):
+        with pytest.raises(SystemExit) as exc:
+            parse_args(["--recipe", str(bad)])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert f"--recipe: {bad}" in err
+        assert "no such file" in err or "rl-*.zip" in err
+    with pytest.raises(RecipeError, match=RECIPE_MEMBER):
+        read_recipe(plain_zip)
+    with pytest.raises(SystemExit):
+        parse_args(["--recipe", str(plain_zip), "--resume", str(tmp_path)])
+    assert "give one of them" in capsys.readouterr().err
+
+
+def test_zoo_loads_an_rl_model_as_an_agent_that_drives_its_env(run_dir: Path) -> None:
+    spec = zoo.ENTRIES["rl-lidar-inspect"]
+    assert spec.trainer == zoo.RL and spec.path.suffix == ".zip"
+    assert zoo.command("rl-lidar-inspect") == (
+        "rover-train --recipe rover_train/zoo/entries/rl-lidar-inspect.zip")
+    agent = zoo.load("rl-lidar-inspect", run_dir / "model.zip")
+    assert isinstance(agent, ModelAgent) and isinstance(agent, zoo.Agent)
+    env = zoo.make_env("rl-lidar-inspect")
+    try:
+        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+        agent.reset()
+        actions = []
+        for _ in range(5):
+            action = agent.act(obs)
+            assert env.action_space.contains(int(action))
+            actions.append(int(action))
+            obs, *_ = env.step(action)
+        agent.reset()
+        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+        assert int(agent.act(obs)) == actions[0]  # deterministic
+    finally:
+        env.close()
+    with pytest.raises(FileNotFoundError, match="rover-train --recipe"):
+        zoo.load("rl-lidar-maze", run_dir / "nothing.zip")
+
+
+def test_zoo_eval_scores_an_rl_model_and_refuses_the_expert_for_it(
+    run_dir: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = zoo_eval.main(["rl-lidar-inspect", "--file", str(run_dir / "model.zip"),
+                          "--episodes", "1", "--json"])  # fmt: skip
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["episodes"] == 1 and 0.0 <= summary["success_rate"] <= 1.0
+    with pytest.raises(SystemExit) as exc:
+        zoo_eval.main(["rl-lidar-inspect", "--expert"])
+    assert exc.value.code == 2
+    assert "zoo_eval lidar-inspect --expert" in capsys.readouterr().err
+
