@@ -82,13 +82,18 @@ class RoverExtractor(BaseFeaturesExtractor):
 
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         parts = [self.cnns[k](observations[k].permute(0, 3, 1, 2)) for k in self.image_keys]
+        parts.append(self.mlp(self.vector_inputs(observations)))
+        return torch.cat(parts, dim=1)
+
+    def vector_inputs(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
+        """What the MLP sees: every vector key scaled to [-1, 1] by its bounds, then the LIDAR
+        proximities and the target's near distance, cos and sin of bearing (when present)."""
         vec = torch.cat([observations[k].flatten(1) for k in self.vector_keys], dim=1)
         inputs = [(vec - self._centre) / self._half]
-        if LIDAR_KEY in observations:
+        if LIDAR_KEY in self.vector_keys:
             inputs.append(torch.exp(-observations[LIDAR_KEY].flatten(1) / PROXIMITY_M))
-        if TARGET_KEY in observations:
+        if TARGET_KEY in self.vector_keys:
             dist, bearing = observations[TARGET_KEY][:, 0], observations[TARGET_KEY][:, 1]
             near = torch.clamp(dist, max=GOAL_NEAR_M) * (2.0 / GOAL_NEAR_M) - 1.0
             inputs.append(torch.stack([near, torch.cos(bearing), torch.sin(bearing)], dim=1))
-        parts.append(self.mlp(torch.cat(inputs, dim=1)))
-        return torch.cat(parts, dim=1)
+        return torch.cat(inputs, dim=1)

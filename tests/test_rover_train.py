@@ -111,3 +111,33 @@ def test_fused_without_daemon_says_how_to_start_one(tmp_path: Path) -> None:
 def test_invalid_algorithm_env_pairs_are_explained(env: str, algo: str, fragment: str) -> None:
     problem = validate(TrainArgs(env=env, algo=algo))
     assert problem is not None and fragment in problem
+
+
+def test_extractor_tells_a_graze_from_open_ground_and_bearings_across_pi() -> None:
+    """The MLP's inputs (RoverExtractor.vector_inputs) separate a LIDAR range of 0.3 m (a
+    collision) from 0.5 m by far more than the bounds scaling (0.03 over 12 m) does, and a
+    target just left of straight behind from one just right of it by almost nothing."""
+    import gymnasium as gym
+    import numpy as np
+    import torch
+
+    import rover_env  # noqa: F401  (registers the ids)
+    from rover_train.policies import PROXIMITY_M, RoverExtractor
+
+    env = gym.make("roverav/RoverEnv-v0", world_n="maze")
+    try:
+        space = env.observation_space
+    finally:
+        env.close()
+    extractor = RoverExtractor(space)
+    obs = {k: np.stack([space[k].sample()] * 2) for k in space.spaces}
+    obs["lidar"][0], obs["lidar"][1] = 0.3, 0.5
+    obs["target"][0], obs["target"][1] = (5.0, np.pi - 1e-3), (5.0, -np.pi + 1e-3)
+    x = extractor.vector_inputs({k: torch.as_tensor(v) for k, v in obs.items()}).numpy()
+    n_scaled = sum(int(np.prod(s.shape)) for s in space.spaces.values())
+    assert x.shape[1] == n_scaled + 32 + 3
+    proximity = np.abs(x[0, n_scaled:n_scaled + 32] - x[1, n_scaled:n_scaled + 32])
+    expected = np.exp(-0.3 / PROXIMITY_M) - np.exp(-0.5 / PROXIMITY_M)
+    assert proximity == pytest.approx(np.full(32, expected), rel=1e-5)
+    assert expected > 5 * 0.2 / 6.0  # five times the bounds scaling's gap (0.2 m of 12 m)
+    assert np.allclose(x[0, -3:], x[1, -3:], atol=3e-3)  # (near distance, cos, sin) of bearing
