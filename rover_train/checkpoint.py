@@ -68,6 +68,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from rover_train.recipe import write_recipe
+
 log = logging.getLogger(__name__)
 
 STATE_VERSION = 1
@@ -298,8 +300,12 @@ def _record_fix(run_dir: Path) -> str:
             "start a new run with another --logdir.")
 
 
-def save_checkpoint(model: Any, run_dir: Path, algo: str, extra: dict[str, Any]) -> str:
+def save_checkpoint(model: Any, run_dir: Path, algo: str, extra: dict[str, Any],
+                    args: dict[str, Any] | None = None) -> str:
     """Write model, replay buffer (off-policy) and state; returns the checkpoint's stem.
+    With ``args`` (the run's arguments) the model .zip holds their recipe
+    (:func:`rover_train.recipe.write_recipe`), so ``zoo_eval --file`` and ``rover-train
+    --recipe`` take a checkpoint as they take a finished model.
 
     ``extra`` holds what the trainer adds to the state (episode log, env RNGs, ...). Each file
     is written through :func:`durable_path` (on disk before it takes its name), the state
@@ -312,6 +318,8 @@ def save_checkpoint(model: Any, run_dir: Path, algo: str, extra: dict[str, Any])
     zip_path = ckdir / f"{stem}.zip"
     with durable_path(zip_path) as tmp:
         model.save(tmp)
+        if args is not None:
+            write_recipe(tmp, args)
     state = {"version": STATE_VERSION, "num_timesteps": int(model.num_timesteps),
              "saved_at": time.time(), **extra}  # fmt: skip
     files = {zip_path.name: zip_path.stat().st_size}
@@ -553,7 +561,7 @@ class Checkpointer:
             "episode_log": list(self.episode_log),
             "tb_log_name": self.record.tb_log_name,
             "why": why,
-        })  # fmt: skip
+        }, self.record.args)  # fmt: skip
         self.saved_steps = steps
         self.record.latest_checkpoint = stem
         self.record.num_timesteps = steps

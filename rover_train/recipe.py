@@ -14,16 +14,26 @@ from typing import Any
 
 RECIPE_MEMBER = "rover_train_args.json"
 """The member of a model .zip that holds the arguments of the run that made it."""
+OPERATIONAL_FIELDS = ("name", "log_level", "progress", "device", "threads", "update_threads",
+                      "connect_timeout", "vec_env")  # fmt: skip
+"""rover-train arguments that say how a machine runs the run, not what it trains."""
 
 
 class RecipeError(ValueError):
     """A file that holds no rover-train recipe (the message names the file and the fix)."""
 
 
+def recipe_of(args: dict[str, Any]) -> dict[str, Any]:
+    """The recipe in a run's arguments (``TrainArgs`` as plain JSON): all but where the run
+    came from (``resume``, ``recipe``) and :data:`OPERATIONAL_FIELDS`."""
+    return {k: v for k, v in args.items() if k not in ("resume", "recipe", *OPERATIONAL_FIELDS)}
+
+
 def write_recipe(model_zip: Path, args: dict[str, Any]) -> None:
-    """Store ``args`` (JSON-able run arguments) in ``model_zip`` as its recipe."""
+    """Store the recipe of ``args`` (a run's arguments as plain JSON) in ``model_zip``. A
+    checkpoint's recipe is its run's: the model it holds is that run's at its step count."""
     with zipfile.ZipFile(model_zip, "a") as archive:
-        archive.writestr(RECIPE_MEMBER, json.dumps(args, indent=2))
+        archive.writestr(RECIPE_MEMBER, json.dumps(recipe_of(args), indent=2))
 
 
 def read_recipe(model_zip: Path) -> dict[str, Any]:

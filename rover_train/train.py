@@ -62,7 +62,13 @@ from rover_train.envs import (
     TASKS,
     env_factory,
 )
-from rover_train.recipe import RecipeError, read_recipe, write_recipe
+from rover_train.recipe import (
+    OPERATIONAL_FIELDS,
+    RecipeError,
+    read_recipe,
+    recipe_of,
+    write_recipe,
+)
 from shm_protocol.names import default_name, default_slots
 
 log = logging.getLogger("rover_train")
@@ -199,28 +205,22 @@ _EPILOG = (
     "Under rover-pair, --name and --slots default to the supervisor's. SIGINT/SIGTERM "
     "save a checkpoint and exit 130/143; --resume RUN_DIR continues the run."
 )
-RESUME_OPERATIONAL = ("name", "log_level", "progress", "device", "threads", "update_threads",
-                      "connect_timeout",
-                      "vec_env")  # fmt: skip
+RESUME_OPERATIONAL = OPERATIONAL_FIELDS
 """Fields a resumed run takes from this invocation (flags, or rover-pair's environment)."""
 RESUME_EXTENDABLE = ("timesteps", "checkpoint_every", "slots")
 """Fields a resumed run keeps from the run unless given again on the command line."""
-
-
-_NOT_RECIPE = ("resume", "recipe", *RESUME_OPERATIONAL)
-"""Fields a recipe does not store: where the run came from, and how this machine runs it."""
 
 
 def recipe_args(given: TrainArgs, argv: Sequence[str] | None) -> TrainArgs:
     """The arguments stored in ``given.recipe``, with this invocation's operational fields
     and every flag given on the command line in place of the stored value."""
     assert given.recipe is not None
-    saved = read_recipe(given.recipe)
+    saved = recipe_of(read_recipe(given.recipe))
     explicit = explicit_fields(argv)
     fields: dict[str, Any] = {}
     for name in TrainArgs.__dataclass_fields__:
         value = getattr(given, name)
-        if name not in _NOT_RECIPE and name not in explicit and name in saved:
+        if name in saved and name not in explicit:
             value = saved[name]
             if name == "logdir":
                 value = Path(value)
@@ -684,8 +684,7 @@ def train(args: TrainArgs) -> dict[str, Any]:
                 checkpointer.save("final", status="complete")
                 with durable_path(run_dir / "model.zip") as tmp:
                     model.save(tmp)
-                    write_recipe(tmp, {k: v for k, v in plain(args).items()
-                                       if k not in _NOT_RECIPE})
+                    write_recipe(tmp, plain(args))
         except BaseException:
             record.status = "failed"
             record.save(run_dir)

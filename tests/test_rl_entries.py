@@ -38,6 +38,8 @@ def test_a_finished_model_holds_the_arguments_that_made_it(run_dir: Path) -> Non
         assert where_or_how not in recipe  # not what the model is, but how a machine ran it
     assert recipe == {k: v for k, v in json.loads((run_dir / "run.json").read_text())["args"]
                       .items() if k in recipe}  # fmt: skip
+    (checkpoint,) = (run_dir / "checkpoints").glob("*.zip")
+    assert read_recipe(checkpoint) == recipe  # a checkpoint carries its run's recipe too
 
 
 def test_recipe_flag_trains_the_stored_arguments_and_flags_override(
@@ -111,4 +113,9 @@ def test_zoo_eval_scores_an_rl_model_and_refuses_the_expert_for_it(
         zoo_eval.main(["rl-lidar-inspect", "--expert"])
     assert exc.value.code == 2
     assert "zoo_eval lidar-inspect --expert" in capsys.readouterr().err
+    not_a_model = run_dir / "run.json"
+    with pytest.raises(SystemExit) as exc:
+        zoo_eval.main(["rl-lidar-inspect", "--file", str(not_a_model), "--episodes", "1"])
+    assert exc.value.code == 2
+    assert f"--file: {not_a_model} is not a model .zip" in capsys.readouterr().err
 

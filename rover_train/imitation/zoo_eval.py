@@ -36,6 +36,7 @@ from rover_train.evaluate import (
 from rover_train.imitation.distill import RECIPES
 from rover_train.imitation.expert import MANNERS, ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
+from rover_train.recipe import RecipeError
 
 
 def evaluate_agent(
@@ -172,7 +173,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         who = "random policy"
     else:
         who = args.file or f"zoo {args.entry}"
-    student = None if (args.expert or args.random) else zoo.load(args.entry, args.file)
+    student = None
+    if not (args.expert or args.random):
+        try:
+            student = zoo.load(args.entry, args.file)
+        except (FileNotFoundError, RecipeError) as exc:
+            p.error(f"--file: {exc}" if args.file else str(exc))
 
     def agent_for(env: Any) -> zoo.Agent:
         if args.expert:
