@@ -119,3 +119,15 @@ def test_zoo_eval_scores_an_rl_model_and_refuses_the_expert_for_it(
     assert exc.value.code == 2
     assert f"--file: {not_a_model} is not a model .zip" in capsys.readouterr().err
 
+
+
+def test_shipped_rl_entries_carry_the_recipe_their_command_trains() -> None:
+    shipped = [n for n in zoo.names() if zoo.ENTRIES[n].trainer == zoo.RL]
+    for name in shipped:
+        spec = zoo.ENTRIES[name]
+        recipe = read_recipe(spec.path)
+        assert (recipe["env"], recipe["world"], recipe["task"]) == (spec.kind, spec.world, "nav")
+        again = parse_args(zoo.command(name).split()[1:])  # rover-train --recipe <file>
+        assert (again.env, again.world, again.timesteps) == (spec.kind, spec.world,
+                                                              recipe["timesteps"])  # fmt: skip
+        assert isinstance(zoo.load(name), ModelAgent)
