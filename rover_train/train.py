@@ -93,8 +93,9 @@ class TrainArgs:
     """Pedestrians per world, 0 to 20 (default: the world's 3)."""
     task: str = field(default=DEFAULT_TASK, metadata={"choices": tuple(TASKS)})
     """What an episode is: seed (the seed's: goal after goal until a failure or the env's
-    length, 2000 lidar / 6000 fused) or nav (the evaluators' episode: it ends at the first
-    goal, with the goal reward and is_success, or after 600 steps)."""
+    length, 2000 lidar / 6000 fused) or nav (the RL task, the evaluators' episode: it ends
+    at the first goal, with the goal reward and is_success, at the first collision or after
+    600 steps; progress pays 10 per metre, and LIDAR envs charge clearance under 0.6 m)."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), recurrent-ppo (all envs: PPO with an LSTM policy, from sb3-contrib),
     sac (lidar, fused) or dqn (discrete)."""
