@@ -23,10 +23,15 @@ class RecipeError(ValueError):
     """A file that holds no rover-train recipe (the message names the file and the fix)."""
 
 
+NOT_RECIPE = ("resume", "recipe", "logdir", *OPERATIONAL_FIELDS)
+"""Fields a recipe leaves out: where the run came from and where it writes, and how a machine
+runs it."""
+
+
 def recipe_of(args: dict[str, Any]) -> dict[str, Any]:
-    """The recipe in a run's arguments (``TrainArgs`` as plain JSON): all but where the run
-    came from (``resume``, ``recipe``) and :data:`OPERATIONAL_FIELDS`."""
-    return {k: v for k, v in args.items() if k not in ("resume", "recipe", *OPERATIONAL_FIELDS)}
+    """The recipe in a run's arguments (``TrainArgs`` as plain JSON): all but
+    :data:`NOT_RECIPE`."""
+    return {k: v for k, v in args.items() if k not in NOT_RECIPE}
 
 
 def write_recipe(model_zip: Path, args: dict[str, Any]) -> None:

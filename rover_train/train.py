@@ -223,8 +223,6 @@ def recipe_args(given: TrainArgs, argv: Sequence[str] | None) -> TrainArgs:
         value = getattr(given, name)
         if name in saved and name not in explicit:
             value = saved[name]
-            if name == "logdir":
-                value = Path(value)
         fields[name] = value
     return TrainArgs(**fields)
 

@@ -33,8 +33,7 @@ def test_a_finished_model_holds_the_arguments_that_made_it(run_dir: Path) -> Non
     recipe = read_recipe(run_dir / "model.zip")
     assert recipe["env"] == "lidar-discrete" and recipe["task"] == "nav"
     assert recipe["timesteps"] == 64 and recipe["seed"] == 3 and recipe["n_steps"] == 64
-    assert recipe["logdir"] == str(run_dir)
-    for where_or_how in ("resume", "recipe", "threads", "progress", "name"):
+    for where_or_how in ("resume", "recipe", "logdir", "threads", "progress", "name"):
         assert where_or_how not in recipe  # not what the model is, but how a machine ran it
     assert recipe == {k: v for k, v in json.loads((run_dir / "run.json").read_text())["args"]
                       .items() if k in recipe}  # fmt: skip
@@ -49,7 +48,7 @@ def test_recipe_flag_trains_the_stored_arguments_and_flags_override(
     again = parse_args(["--recipe", str(model)])
     assert (again.env, again.world, again.task, again.seed) == ("lidar-discrete", "inspect",
                                                                  "nav", 3)  # fmt: skip
-    assert again.timesteps == 64 and again.logdir == run_dir and again.resume is None
+    assert again.timesteps == 64 and again.logdir == Path("runs/train") and again.resume is None
     assert again.progress  # an operational field: this invocation's, not the recipe's
     other = parse_args(["--recipe", str(model), "--seed", "4", "--logdir", str(tmp_path)])
     assert other.seed == 4 and other.logdir == tmp_path and other.n_steps == 64
@@ -79,7 +78,8 @@ def test_zoo_loads_an_rl_model_as_an_agent_that_drives_its_env(run_dir: Path) ->
     spec = zoo.ENTRIES["rl-lidar-inspect"]
     assert spec.trainer == zoo.RL and spec.path.suffix == ".zip"
     assert zoo.command("rl-lidar-inspect") == (
-        "rover-train --recipe rover_train/zoo/entries/rl-lidar-inspect.zip")
+        "rover-train --recipe rover_train/zoo/entries/rl-lidar-inspect.zip "
+        "--logdir runs/rl-lidar-inspect")
     agent = zoo.load("rl-lidar-inspect", run_dir / "model.zip")
     assert isinstance(agent, ModelAgent) and isinstance(agent, zoo.Agent)
     env = zoo.make_env("rl-lidar-inspect")
@@ -123,11 +123,13 @@ def test_zoo_eval_scores_an_rl_model_and_refuses_the_expert_for_it(
 
 def test_shipped_rl_entries_carry_the_recipe_their_command_trains() -> None:
     shipped = [n for n in zoo.names() if zoo.ENTRIES[n].trainer == zoo.RL]
+    assert "rl-lidar-inspect" in shipped
     for name in shipped:
         spec = zoo.ENTRIES[name]
         recipe = read_recipe(spec.path)
         assert (recipe["env"], recipe["world"], recipe["task"]) == (spec.kind, spec.world, "nav")
-        again = parse_args(zoo.command(name).split()[1:])  # rover-train --recipe <file>
+        again = parse_args(zoo.command(name).split()[1:])  # rover-train --recipe <file> ...
         assert (again.env, again.world, again.timesteps) == (spec.kind, spec.world,
                                                               recipe["timesteps"])  # fmt: skip
+        assert again.logdir == Path(f"runs/{name}")
         assert isinstance(zoo.load(name), ModelAgent)

@@ -52,7 +52,7 @@ class EntrySpec:
         """The command that makes the entry from its recipe in the lab's table (an RL entry:
         from the recipe in its file)."""
         if self.trainer == RL:
-            return f"rover-train --recipe {os.path.relpath(self.path)}"
+            return f"rover-train --recipe {os.path.relpath(self.path)} --logdir runs/{self.name}"
         return self.distill_command(self.name)
 
     def distill_command(self, args: str) -> str:
