@@ -123,7 +123,7 @@ def test_zoo_eval_scores_an_rl_model_and_refuses_the_expert_for_it(
 
 def test_shipped_rl_entries_carry_the_recipe_their_command_trains() -> None:
     shipped = [n for n in zoo.names() if zoo.ENTRIES[n].trainer == zoo.RL]
-    assert "rl-lidar-inspect" in shipped
+    assert shipped == ["rl-lidar-inspect", "rl-lidar-maze"]
     for name in shipped:
         spec = zoo.ENTRIES[name]
         recipe = read_recipe(spec.path)
