@@ -70,13 +70,12 @@ class RoverExtractor(BaseFeaturesExtractor):
         high = np.concatenate(highs).astype(np.float32)
         self.register_buffer("_centre", torch.as_tensor((high + low) / 2))
         self.register_buffer("_half", torch.as_tensor(np.maximum((high - low) / 2, 1e-6)))
-        n_extra = 0
-        if LIDAR_KEY in vector_keys:
-            n_extra += int(np.prod(observation_space[LIDAR_KEY].shape))
-        if TARGET_KEY in vector_keys:
-            n_extra += 3
+        with torch.no_grad():  # the inputs vector_inputs builds, counted as the CNN's are
+            sample = {k: torch.as_tensor(np.asarray(observation_space[k].sample())[None])
+                      for k in vector_keys}  # fmt: skip
+            n_inputs = self.vector_inputs(sample).shape[1]
         self.mlp = nn.Sequential(
-            nn.Linear(low.size + n_extra, mlp_dim), nn.ReLU(), nn.Linear(mlp_dim, mlp_dim),
+            nn.Linear(n_inputs, mlp_dim), nn.ReLU(), nn.Linear(mlp_dim, mlp_dim),
             nn.ReLU()
         )
 

@@ -24,7 +24,14 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 
 from rover_train.zoo.agent import Agent, FeatureSpec, StudentAgent, StudentNet
-from rover_train.zoo.registry import ENTRIES, EVAL_MAX_STEPS, EVAL_SEED_BASE, RL, EntrySpec
+from rover_train.zoo.registry import (
+    ENTRIES,
+    EVAL_MAX_STEPS,
+    EVAL_SEED_BASE,
+    RL,
+    EntrySpec,
+    shown_path,
+)
 
 if TYPE_CHECKING:
     from rover_train.algos import ModelAgent
@@ -62,8 +69,7 @@ def command(name: str) -> str:
     recipe = StudentAgent.read_meta(spec.path).get("recipe")
     if recipe is None:
         return spec.command
-    path = os.path.relpath(spec.path)
-    return spec.distill_command(f"--recipe {spec.path if path.startswith('..') else path}")
+    return spec.distill_command(f"--recipe {shown_path(spec.path)}")
 
 
 def make_env(name: str, **overrides: Any) -> gym.Env:

@@ -17,6 +17,12 @@ EVAL_MAX_STEPS = 600
 """An evaluation episode ends at the first goal, a termination or 600 steps (30 s)."""
 
 
+def shown_path(path: Path) -> str:
+    """``path`` as a command shows it: relative to the working directory when under it."""
+    rel = os.path.relpath(path)
+    return str(path) if rel.startswith("..") else rel
+
+
 DAGGER = "dagger"
 RL = "rl"
 
@@ -52,7 +58,7 @@ class EntrySpec:
         """The command that makes the entry from its recipe in the lab's table (an RL entry:
         from the recipe in its file)."""
         if self.trainer == RL:
-            return f"rover-train --recipe {os.path.relpath(self.path)} --logdir runs/{self.name}"
+            return f"rover-train --recipe {shown_path(self.path)} --logdir runs/{self.name}"
         return self.distill_command(self.name)
 
     def distill_command(self, args: str) -> str:
