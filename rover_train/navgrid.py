@@ -22,6 +22,7 @@ HARD_CLEARANCE = 0.34  # m: below this a cell is (almost) impassable
 PREFERRED_CLEARANCE = 0.75  # m: below this a cell costs more (keeps to corridor middles)
 WALL_COST = 6.0  # extra cost per cell at HARD_CLEARANCE, falling linearly to 0
 BLOCKED_COST = 200.0  # per cell closer than HARD_CLEARANCE (finite: a rover there gets out)
+TIGHT_COST = 3.0  # per cell closer than HARD_CLEARANCE in path_cost (plain shortest paths)
 _SQRT2 = math.sqrt(2.0)
 
 
@@ -123,16 +124,29 @@ class OccupancyGrid:
     def centre(self, i: int, j: int) -> tuple[float, float]:
         return self.x0 + (i + 0.5) * self.res, self.y0 + (j + 0.5) * self.res
 
+    def path_cost(self) -> np.ndarray:
+        """Per-cell cost for plain shortest paths: 1 where the rover fits
+        (``HARD_CLEARANCE``), ``TIGHT_COST`` nearer an obstacle (dear, but a rover there
+        still has a way out), infinite inside one; no preference for corridor middles."""
+        cost = np.where(self.clearance < HARD_CLEARANCE, TIGHT_COST, 1.0)
+        cost[self.clearance <= 0.0] = np.inf
+        return cost
+
     def cost_to_go(
-        self, goal: tuple[float, float], extra: np.ndarray | None = None
+        self,
+        goal: tuple[float, float],
+        extra: np.ndarray | None = None,
+        cost: np.ndarray | None = None,
     ) -> np.ndarray:
         """Dijkstra-equivalent field: relaxation sweeps over the 8 neighbours until stable.
 
         Edge cost between neighbours is the mean of their cell costs times the step length.
         Every cell within the success radius' inner part (0.25 m) of the goal is a source,
-        so a goal placed close to a wall still has a reachable free source.
+        so a goal placed close to a wall still has a reachable free source. ``cost``
+        replaces the planner's per-cell cost (e.g. :meth:`path_cost`), ``extra`` adds to it.
         """
-        cost = self.cost if extra is None else self.cost + extra
+        cost = self.cost if cost is None else cost
+        cost = cost if extra is None else cost + extra
         gi, gj = self.cell(*goal)
         field = np.full(self.shape, np.inf)
         r = max(1, int(0.25 / self.res))
