@@ -121,6 +121,21 @@ class OccupancyGrid:
             extra[inside] = cost
         return extra
 
+    def interpolate(self, field: np.ndarray, x: float, y: float) -> float:
+        """``field`` (one value per cell) at (x, y), bilinear between the four nearest cell
+        centres; cells with no finite value are left out (nan where none has one)."""
+        fi = min(max((x - self.x0) / self.res - 0.5, 0.0), self.shape[0] - 1.0)
+        fj = min(max((y - self.y0) / self.res - 0.5, 0.0), self.shape[1] - 1.0)
+        i0, j0 = min(int(fi), self.shape[0] - 2), min(int(fj), self.shape[1] - 2)
+        ti, tj = fi - i0, fj - j0
+        values = field[i0 : i0 + 2, j0 : j0 + 2]
+        weights = np.array([[(1 - ti) * (1 - tj), (1 - ti) * tj], [ti * (1 - tj), ti * tj]])
+        finite = np.isfinite(values)
+        total = float(weights[finite].sum())
+        if total <= 0.0:
+            return math.nan
+        return float((weights[finite] * values[finite]).sum() / total)
+
     def centre(self, i: int, j: int) -> tuple[float, float]:
         return self.x0 + (i + 0.5) * self.res, self.y0 + (j + 0.5) * self.res
 

@@ -29,9 +29,10 @@ class PathProgress(gym.Wrapper):
 
     Use it with the env's own progress term off (``distance_delta_scale=0``; the ``nav-path``
     task of :data:`rover_train.envs.TASKS` sets both). The path-length field is computed
-    once per goal (about 60 ms on a 13 m world's 0.1 m grid) and a new goal starts a new
-    potential. Where the rover's cell is inside an obstacle on the grid (its centre within
-    one cell of a wall), the step pays nothing and the potential keeps its last value.
+    once per goal (about 60 ms on a 13 m world's 0.1 m grid) and read between cell centres
+    (bilinear), so every step's movement counts; a new goal starts a new potential. Where
+    the rover's four nearest cells are all inside an obstacle on the grid, the step pays
+    nothing and the potential keeps its last value.
     """
 
     def __init__(self, env: gym.Env, scale: float) -> None:
@@ -58,8 +59,8 @@ class PathProgress(gym.Wrapper):
             self._goal = goal
             self._last = math.nan
         assert self._field is not None
-        value = float(self._field[self._grid.cell(base.position[0], base.position[1])])
-        return value * self._grid.res if math.isfinite(value) else math.nan
+        value = self._grid.interpolate(self._field, base.position[0], base.position[1])
+        return value * self._grid.res
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
