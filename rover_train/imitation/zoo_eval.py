@@ -167,7 +167,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ValueError as exc:
             p.error(f"--suite: {exc}")
     if args.expert:
-        manners = args.manners or RECIPES[args.entry].teacher_manners
+        taught_by = spec.start if spec.start is not None else args.entry
+        manners = args.manners or RECIPES[taught_by].teacher_manners
         who = f"planner expert ({manners})"
     elif args.random:
         who = "random policy"

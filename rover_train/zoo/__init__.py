@@ -25,9 +25,11 @@ import gymnasium as gym
 
 from rover_train.zoo.agent import Agent, FeatureSpec, StudentAgent, StudentNet
 from rover_train.zoo.registry import (
+    DAGGER,
     ENTRIES,
     EVAL_MAX_STEPS,
     EVAL_SEED_BASE,
+    FINETUNE,
     RL,
     EntrySpec,
     shown_path,
@@ -64,7 +66,7 @@ def command(name: str) -> str:
     (``--recipe FILE``); for an entry whose file is missing, the command that makes it from
     its recipe in the lab's table."""
     spec = _spec(name)
-    if not spec.path.is_file() or spec.trainer == RL:
+    if not spec.path.is_file() or spec.trainer != DAGGER:
         return spec.command
     recipe = StudentAgent.read_meta(spec.path).get("recipe")
     if recipe is None:
@@ -104,7 +106,9 @@ def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent 
 
 
 __all__ = [
+    "DAGGER",
     "ENTRIES",
+    "FINETUNE",
     "RL",
     "EVAL_MAX_STEPS",
     "EVAL_SEED_BASE",

@@ -353,6 +353,16 @@ def decode_action(out: np.ndarray, spec: FeatureSpec) -> np.ndarray:
     return np.array([speed, heading], dtype=np.float32)
 
 
+def class_action(k: int, spec: FeatureSpec) -> np.ndarray:
+    """Class ``k`` of the head (speed level * HEADING_BINS + heading bin) as the action
+    ``[speed, relative heading]``: its speed level and its bin's centre."""
+    level, hbin = divmod(int(k), HEADING_BINS)
+    if not 0 <= level < len(SPEED_LEVELS):
+        raise ValueError(f"class {k} is outside the head's {spec.n_outputs} classes")
+    speed = float(np.clip(SPEED_LEVELS[level] * spec.max_speed, spec.min_speed, spec.max_speed))
+    return np.array([speed, _BIN_ANGLES[hbin]], dtype=np.float32)
+
+
 class StudentNet(nn.Module):
     """MLP on state features, plus (fused) a CNN on the pooled image added into layer 1."""
 

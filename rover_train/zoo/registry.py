@@ -25,6 +25,7 @@ def shown_path(path: Path) -> str:
 
 DAGGER = "dagger"
 RL = "rl"
+FINETUNE = "finetune"
 
 
 @dataclass(frozen=True)
@@ -40,7 +41,9 @@ class EntrySpec:
     :param env_kwargs: constructor keywords of the env it was trained for.
     :param trainer: ``dagger``: a student distilled from the planner expert (``<name>.pt``);
         ``rl``: a Stable-Baselines3 model trained on the env's reward by rover-train
-        (``<name>.zip``).
+        (``<name>.zip``); ``finetune``: a student fine-tuned on the env's reward by PPO from
+        the entry ``start`` (``rover_train.imitation.finetune``; ``<name>.pt``).
+    :param start: for ``finetune``: the student entry it starts from.
     """
 
     name: str
@@ -48,6 +51,7 @@ class EntrySpec:
     world: str
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     trainer: str = DAGGER
+    start: str | None = None
 
     @property
     def path(self) -> Path:
@@ -59,6 +63,11 @@ class EntrySpec:
         from the recipe in its file)."""
         if self.trainer == RL:
             return f"rover-train --recipe {shown_path(self.path)} --logdir runs/{self.name}"
+        if self.trainer == FINETUNE:
+            cmd = "python -m rover_train.imitation.finetune"
+            if self.path.is_file():
+                return f"{cmd} --recipe {shown_path(self.path)} --out {shown_path(self.path)}"
+            return f"{cmd} --start {self.start} --out {shown_path(self.path)}"
         return self.distill_command(self.name)
 
     def distill_command(self, args: str) -> str:
@@ -80,3 +89,6 @@ ENTRIES.update(
      EntrySpec(f"rl-lidar-{world}", "lidar-discrete", world, {"world_n": world}, trainer=RL))
     for world in ("inspect", "maze")
 )  # fmt: skip
+ENTRIES["lidar-maze-rl"] = EntrySpec(
+    "lidar-maze-rl", "lidar", "maze", {"world_n": "maze"}, trainer=FINETUNE, start="lidar-maze"
+)

@@ -1,0 +1,440 @@
+"""PPO from a distilled student: fine-tune a zoo student on the env's reward, held near its
+start by a KL term (issue 38).
+
+A zoo student is a softmax over (speed level, heading bin) classes
+(:mod:`rover_train.zoo.agent`), so it is already a policy over a discrete action space:
+:class:`StudentInterface` shows the env to it as its feature vector (with the episode's
+:class:`~rover_train.zoo.agent.ObsHistory`) and takes a class as the action (the class's
+speed and heading). PPO then trains the student's own network as the actor, beside a new
+critic, with one more loss term: ``beta`` times KL(start || actor) on each minibatch's states,
+``beta`` falling from ``kl_start`` to ``kl_end``, so the first updates, made while the critic
+is still poor, cannot unlearn what DAgger taught. The first ``value_warmup`` rollouts train
+the critic alone.
+
+The result is a student file like any other (``zoo.load`` gives a ``StudentAgent``; it acts
+on the most likely class, refined by its neighbours) whose ``meta["recipe"]`` is this
+module's :class:`FineTuneRecipe`::
+
+    python -m rover_train.imitation.finetune --start lidar-maze --out runs/ft/lidar-maze-rl.pt
+    python -m rover_train.imitation.finetune --recipe rover_train/zoo/entries/lidar-maze-rl.pt
+
+A run writes ``checkpoint.pt`` (every rollout, crash-safe) and ``progress.csv`` in its run
+directory; ``--resume`` goes on from the checkpoint (the episodes in flight restart).
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import functools
+import io
+import logging
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium import spaces
+from torch import nn
+
+from rover_env.pedestrians import PEDESTRIAN_MODES
+from rover_train.checkpoint import durable_path
+from rover_train.cli import parse_recipe_command, recipe_dict, recipe_from_dict
+from rover_train.envs import TASKS
+from rover_train.zoo.agent import (
+    FeatureSpec,
+    ObsHistory,
+    StudentAgent,
+    class_action,
+    state_features,
+)
+from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE, ENTRIES, shown_path
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT = "checkpoint.pt"
+PROGRESS = "progress.csv"
+PROGRESS_FIELDS = ("steps", "wall_s", "episodes", "success", "collisions", "mean_return",
+                   "kl", "beta")  # fmt: skip
+REWARD_SCALE = 0.05
+"""The critic learns returns in this unit (the nav task's goal pays 100)."""
+CRITIC_LR = 3e-4
+MAX_GRAD_NORM = 0.5
+
+
+@dataclass(frozen=True)
+class FineTuneRecipe:
+    """How a fine-tuned student is made (stored in its file: ``--recipe FILE``)."""
+
+    start: str = field(default="lidar-maze", metadata={"choices": ("lidar-inspect", "lidar-maze")})
+    """The zoo student to start from (a LIDAR entry: RoverEnv)."""
+    pedestrian_mode: str = field(default="pacing", metadata={"choices": PEDESTRIAN_MODES})
+    """The pedestrians of the training episodes."""
+    task: str = field(default="nav", metadata={"choices": tuple(TASKS)})
+    """What an episode is (``rover-train --task``); ``nav`` ends it at the goal or the first
+    collision, as the evaluators count."""
+    timesteps: int = 400_000
+    envs: int = 8
+    """Envs stepped in parallel (worker processes)."""
+    n_steps: int = 256
+    """Steps per env per rollout."""
+    epochs: int = 4
+    minibatch: int = 512
+    learning_rate: float = 2e-5
+    """The actor's (the student's network); the new critic's is ``CRITIC_LR``."""
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_range: float = 0.1
+    kl_start: float = 1.0
+    """Weight of KL(start || actor) at the first update."""
+    kl_end: float = 0.05
+    """... falling linearly to this at ``kl_decay`` of the timesteps, and staying there."""
+    kl_decay: float = 0.5
+    value_warmup: int = 3
+    """Rollouts at the start that train the critic alone."""
+    seed: int = 0
+    """Seeds the networks, the sampling and the episodes (reset seeds ``seed * 1000 + i``,
+    below the diagnostic and evaluation seeds)."""
+
+    def problem(self) -> str | None:
+        if self.timesteps < self.envs * self.n_steps:
+            return (f"--timesteps {self.timesteps} is less than one rollout "
+                    f"(--envs x --n-steps = {self.envs * self.n_steps})")  # fmt: skip
+        if self.envs < 1 or self.n_steps < 1 or self.epochs < 1 or self.minibatch < 2:
+            return "--envs, --n-steps and --epochs must be >= 1 and --minibatch >= 2"
+        if not 0.0 <= self.kl_end <= self.kl_start or not 0.0 < self.kl_decay <= 1.0:
+            return "need 0 <= --kl-end <= --kl-start and 0 < --kl-decay <= 1"
+        if self.seed * 1000 + self.envs >= DIAGNOSTIC_SEED_BASE:
+            return f"--seed {self.seed} reaches the diagnostic seeds ({DIAGNOSTIC_SEED_BASE})"
+        return None
+
+    def beta(self, steps: int) -> float:
+        """The KL weight after ``steps`` environment steps."""
+        frac = min(steps / (self.kl_decay * self.timesteps), 1.0)
+        return self.kl_start + frac * (self.kl_end - self.kl_start)
+
+
+@dataclass(frozen=True)
+class FineTuneRun:
+    """Where a fine-tune runs (not part of the recipe)."""
+
+    out: Path = Path("runs/finetune/student.pt")
+    """The fine-tuned student file; the run directory is beside it (``<out stem>-run``)."""
+    resume: bool = False
+    """Go on from the run directory's checkpoint."""
+    threads: int = 1
+    """Torch threads for the updates."""
+
+    @property
+    def run_dir(self) -> Path:
+        return self.out.with_name(f"{self.out.stem}-run")
+
+
+class StudentInterface(gym.Wrapper):
+    """RoverEnv as a student sees it and drives it: observations are the student's state
+    features (its ``ObsHistory`` kept per episode), actions its classes
+    (``Discrete(spec.n_outputs)``; :func:`rover_train.zoo.agent.class_action`)."""
+
+    def __init__(self, env: gym.Env, spec: FeatureSpec) -> None:
+        super().__init__(env)
+        if spec.image:
+            raise ValueError("StudentInterface drives LIDAR students (RoverEnv); this one "
+                             "sees the fused image")  # fmt: skip
+        self.features = spec
+        self.history = ObsHistory(spec)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (spec.state_dim,), np.float32)
+        self.action_space = spaces.Discrete(spec.n_outputs)
+
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        self.history.reset()
+        return state_features(obs, self.features, self.history), info
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(
+            class_action(int(action), self.features)
+        )
+        features = state_features(obs, self.features, self.history)
+        return features, float(reward), terminated, truncated, info
+
+
+def _make_env(recipe: FineTuneRecipe, spec: FeatureSpec) -> gym.Env:
+    from rover_train.envs import make_env
+
+    world = ENTRIES[recipe.start].world
+    env = make_env("lidar", world=world, task=recipe.task, pedestrian_mode=recipe.pedestrian_mode)
+    return StudentInterface(env, spec)
+
+
+def make_critic(n_inputs: int, hidden: int = 256) -> nn.Module:
+    return nn.Sequential(
+        nn.Linear(n_inputs, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh(),
+        nn.Linear(hidden, 1),
+    )  # fmt: skip
+
+
+def log_probs(net: nn.Module, obs: torch.Tensor) -> torch.Tensor:
+    """The student network's class log-probabilities."""
+    return torch.log_softmax(net(obs), dim=-1)
+
+
+def ppo_losses(
+    net: nn.Module, critic: nn.Module, start: nn.Module, batch: dict[str, torch.Tensor],
+    clip_range: float, beta: float,
+) -> dict[str, torch.Tensor]:  # fmt: skip
+    """One minibatch's PPO losses: clipped surrogate, value (squared error), and
+    KL(start || actor) over the batch's states."""
+    logp_all = log_probs(net, batch["obs"])
+    logp = logp_all.gather(1, batch["actions"][:, None])[:, 0]
+    ratio = torch.exp(logp - batch["logp"])
+    adv = batch["advantages"]
+    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    policy = -torch.min(ratio * adv, ratio.clamp(1 - clip_range, 1 + clip_range) * adv).mean()
+    value = (critic(batch["obs"])[:, 0] - batch["returns"]).pow(2).mean()
+    with torch.no_grad():
+        ref = log_probs(start, batch["obs"])
+    kl = (ref.exp() * (ref - logp_all)).sum(dim=1).mean()
+    return {"policy": policy, "value": value, "kl": kl, "total": policy + beta * kl}
+
+
+def advantages(
+    rewards: np.ndarray, values: np.ndarray, dones: np.ndarray, last_values: np.ndarray,
+    gamma: float, lam: float,
+) -> np.ndarray:  # fmt: skip
+    """GAE over a rollout of ``(n_steps, n_envs)``; ``dones[t]``: the episode ended at step
+    t (terminal or truncated; a truncation's bootstrap is already in ``rewards``)."""
+    n = len(rewards)
+    adv = np.zeros_like(rewards)
+    last = np.zeros(rewards.shape[1], np.float32)
+    for t in reversed(range(n)):
+        next_value = last_values if t == n - 1 else values[t + 1]
+        live = 1.0 - dones[t]
+        delta = rewards[t] + gamma * next_value * live - values[t]
+        last = delta + gamma * lam * live * last
+        adv[t] = last
+    return adv
+
+
+class FineTuner:
+    """The PPO loop (:func:`finetune` runs it)."""
+
+    def __init__(self, recipe: FineTuneRecipe, run: FineTuneRun,
+                 env_fns: Sequence[Callable[[], gym.Env]] | None = None) -> None:  # fmt: skip
+        from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+
+        self.recipe, self.run = recipe, run
+        torch.manual_seed(recipe.seed)
+        self.rng = np.random.default_rng(recipe.seed)
+        from rover_train import zoo
+
+        base = zoo.load(recipe.start)
+        assert isinstance(base, StudentAgent)
+        self.spec = base.spec
+        self.net = base.net.train()
+        self.start = copy.deepcopy(base.net).eval().requires_grad_(False)
+        self.critic = make_critic(self.spec.state_dim)
+        self.opt_actor = torch.optim.Adam(self.net.parameters(), lr=recipe.learning_rate)
+        self.opt_critic = torch.optim.Adam(self.critic.parameters(), lr=CRITIC_LR)
+        self.steps = 0
+        self.rollouts = 0
+        self.wall = 0.0
+        if env_fns is None:
+            fn = functools.partial(_make_env, recipe, self.spec)
+            env_fns = [fn] * recipe.envs
+        self.venv = (SubprocVecEnv(list(env_fns)) if len(env_fns) > 1
+                     else DummyVecEnv(list(env_fns)))  # fmt: skip
+        self.venv.seed(recipe.seed * 1000)
+        self._obs: np.ndarray = np.asarray(self.venv.reset())
+        self._returns = np.zeros(self.venv.num_envs)
+
+    # --- checkpoints --------------------------------------------------------------------
+    def state(self) -> dict[str, Any]:
+        return {
+            "recipe": recipe_dict(self.recipe), "net": self.net.state_dict(),
+            "critic": self.critic.state_dict(), "opt_actor": self.opt_actor.state_dict(),
+            "opt_critic": self.opt_critic.state_dict(), "steps": self.steps,
+            "rollouts": self.rollouts, "wall": self.wall, "torch_rng": torch.get_rng_state(),
+        }  # fmt: skip
+
+    def save_checkpoint(self) -> None:
+        buf = io.BytesIO()
+        torch.save(self.state(), buf)
+        with durable_path(self.run.run_dir / CHECKPOINT) as tmp:
+            tmp.write_bytes(buf.getvalue())
+
+    def load_checkpoint(self) -> None:
+        path = self.run.run_dir / CHECKPOINT
+        if not path.is_file():
+            raise FileNotFoundError(f"--resume: no {CHECKPOINT} in {self.run.run_dir}; start "
+                                    "the run without --resume")  # fmt: skip
+        blob = torch.load(path, map_location="cpu", weights_only=False)
+        stored = recipe_from_dict(FineTuneRecipe, blob["recipe"])
+        if stored != self.recipe:
+            raise ValueError(f"--resume: {path} is of another recipe ({stored}); give the same "
+                             "options, or another --out")  # fmt: skip
+        self.net.load_state_dict(blob["net"])
+        self.critic.load_state_dict(blob["critic"])
+        self.opt_actor.load_state_dict(blob["opt_actor"])
+        self.opt_critic.load_state_dict(blob["opt_critic"])
+        self.steps, self.rollouts, self.wall = blob["steps"], blob["rollouts"], blob["wall"]
+        torch.set_rng_state(blob["torch_rng"])
+        self.venv.seed(self.recipe.seed * 1000 + self.rollouts)
+        self._obs = np.asarray(self.venv.reset())
+        self._returns[:] = 0.0
+        log.info("resumed at %d steps (%d rollouts); the episodes in flight restarted",
+                 self.steps, self.rollouts)  # fmt: skip
+
+    # --- the loop -----------------------------------------------------------------------
+    @torch.no_grad()
+    def collect(self) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+        """One rollout of ``n_steps`` per env, with its advantages and returns."""
+        r = self.recipe
+        n, m = r.n_steps, self.venv.num_envs
+        obs = np.zeros((n, m, self.spec.state_dim), np.float32)
+        actions = np.zeros((n, m), np.int64)
+        logp = np.zeros((n, m), np.float32)
+        values = np.zeros((n, m), np.float32)
+        rewards = np.zeros((n, m), np.float32)
+        dones = np.zeros((n, m), np.float32)
+        ends: list[tuple[bool, bool, float]] = []
+        for t in range(n):
+            x = torch.as_tensor(self._obs, dtype=torch.float32)
+            dist = torch.distributions.Categorical(logits=log_probs(self.net, x))
+            a = dist.sample()
+            obs[t], actions[t], logp[t] = self._obs, a.numpy(), dist.log_prob(a).numpy()
+            values[t] = self.critic(x)[:, 0].numpy()
+            next_obs, rew, done, infos = self.venv.step(a.numpy())
+            self._obs = np.asarray(next_obs)
+            rewards[t] = rew * REWARD_SCALE
+            self._returns += rew
+            dones[t] = done
+            for i in np.flatnonzero(done):
+                info = infos[i]
+                if info.get("TimeLimit.truncated", False):
+                    last = torch.as_tensor(info["terminal_observation"], dtype=torch.float32)
+                    rewards[t, i] += r.gamma * float(self.critic(last[None])[0, 0])
+                ends.append((info.get("goals_reached", 0) > 0, bool(info.get("collision")),
+                             float(self._returns[i])))  # fmt: skip
+                self._returns[i] = 0.0
+        last_values = self.critic(torch.as_tensor(self._obs, dtype=torch.float32))[:, 0].numpy()
+        adv = advantages(rewards, values, dones, last_values, r.gamma, r.gae_lambda)
+        batch: dict[str, np.ndarray] = {"obs": obs, "actions": actions, "logp": logp,
+                                        "advantages": adv, "returns": adv + values}  # fmt: skip
+        stats = {"episodes": float(len(ends))}
+        if ends:
+            stats["success"] = float(np.mean([e[0] for e in ends]))
+            stats["collisions"] = float(np.mean([e[1] for e in ends]))
+            stats["mean_return"] = float(np.mean([e[2] for e in ends]))
+        return batch, stats
+
+    def update(self, batch: dict[str, np.ndarray], critic_only: bool) -> dict[str, float]:
+        r = self.recipe
+        flat = {k: torch.as_tensor(v.reshape(-1, *v.shape[2:])) for k, v in batch.items()}
+        size = len(flat["actions"])
+        beta = r.beta(self.steps)
+        kls: list[float] = []
+        for _ in range(r.epochs):
+            order = torch.as_tensor(self.rng.permutation(size))
+            for lo in range(0, size - r.minibatch + 1, r.minibatch):
+                mb = {k: v[order[lo : lo + r.minibatch]] for k, v in flat.items()}
+                losses = ppo_losses(self.net, self.critic, self.start, mb, r.clip_range, beta)
+                self.opt_critic.zero_grad()
+                losses["value"].backward()
+                nn.utils.clip_grad_norm_(self.critic.parameters(), MAX_GRAD_NORM)
+                self.opt_critic.step()
+                if not critic_only:
+                    self.opt_actor.zero_grad()
+                    losses["total"].backward()
+                    nn.utils.clip_grad_norm_(self.net.parameters(), MAX_GRAD_NORM)
+                    self.opt_actor.step()
+                kls.append(float(losses["kl"]))
+        return {"kl": float(np.mean(kls)), "beta": beta}
+
+    def train(self) -> None:
+        r = self.recipe
+        self.run.run_dir.mkdir(parents=True, exist_ok=True)
+        progress = self.run.run_dir / PROGRESS
+        new_file = not progress.is_file() or self.steps == 0
+        with progress.open("w" if new_file else "a", newline="") as fh:
+            writer = csv.DictWriter(fh, PROGRESS_FIELDS)
+            if new_file:
+                writer.writeheader()
+            while self.steps < r.timesteps:
+                t0 = time.monotonic()
+                batch, stats = self.collect()
+                self.steps += r.n_steps * self.venv.num_envs
+                upd = self.update(batch, critic_only=self.rollouts < r.value_warmup)
+                self.rollouts += 1
+                self.wall += time.monotonic() - t0
+                row = {"steps": self.steps, "wall_s": round(self.wall, 1), **stats, **upd}
+                writer.writerow({k: row.get(k, "") for k in PROGRESS_FIELDS})
+                fh.flush()
+                self.save_checkpoint()
+                log.info("%d steps, %.0f s: %d episodes, success %s, collisions %s, kl %.3f",
+                         self.steps, self.wall, stats["episodes"], stats.get("success", "-"),
+                         stats.get("collisions", "-"), upd["kl"])  # fmt: skip
+
+    def student(self) -> StudentAgent:
+        meta = {"name": f"{self.recipe.start}-rl", "kind": "lidar",
+                "world": ENTRIES[self.recipe.start].world, "recipe": recipe_dict(self.recipe),
+                "finetune": {"steps": self.steps, "wall_s": round(self.wall, 1)}}  # fmt: skip
+        return StudentAgent(copy.deepcopy(self.net).eval(), meta)
+
+    def close(self) -> None:
+        self.venv.close()
+
+
+def finetune(recipe: FineTuneRecipe, run: FineTuneRun) -> Path:
+    """Run the fine-tune to ``recipe.timesteps`` and write the student to ``run.out``."""
+    tuner = FineTuner(recipe, run)
+    try:
+        if run.resume:
+            tuner.load_checkpoint()
+        tuner.train()
+        run.out.parent.mkdir(parents=True, exist_ok=True)
+        buf = io.BytesIO()
+        torch.save(tuner.student().state_dict(), buf)
+        with durable_path(run.out) as tmp:
+            tmp.write_bytes(buf.getvalue())
+    finally:
+        tuner.close()
+    return run.out
+
+
+def read_recipe(path: Path) -> FineTuneRecipe:
+    """The recipe stored in a fine-tuned student file."""
+    stored = StudentAgent.read_meta(path).get("recipe")
+    if not isinstance(stored, dict) or "start" not in stored:
+        raise ValueError(f"{path} holds no fine-tune recipe (was it made by "
+                         "rover_train.imitation.finetune?)")  # fmt: skip
+    return recipe_from_dict(FineTuneRecipe, stored)
+
+
+def command(path: Path) -> str:
+    """The command that remakes the fine-tuned student at ``path`` from its recipe."""
+    p = shown_path(path)
+    return f"python -m rover_train.imitation.finetune --recipe {p} --out {p}"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    recipe, run, _ = parse_recipe_command(
+        FineTuneRecipe, FineTuneRun, "rover_train.imitation.finetune",
+        "PPO from a distilled zoo student, held near it by a KL term.", read_recipe, argv,
+        what="a fine-tuned student file",
+    )  # fmt: skip
+    torch.set_num_threads(run.threads)
+    out = finetune(recipe, run)
+    print(f"wrote {out}; evaluate it with: python -m rover_train.imitation.zoo_eval "
+          f"{recipe.start}-rl --file {shown_path(out)} --pedestrian-mode {recipe.pedestrian_mode}")
+    return 0
+
+
+__all__ = ["FineTuneRecipe", "FineTuneRun", "FineTuner", "StudentInterface", "finetune"]
+
+if __name__ == "__main__":
+    sys.exit(main())
