@@ -49,7 +49,7 @@ class PathProgress(gym.Wrapper):
 
     def _length(self) -> float:
         """Metres along the shortest path from the rover to the goal (nan: no value here)."""
-        base = self.env.unwrapped
+        base: Any = self.env.unwrapped
         if self._grid is None:
             self._grid = OccupancyGrid(base.world)
             self._cost = self._grid.path_cost()
@@ -73,7 +73,7 @@ class PathProgress(gym.Wrapper):
         before, goal_before = self._last, self._goal
         now = self._length()
         term = 0.0
-        if self.env.unwrapped.goal_reached:
+        if getattr(self.env.unwrapped, "goal_reached", False):
             # The potential at the goal reached is 0 (a new goal, if one was drawn, starts
             # its own potential from the next step).
             term = self.scale * before if math.isfinite(before) else 0.0
