@@ -1,5 +1,7 @@
-"""Does it learn? PPO against the random policy, and learning curves of the zoo's recipe.
+"""Does it learn? The learners side by side, PPO against the random policy, and learning
+curves of the zoo's recipe.
 
+    python benchmarks/learning.py --table maze --row PPO=runs/rl-maze --row DAgger=zoo:lidar-maze
     python benchmarks/learning.py                      # lidar: 3 seeds x 100k steps; fused: 2 x 20k
     python benchmarks/learning.py --lidar-steps 30000 --seeds 1 --fused-steps 0   # quick look
     python benchmarks/learning.py --curves --world maze --budget 160000 --points 8 --episodes 30
@@ -12,9 +14,19 @@ expert-labelled states drawn without driving (not env steps; their time is in it
 clock). It prints a table (steps, wall-clock s of training, success, collisions, SPL) and
 writes the curves to ``docs/learning_curves.png``.
 
-For each seed it trains with rover-train's own code, then evaluates the trained policy and
-the random policy on the same fixed evaluation seeds (rover-eval's code) and prints one
-table. The fused part starts its own av-daemon on a private segment name.
+``--table WORLD`` is the one table of what each learner reached: every ``--row LABEL=SOURCE``
+is evaluated on the same evaluation episodes (``zoo_eval``'s: seeds from 100000, 600 steps,
+the first goal ends an episode) and shown with the env steps and the wall-clock time its
+training took. A SOURCE is a rover-train run directory (its ``model.zip``; steps and time from
+its ``metrics.json``), a student file (a DAgger student: steps from its recipe; a fine-tuned
+one, ``rover_train.imitation.finetune``: its own steps and time plus its start's), or
+``zoo:NAME`` for a zoo entry's file. Training time is in the artefacts where they record it
+(rover-train's runs and fine-tunes; a DAgger student's file does not).
+
+Without ``--table`` or ``--curves``: for each seed it trains with rover-train's own code,
+then evaluates the trained policy and the random policy on the same fixed evaluation seeds
+(rover-eval's code) and prints one table. The fused part starts its own av-daemon on a
+private segment name.
 """
 
 from __future__ import annotations
@@ -205,8 +217,81 @@ def curves(world: str, budget: int, points: int, episodes: int, png: Path) -> No
     print(f"wrote {png}")
 
 
+def dagger_steps(recipe: dict) -> int:
+    """Env steps a DAgger recipe drives: each member's rounds (synthetic states apart)."""
+    return int(recipe["members"]) * int(recipe["iterations"]) * int(recipe["steps"])
+
+
+def table_source(source: str, world: str) -> tuple[str, object, int, str]:
+    """A table row's (env kind, agent, env steps, training wall-clock)."""
+    import json
+
+    from rover_train import zoo
+
+    if source.startswith("zoo:"):
+        source = str(zoo.ENTRIES[source[4:]].path)
+    path = Path(source)
+    if path.is_dir():
+        metrics = json.loads((path / "metrics.json").read_text())
+        model = path / "model.zip"
+        if not model.is_file():  # a run stopped early: its newest checkpoint
+            model = max((path / "checkpoints").glob("*_steps.zip"),
+                        key=lambda f: int(f.stem.split("_")[-2]))  # fmt: skip
+        agent = zoo.load(f"rl-lidar-{world}", model)
+        minutes = float(metrics["wall_time_s"]) / 60
+        return metrics["env"], agent, int(metrics["timesteps"]), f"{minutes:.0f} min"
+    if path.suffix == ".zip":
+        agent = zoo.load(f"rl-lidar-{world}", path)
+        from rover_train.recipe import read_recipe
+
+        return read_recipe(path)["env"], agent, int(agent.model.num_timesteps), "-"
+    agent = zoo.StudentAgent.load(path)
+    recipe = agent.meta.get("recipe") or {}
+    if "finetune" in agent.meta:
+        start = zoo.StudentAgent.read_meta(zoo.ENTRIES[recipe["start"]].path)["recipe"]
+        done = agent.meta["finetune"]
+        clock = f"DAgger's + {float(done['wall_s']) / 60:.0f} min"
+        return "lidar", agent, dagger_steps(start) + int(done["steps"]), clock
+    return "lidar", agent, dagger_steps(recipe), "-"
+
+
+def table(world: str, rows: list[str], episodes: int, seed: int) -> None:
+    """Evaluate each ``LABEL=SOURCE`` on the same episodes and print one table."""
+    import gymnasium as gym
+
+    import rover_env  # noqa: F401  (registers the ids)
+    from rover_train.envs import ENV_IDS
+    from rover_train.imitation.zoo_eval import evaluate_agent
+    from rover_train.suite import wilson_interval
+
+    def pct(k: int, n: int) -> str:
+        lo, hi = wilson_interval(k, n)
+        return f"{100 * k / n:.1f} % [{100 * lo:.0f}-{100 * hi:.0f}]"
+
+    print(f"{world}: {episodes} evaluation episodes from seed {seed} (600 steps, the first "
+          "goal ends an episode); brackets: 95 % Wilson intervals\n")  # fmt: skip
+    print("| learner | env steps | training wall-clock | success | episodes with a collision "
+          "| timeouts | SPL |\n|---|---:|---:|---|---|---:|---:|", flush=True)  # fmt: skip
+    for row in rows:
+        label, _, source = row.partition("=")
+        kind, agent, steps, clock = table_source(source, world)
+        env = gym.make(ENV_IDS[kind], world_n=world)
+        try:
+            s = evaluate.summarise(evaluate_agent(env, agent, episodes, seed))
+        finally:
+            env.close()
+        n = s["episodes"]
+        ok, hit = round(s["success_rate"] * n), round(s["collision_rate"] * n)
+        print(f"| {label} | {steps:,} | {clock} | {pct(ok, n)} | {pct(hit, n)} | "
+              f"{s['timeouts']} | {s['spl']:.2f} |", flush=True)  # fmt: skip
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("--table", metavar="WORLD", help="evaluate the --row sources in WORLD")
+    p.add_argument("--row", action="append", default=[], metavar="LABEL=SOURCE",
+                   help="--table: a run directory, a model .zip, a student .pt or zoo:NAME")
+    p.add_argument("--seed", type=int, default=100_000, help="--table: the first episode seed")
     p.add_argument("--curves", action="store_true", help="DAgger vs PPO learning curves")
     p.add_argument("--budget", type=int, default=30_000, help="--curves: env steps each")
     p.add_argument("--points", type=int, default=3, help="--curves: evaluations per curve")
@@ -221,6 +306,14 @@ def main() -> int:
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument("--max-steps", type=int, default=600)
     a = p.parse_args()
+    if a.table:
+        if not a.row or any("=" not in r for r in a.row):
+            p.error("--table needs one or more --row LABEL=SOURCE")
+        import torch
+
+        torch.set_num_threads(1)
+        table(a.table, a.row, a.episodes, a.seed)
+        return 0
     if a.curves:
         import torch
 
