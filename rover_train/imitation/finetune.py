@@ -97,6 +97,9 @@ class FineTuneRecipe:
     kl_decay: float = 0.5
     value_warmup: int = 3
     """Rollouts at the start that train the critic alone."""
+    temperature: float = 1.0
+    """The policy PPO samples and trains is the student's softmax at this temperature
+    (below 1: nearer the most likely class, which is what the student does when it acts)."""
     seed: int = 0
     """Seeds the networks, the sampling and the episodes (reset seeds ``seed * 1000 + i``,
     below the diagnostic and evaluation seeds)."""
@@ -109,6 +112,8 @@ class FineTuneRecipe:
             return "--envs, --n-steps and --epochs must be >= 1 and --minibatch >= 2"
         if not 0.0 <= self.kl_end <= self.kl_start or not 0.0 < self.kl_decay <= 1.0:
             return "need 0 <= --kl-end <= --kl-start and 0 < --kl-decay <= 1"
+        if not self.temperature > 0.0:
+            return f"--temperature must be > 0, got {self.temperature}"
         if self.seed * 1000 + self.envs >= DIAGNOSTIC_SEED_BASE:
             return f"--seed {self.seed} reaches the diagnostic seeds ({DIAGNOSTIC_SEED_BASE})"
         return None
@@ -178,18 +183,18 @@ def make_critic(n_inputs: int, hidden: int = 256) -> nn.Module:
     )  # fmt: skip
 
 
-def log_probs(net: nn.Module, obs: torch.Tensor) -> torch.Tensor:
-    """The student network's class log-probabilities."""
-    return torch.log_softmax(net(obs), dim=-1)
+def log_probs(net: nn.Module, obs: torch.Tensor, temperature: float = 1.0) -> torch.Tensor:
+    """The student network's class log-probabilities at ``temperature``."""
+    return torch.log_softmax(net(obs) / temperature, dim=-1)
 
 
 def ppo_losses(
     net: nn.Module, critic: nn.Module, start: nn.Module, batch: dict[str, torch.Tensor],
-    clip_range: float, beta: float,
+    clip_range: float, beta: float, temperature: float = 1.0,
 ) -> dict[str, torch.Tensor]:  # fmt: skip
     """One minibatch's PPO losses: clipped surrogate, value (squared error), and
-    KL(start || actor) over the batch's states."""
-    logp_all = log_probs(net, batch["obs"])
+    KL(start || actor) over the batch's states (both policies at ``temperature``)."""
+    logp_all = log_probs(net, batch["obs"], temperature)
     logp = logp_all.gather(1, batch["actions"][:, None])[:, 0]
     ratio = torch.exp(logp - batch["logp"])
     adv = batch["advantages"]
@@ -197,7 +202,7 @@ def ppo_losses(
     policy = -torch.min(ratio * adv, ratio.clamp(1 - clip_range, 1 + clip_range) * adv).mean()
     value = (critic(batch["obs"])[:, 0] - batch["returns"]).pow(2).mean()
     with torch.no_grad():
-        ref = log_probs(start, batch["obs"])
+        ref = log_probs(start, batch["obs"], temperature)
     kl = (ref.exp() * (ref - logp_all)).sum(dim=1).mean()
     return {"policy": policy, "value": value, "kl": kl, "total": policy + beta * kl}
 
@@ -304,7 +309,8 @@ class FineTuner:
         ends: list[tuple[bool, bool, float]] = []
         for t in range(n):
             x = torch.as_tensor(self._obs, dtype=torch.float32)
-            dist = torch.distributions.Categorical(logits=log_probs(self.net, x))
+            logits = log_probs(self.net, x, r.temperature)
+            dist = torch.distributions.Categorical(logits=logits)
             a = dist.sample()
             obs[t], actions[t], logp[t] = self._obs, a.numpy(), dist.log_prob(a).numpy()
             values[t] = self.critic(x)[:, 0].numpy()
@@ -342,7 +348,8 @@ class FineTuner:
             order = torch.as_tensor(self.rng.permutation(size))
             for lo in range(0, size - r.minibatch + 1, r.minibatch):
                 mb = {k: v[order[lo : lo + r.minibatch]] for k, v in flat.items()}
-                losses = ppo_losses(self.net, self.critic, self.start, mb, r.clip_range, beta)
+                losses = ppo_losses(self.net, self.critic, self.start, mb, r.clip_range, beta,
+                                    r.temperature)  # fmt: skip
                 self.opt_critic.zero_grad()
                 losses["value"].backward()
                 nn.utils.clip_grad_norm_(self.critic.parameters(), MAX_GRAD_NORM)
