@@ -113,6 +113,7 @@ def test_recipe_problems_are_named() -> None:
     assert "less than one rollout" in replace(TINY, timesteps=10).problem()
     assert "--kl-end" in replace(TINY, kl_end=2.0).problem()
     assert "diagnostic seeds" in replace(TINY, seed=60).problem()
+    assert "--temperature" in replace(TINY, temperature=0.0).problem()
     assert TINY.beta(0) == TINY.kl_start
     assert TINY.beta(TINY.timesteps) == pytest.approx(TINY.kl_end)
 
