@@ -78,6 +78,11 @@ class FineTuneRecipe:
     task: str = field(default="nav", metadata={"choices": tuple(TASKS)})
     """What an episode is (``rover-train --task``); ``nav`` ends it at the goal or the first
     collision, as the evaluators count."""
+    collision_end: float = -100.0
+    """The reward of the step whose collision ends an episode (``RewardConfig.general_penalty``;
+    the nav task's is -20). At -20 an episode that pushes past a pedestrian and collides in
+    one try in five is worth more than one that waits: a fine-tune there keeps the start's
+    collisions."""
     timesteps: int = 400_000
     envs: int = 8
     """Envs stepped in parallel (worker processes)."""
@@ -169,11 +174,18 @@ class StudentInterface(gym.Wrapper):
 
 
 def _make_env(recipe: FineTuneRecipe, spec: FeatureSpec) -> gym.Env:
-    from rover_train.envs import make_env
+    import dataclasses
+
+    import rover_env  # noqa: F401  (registers the ids)
+    from rover_env.reward import RewardConfig
+    from rover_train.envs import ENV_IDS, env_kwargs
 
     world = ENTRIES[recipe.start].world
-    env = make_env("lidar", world=world, task=recipe.task, pedestrian_mode=recipe.pedestrian_mode)
-    return StudentInterface(env, spec)
+    kwargs = env_kwargs("lidar", world=world, task=recipe.task,
+                        pedestrian_mode=recipe.pedestrian_mode)  # fmt: skip
+    reward = kwargs.get("reward_config", RewardConfig())
+    kwargs["reward_config"] = dataclasses.replace(reward, general_penalty=recipe.collision_end)
+    return StudentInterface(gym.make(ENV_IDS["lidar"], **kwargs), spec)
 
 
 def make_critic(n_inputs: int, hidden: int = 256) -> nn.Module:
