@@ -56,6 +56,9 @@ def test_the_interface_shows_the_students_features_and_takes_its_classes() -> No
     try:
         assert isinstance(env, StudentInterface)
         assert env.action_space.n == spec.n_outputs
+        reward = env.unwrapped.reward_config
+        assert reward.general_penalty == TINY.collision_end  # the collision that ends it
+        assert reward.collision_limit == 0  # the nav task: the first one ends the episode
         obs, _ = env.reset(seed=3)
         assert obs.shape == (spec.state_dim,) and env.observation_space.contains(obs)
         raw = env.env.unwrapped._observe()  # what the student would compute from itself
