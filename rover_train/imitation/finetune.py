@@ -371,7 +371,7 @@ class FineTuner:
                     losses["total"].backward()
                     nn.utils.clip_grad_norm_(self.net.parameters(), MAX_GRAD_NORM)
                     self.opt_actor.step()
-                kls.append(float(losses["kl"]))
+                kls.append(losses["kl"].item())
         return {"kl": float(np.mean(kls)), "beta": beta}
 
     def train(self) -> None:
