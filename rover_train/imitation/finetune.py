@@ -78,11 +78,6 @@ class FineTuneRecipe:
     task: str = field(default="nav", metadata={"choices": tuple(TASKS)})
     """What an episode is (``rover-train --task``); ``nav`` ends it at the goal or the first
     collision, as the evaluators count."""
-    collision_end: float = -100.0
-    """The reward of the step whose collision ends an episode (``RewardConfig.general_penalty``;
-    the nav task's is -20). At -20 an episode that pushes past a pedestrian and collides in
-    one try in five is worth more than one that waits: a fine-tune there keeps the start's
-    collisions."""
     timesteps: int = 400_000
     envs: int = 8
     """Envs stepped in parallel (worker processes)."""
@@ -102,9 +97,6 @@ class FineTuneRecipe:
     kl_decay: float = 0.5
     value_warmup: int = 3
     """Rollouts at the start that train the critic alone."""
-    temperature: float = 1.0
-    """The policy PPO samples and trains is the student's softmax at this temperature
-    (below 1: nearer the most likely class, which is what the student does when it acts)."""
     seed: int = 0
     """Seeds the networks, the sampling and the episodes (reset seeds ``seed * 1000 + i``,
     below the diagnostic and evaluation seeds)."""
@@ -117,8 +109,6 @@ class FineTuneRecipe:
             return "--envs, --n-steps and --epochs must be >= 1 and --minibatch >= 2"
         if not 0.0 <= self.kl_end <= self.kl_start or not 0.0 < self.kl_decay <= 1.0:
             return "need 0 <= --kl-end <= --kl-start and 0 < --kl-decay <= 1"
-        if not self.temperature > 0.0:
-            return f"--temperature must be > 0, got {self.temperature}"
         if self.seed * 1000 + self.envs >= DIAGNOSTIC_SEED_BASE:
             return f"--seed {self.seed} reaches the diagnostic seeds ({DIAGNOSTIC_SEED_BASE})"
         return None
@@ -174,18 +164,11 @@ class StudentInterface(gym.Wrapper):
 
 
 def _make_env(recipe: FineTuneRecipe, spec: FeatureSpec) -> gym.Env:
-    import dataclasses
-
-    import rover_env  # noqa: F401  (registers the ids)
-    from rover_env.reward import RewardConfig
-    from rover_train.envs import ENV_IDS, env_kwargs
+    from rover_train.envs import make_env
 
     world = ENTRIES[recipe.start].world
-    kwargs = env_kwargs("lidar", world=world, task=recipe.task,
-                        pedestrian_mode=recipe.pedestrian_mode)  # fmt: skip
-    reward = kwargs.get("reward_config", RewardConfig())
-    kwargs["reward_config"] = dataclasses.replace(reward, general_penalty=recipe.collision_end)
-    return StudentInterface(gym.make(ENV_IDS["lidar"], **kwargs), spec)
+    env = make_env("lidar", world=world, task=recipe.task, pedestrian_mode=recipe.pedestrian_mode)
+    return StudentInterface(env, spec)
 
 
 def make_critic(n_inputs: int, hidden: int = 256) -> nn.Module:
@@ -195,18 +178,18 @@ def make_critic(n_inputs: int, hidden: int = 256) -> nn.Module:
     )  # fmt: skip
 
 
-def log_probs(net: nn.Module, obs: torch.Tensor, temperature: float = 1.0) -> torch.Tensor:
-    """The student network's class log-probabilities at ``temperature``."""
-    return torch.log_softmax(net(obs) / temperature, dim=-1)
+def log_probs(net: nn.Module, obs: torch.Tensor) -> torch.Tensor:
+    """The student network's class log-probabilities."""
+    return torch.log_softmax(net(obs), dim=-1)
 
 
 def ppo_losses(
     net: nn.Module, critic: nn.Module, start: nn.Module, batch: dict[str, torch.Tensor],
-    clip_range: float, beta: float, temperature: float = 1.0,
+    clip_range: float, beta: float,
 ) -> dict[str, torch.Tensor]:  # fmt: skip
     """One minibatch's PPO losses: clipped surrogate, value (squared error), and
-    KL(start || actor) over the batch's states (both policies at ``temperature``)."""
-    logp_all = log_probs(net, batch["obs"], temperature)
+    KL(start || actor) over the batch's states."""
+    logp_all = log_probs(net, batch["obs"])
     logp = logp_all.gather(1, batch["actions"][:, None])[:, 0]
     ratio = torch.exp(logp - batch["logp"])
     adv = batch["advantages"]
@@ -214,7 +197,7 @@ def ppo_losses(
     policy = -torch.min(ratio * adv, ratio.clamp(1 - clip_range, 1 + clip_range) * adv).mean()
     value = (critic(batch["obs"])[:, 0] - batch["returns"]).pow(2).mean()
     with torch.no_grad():
-        ref = log_probs(start, batch["obs"], temperature)
+        ref = log_probs(start, batch["obs"])
     kl = (ref.exp() * (ref - logp_all)).sum(dim=1).mean()
     return {"policy": policy, "value": value, "kl": kl, "total": policy + beta * kl}
 
@@ -321,8 +304,7 @@ class FineTuner:
         ends: list[tuple[bool, bool, float]] = []
         for t in range(n):
             x = torch.as_tensor(self._obs, dtype=torch.float32)
-            logits = log_probs(self.net, x, r.temperature)
-            dist = torch.distributions.Categorical(logits=logits)
+            dist = torch.distributions.Categorical(logits=log_probs(self.net, x))
             a = dist.sample()
             obs[t], actions[t], logp[t] = self._obs, a.numpy(), dist.log_prob(a).numpy()
             values[t] = self.critic(x)[:, 0].numpy()
@@ -360,8 +342,7 @@ class FineTuner:
             order = torch.as_tensor(self.rng.permutation(size))
             for lo in range(0, size - r.minibatch + 1, r.minibatch):
                 mb = {k: v[order[lo : lo + r.minibatch]] for k, v in flat.items()}
-                losses = ppo_losses(self.net, self.critic, self.start, mb, r.clip_range, beta,
-                                    r.temperature)  # fmt: skip
+                losses = ppo_losses(self.net, self.critic, self.start, mb, r.clip_range, beta)
                 self.opt_critic.zero_grad()
                 losses["value"].backward()
                 nn.utils.clip_grad_norm_(self.critic.parameters(), MAX_GRAD_NORM)
