@@ -48,9 +48,6 @@ class Task:
     """``RewardConfig`` fields the task sets (the rest stay the env's own)."""
     lidar_reward: dict[str, float] = field(default_factory=dict)
     """``RewardConfig`` fields the task sets on the LIDAR envs only (LIDAR terms)."""
-    path_progress: float = 0.0
-    """Reward per metre won along the map's shortest path to the goal
-    (:class:`rover_train.shaping.PathProgress`, training only); 0: none."""
 
     def reward_config(self, kind: str) -> RewardConfig | None:
         """The env's ``reward_config`` under this task (None: the env's default)."""
@@ -88,18 +85,9 @@ TASKS = {
                 reward={"collision_limit": 0, "distance_delta_scale": NAV_PROGRESS_SCALE},
                 lidar_reward={"clearance_distance": NAV_CLEARANCE,
                               "clearance_penalty": NAV_CLEARANCE_PENALTY}),
-    "nav-path": Task("nav-path", f"the nav task, with progress ({NAV_PROGRESS_SCALE:g} per "
-                     f"metre) measured along the map's shortest path to the goal instead of "
-                     f"the straight line (the planner's grid; the policy does not see it)",
-                     goal_ends_episode=True, length=NAV_LENGTH,
-                     reward={"collision_limit": 0, "distance_delta_scale": 0.0},
-                     lidar_reward={"clearance_distance": NAV_CLEARANCE,
-                                   "clearance_penalty": NAV_CLEARANCE_PENALTY},
-                     path_progress=NAV_PROGRESS_SCALE),
 }  # fmt: skip
-"""The tasks by name: ``seed`` (the default, today's behaviour), ``nav`` (the RL task that
-matches the evaluation episodes) and ``nav-path`` (``nav`` with its progress along the
-map's paths: the maze's goals behind walls)."""
+"""The tasks by name: ``seed`` (the default, today's behaviour) and ``nav`` (the RL task that
+matches the evaluation episodes)."""
 
 
 def get_task(name: str) -> Task:
@@ -175,14 +163,8 @@ def make_env(kind: str, env_checker: bool = True, **kwargs: Any) -> gym.Env:
     """
     import rover_env  # noqa: F401  (registers the roverav/ ids)
 
-    env = gym.make(ENV_IDS[kind], disable_env_checker=not env_checker,
-                   **env_kwargs(kind, **kwargs))  # fmt: skip
-    scale = get_task(kwargs.get("task", DEFAULT_TASK)).path_progress
-    if scale:
-        from rover_train.shaping import PathProgress
-
-        env = PathProgress(env, scale)
-    return env
+    return gym.make(ENV_IDS[kind], disable_env_checker=not env_checker,
+                    **env_kwargs(kind, **kwargs))  # fmt: skip
 
 
 class DaemonRecovery(gym.Wrapper):

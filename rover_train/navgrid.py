@@ -22,7 +22,6 @@ HARD_CLEARANCE = 0.34  # m: below this a cell is (almost) impassable
 PREFERRED_CLEARANCE = 0.75  # m: below this a cell costs more (keeps to corridor middles)
 WALL_COST = 6.0  # extra cost per cell at HARD_CLEARANCE, falling linearly to 0
 BLOCKED_COST = 200.0  # per cell closer than HARD_CLEARANCE (finite: a rover there gets out)
-TIGHT_COST = 3.0  # per cell closer than HARD_CLEARANCE in path_cost (plain shortest paths)
 _SQRT2 = math.sqrt(2.0)
 
 
@@ -121,47 +120,19 @@ class OccupancyGrid:
             extra[inside] = cost
         return extra
 
-    def interpolate(self, field: np.ndarray, x: float, y: float) -> float:
-        """``field`` (one value per cell) at (x, y), bilinear between the four nearest cell
-        centres; cells with no finite value are left out (nan where none has one)."""
-        fi = min(max((x - self.x0) / self.res - 0.5, 0.0), self.shape[0] - 1.0)
-        fj = min(max((y - self.y0) / self.res - 0.5, 0.0), self.shape[1] - 1.0)
-        i0, j0 = min(int(fi), self.shape[0] - 2), min(int(fj), self.shape[1] - 2)
-        ti, tj = fi - i0, fj - j0
-        values = field[i0 : i0 + 2, j0 : j0 + 2]
-        weights = np.array([[(1 - ti) * (1 - tj), (1 - ti) * tj], [ti * (1 - tj), ti * tj]])
-        finite = np.isfinite(values)
-        total = float(weights[finite].sum())
-        if total <= 0.0:
-            return math.nan
-        return float((weights[finite] * values[finite]).sum() / total)
-
     def centre(self, i: int, j: int) -> tuple[float, float]:
         return self.x0 + (i + 0.5) * self.res, self.y0 + (j + 0.5) * self.res
 
-    def path_cost(self) -> np.ndarray:
-        """Per-cell cost for plain shortest paths: 1 where the rover fits
-        (``HARD_CLEARANCE``), ``TIGHT_COST`` nearer an obstacle (dear, but a rover there
-        still has a way out), infinite inside one; no preference for corridor middles."""
-        cost = np.where(self.clearance < HARD_CLEARANCE, TIGHT_COST, 1.0)
-        cost[self.clearance <= 0.0] = np.inf
-        return cost
-
     def cost_to_go(
-        self,
-        goal: tuple[float, float],
-        extra: np.ndarray | None = None,
-        cost: np.ndarray | None = None,
+        self, goal: tuple[float, float], extra: np.ndarray | None = None
     ) -> np.ndarray:
         """Dijkstra-equivalent field: relaxation sweeps over the 8 neighbours until stable.
 
         Edge cost between neighbours is the mean of their cell costs times the step length.
         Every cell within the success radius' inner part (0.25 m) of the goal is a source,
-        so a goal placed close to a wall still has a reachable free source. ``cost``
-        replaces the planner's per-cell cost (e.g. :meth:`path_cost`), ``extra`` adds to it.
+        so a goal placed close to a wall still has a reachable free source.
         """
-        cost = self.cost if cost is None else cost
-        cost = cost if extra is None else cost + extra
+        cost = self.cost if extra is None else self.cost + extra
         gi, gj = self.cell(*goal)
         field = np.full(self.shape, np.inf)
         r = max(1, int(0.25 / self.res))
