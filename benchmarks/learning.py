@@ -17,8 +17,9 @@ writes the curves to ``docs/learning_curves.png``.
 ``--table WORLD`` is the one table of what each learner reached: every ``--row LABEL=SOURCE``
 is evaluated on the same evaluation episodes (``zoo_eval``'s: seeds from 100000, 600 steps,
 the first goal ends an episode) and shown with the env steps and the wall-clock time its
-training took. A SOURCE is a rover-train run directory (its ``model.zip``; steps and time from
-its ``metrics.json``), a student file (a DAgger student: steps from its recipe; a fine-tuned
+training took. A SOURCE is a rover-train run directory (its ``model.zip``, or the newest
+checkpoint of a run stopped early; steps from its ``metrics.json``, time from the parts of the
+run in its ``run.json``), a student file (a DAgger student: steps from its recipe; a fine-tuned
 one, ``rover_train.imitation.finetune``: its own steps and time plus its start's), or
 ``zoo:NAME`` for a zoo entry's file. Training time is in the artefacts where they record it
 (rover-train's runs and fine-tunes; a DAgger student's file does not).
@@ -238,7 +239,10 @@ def table_source(source: str, world: str) -> tuple[str, object, int, str]:
             model = max((path / "checkpoints").glob("*_steps.zip"),
                         key=lambda f: int(f.stem.split("_")[-2]))  # fmt: skip
         agent = zoo.load(f"rl-lidar-{world}", model)
-        minutes = float(metrics["wall_time_s"]) / 60
+        # metrics.json times the last part of a resumed run; run.json has every part
+        parts = json.loads((path / "run.json").read_text()).get("history", [])
+        done = [p["ended_at"] - p["started_at"] for p in parts if p.get("ended_at")]
+        minutes = (sum(done) if done else float(metrics["wall_time_s"])) / 60
         return metrics["env"], agent, int(metrics["timesteps"]), f"{minutes:.0f} min"
     if path.suffix == ".zip":
         agent = zoo.load(f"rl-lidar-{world}", path)
