@@ -159,16 +159,24 @@ def test_the_critic_alone_learns_during_the_warmup(tuned) -> None:
         tuner.close()
 
 
-def test_resume_goes_on_from_the_checkpoint_and_refuses_another_recipe(tuned) -> None:
-    out, run = tuned
-    longer = replace(TINY, timesteps=192)
+def test_resume_goes_on_to_more_steps_and_refuses_another_recipe(tmp_path: Path) -> None:
+    run = FineTuneRun(out=tmp_path / "tuned.pt")
+    finetune(TINY, run)
     with pytest.raises(ValueError, match="another recipe"):
-        finetune(longer, replace(run, resume=True))
-    assert main(["--recipe", str(out), "--out", str(out), "--resume"]) == 0  # same recipe: done
+        finetune(replace(TINY, learning_rate=1e-3), replace(run, resume=True))
+    with pytest.raises(ValueError, match="past --timesteps"):
+        finetune(replace(TINY, timesteps=64), replace(run, resume=True))
+    out = str(run.out)
+    assert main(["--recipe", out, "--out", out, "--resume"]) == 0  # the same steps: done
     blob = torch.load(run.run_dir / "checkpoint.pt", weights_only=False)
-    assert blob["steps"] == TINY.timesteps  # nothing more to do: no rollout was added
+    assert blob["steps"] == TINY.timesteps and blob["rollouts"] == 2  # no rollout was added
+    assert main(["--recipe", out, "--out", out, "--resume", "--timesteps", "192"]) == 0
+    blob = torch.load(run.run_dir / "checkpoint.pt", weights_only=False)
+    assert blob["steps"] == 192 and blob["rollouts"] == 3  # one more rollout, from the last
+    assert read_recipe(run.out).timesteps == 192
+    assert len((run.run_dir / "progress.csv").read_text().splitlines()) == 1 + 3
     with pytest.raises(FileNotFoundError, match="no checkpoint.pt"):
-        finetune(TINY, FineTuneRun(out=out.with_name("other.pt"), resume=True))
+        finetune(TINY, FineTuneRun(out=tmp_path / "other.pt", resume=True))
 
 
 def test_the_zoo_names_the_command_that_remakes_it(tuned) -> None:

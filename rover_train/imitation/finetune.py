@@ -19,7 +19,8 @@ module's :class:`FineTuneRecipe`::
     python -m rover_train.imitation.finetune --recipe rover_train/zoo/entries/lidar-maze-rl.pt
 
 A run writes ``checkpoint.pt`` (every rollout, crash-safe) and ``progress.csv`` in its run
-directory; ``--resume`` goes on from the checkpoint (the episodes in flight restart).
+directory; ``--resume`` goes on from the checkpoint (the episodes in flight restart), to the
+same or a longer ``--timesteps``.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ import logging
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -274,9 +275,15 @@ class FineTuner:
                                     "the run without --resume")  # fmt: skip
         blob = torch.load(path, map_location="cpu", weights_only=False)
         stored = recipe_from_dict(FineTuneRecipe, blob["recipe"])
-        if stored != self.recipe:
-            raise ValueError(f"--resume: {path} is of another recipe ({stored}); give the same "
-                             "options, or another --out")  # fmt: skip
+        # a longer --timesteps goes on (the KL schedule stretches with it); the rest must match
+        if replace(stored, timesteps=self.recipe.timesteps) != self.recipe:
+            raise ValueError(
+                f"--resume: {path} is of another recipe ({stored}); give the same options "
+                "(a longer --timesteps goes on), or another --out"
+            )
+        if blob["steps"] > self.recipe.timesteps:
+            raise ValueError(f"--resume: {path} is at {blob['steps']} steps, past --timesteps "
+                             f"{self.recipe.timesteps}")  # fmt: skip
         self.net.load_state_dict(blob["net"])
         self.critic.load_state_dict(blob["critic"])
         self.opt_actor.load_state_dict(blob["opt_actor"])
