@@ -28,7 +28,6 @@ from __future__ import annotations
 import copy
 import csv
 import functools
-import io
 import logging
 import sys
 import time
@@ -172,6 +171,12 @@ def _make_env(recipe: FineTuneRecipe, spec: FeatureSpec) -> gym.Env:
     return StudentInterface(env, spec)
 
 
+def save_durably(obj: Any, path: Path) -> None:
+    """``torch.save`` through :func:`rover_train.checkpoint.durable_path` (all or nothing)."""
+    with durable_path(path) as tmp:
+        torch.save(obj, tmp)
+
+
 def make_critic(n_inputs: int, hidden: int = 256) -> nn.Module:
     return nn.Sequential(
         nn.Linear(n_inputs, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh(),
@@ -263,10 +268,7 @@ class FineTuner:
         }  # fmt: skip
 
     def save_checkpoint(self) -> None:
-        buf = io.BytesIO()
-        torch.save(self.state(), buf)
-        with durable_path(self.run.run_dir / CHECKPOINT) as tmp:
-            tmp.write_bytes(buf.getvalue())
+        save_durably(self.state(), self.run.run_dir / CHECKPOINT)
 
     def load_checkpoint(self) -> None:
         path = self.run.run_dir / CHECKPOINT
@@ -404,10 +406,7 @@ def finetune(recipe: FineTuneRecipe, run: FineTuneRun) -> Path:
             tuner.load_checkpoint()
         tuner.train()
         run.out.parent.mkdir(parents=True, exist_ok=True)
-        buf = io.BytesIO()
-        torch.save(tuner.student().state_dict(), buf)
-        with durable_path(run.out) as tmp:
-            tmp.write_bytes(buf.getvalue())
+        save_durably(tuner.student().state_dict(), run.out)
     finally:
         tuner.close()
     return run.out
