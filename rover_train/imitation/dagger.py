@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from rover_env.constants import PAN_LIMIT
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
 from rover_train.threads import available_cores
@@ -37,6 +38,7 @@ from rover_train.zoo.agent import (
     action_classes,
     encode_action,
     image_features,
+    pan_classes,
     state_features,
 )
 from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE, EVAL_SEED_BASE
@@ -103,6 +105,9 @@ class DAggerConfig:
     teacher_manners: str = "polite"
     """The labelling expert's pedestrian terms (``rover_train.imitation.expert.MANNERS``):
     :func:`teacher_manners_for` gives each kind of entry its default."""
+    teacher_gaze: str = "fixed"
+    """Where the labelling expert points the camera in a gaze env (``ExpertConfig.gaze``):
+    ``fixed`` ahead, or ``active``, the gaze teacher (gaze students learn its pan targets)."""
     fit_threads: int = 2
     """Torch threads for the fits, at most the cores this process may use (0: all of them).
     Collection keeps the caller's count: there the env, the expert and the av-daemon share
@@ -321,7 +326,13 @@ def synthetic_samples(
                     sim.place_pedestrian(i, px, py, float(rng.uniform(-np.pi, np.pi)))
                 peds = sim.pedestrian_positions
             expert.reset()
-            label = expert.act((x, y), yaw, goal, peds, None)
+            pan = 0.0
+            if spec.gaze:  # the camera anywhere in its range half of the time
+                pan = float(rng.uniform(-PAN_LIMIT, PAN_LIMIT)) if rng.random() < 0.5 else 0.0
+                sim.set_camera_pan(pan)
+                label = expert.act_gaze((x, y), yaw, goal, peds, None, pan)
+            else:
+                label = expert.act((x, y), yaw, goal, peds, None)
             dist = float(np.hypot(goal[0] - x, goal[1] - y))
             bearing = float(np.angle(np.exp(1j * (np.arctan2(goal[1] - y, goal[0] - x) - yaw))))
             obs = {
@@ -334,6 +345,8 @@ def synthetic_samples(
             }
             if spec.lidar_points:
                 obs["lidar"] = sim.lidar(base.lidar_points, base.max_lidar_range)
+            if spec.gaze:
+                obs["gaze"] = np.array([pan], np.float32)
             if spec.depth_scan:
                 obs["fused_image"] = view(base)
             past = ObsHistory(spec).absent() if spec.history else None
@@ -342,18 +355,21 @@ def synthetic_samples(
                 encode_action(label, spec),
                 sample_weight(np.array([x, y]), peds, near_weight),
             )
+    sim.set_camera_pan(0.0)
 
 
 def fit(net: StudentNet | EnsembleNet, data: Dataset, cfg: DAggerConfig,
         gen: torch.Generator) -> float:
-    """Refit ``net`` on ``data`` (cross-entropy on the class of the expert's action, samples
-    weighted). Returns the last epoch's mean
+    """Refit ``net`` on ``data`` (cross-entropy on the class of the expert's action, plus a
+    gaze student's on the class of its pan target; samples weighted). Returns the last epoch's mean
     loss. An ensemble's members are refit one after the other, each on its own sample
     order (mean of their losses)."""
     if isinstance(net, EnsembleNet):
         return float(np.mean([fit(m, data, cfg, gen) for m in net.members]))
-    states, images, targets, weights = data.tensors()
-    targets = action_classes(targets)
+    states, images, encoded, weights = data.tensors()
+    targets = action_classes(encoded)
+    pans = pan_classes(encoded) if net.spec.gaze else None
+    n_drive = net.spec.n_drive
     loss_fn = nn.CrossEntropyLoss(reduction="none")
     if cfg.image_only and net.spec.image:
         params = list(net.cnn.parameters()) + list(net.img_proj.parameters())
@@ -374,7 +390,9 @@ def fit(net: StudentNet | EnsembleNet, data: Dataset, cfg: DAggerConfig,
                 dx, dy = torch.randint(-2, 3, (2,), generator=gen).tolist()
                 img = torch.roll(img, shifts=(dy, dx), dims=(2, 3))
             pred = net(states[idx], img)
-            per_sample = loss_fn(pred, targets[idx])
+            per_sample = loss_fn(pred[:, :n_drive], targets[idx])
+            if pans is not None:  # a gaze student's pan head: its own cross-entropy
+                per_sample = per_sample + loss_fn(pred[:, n_drive:], pans[idx])
             w = weights[idx]
             loss = (per_sample * w).sum() / w.sum()
             opt.zero_grad()
@@ -479,7 +497,8 @@ def run_dagger(
 
 def teacher_config(cfg: DAggerConfig) -> ExpertConfig:
     """The expert that labels ``cfg``'s states."""
-    return ExpertConfig.with_manners(cfg.teacher_manners, sees=cfg.teacher_sees)
+    return ExpertConfig.with_manners(cfg.teacher_manners, sees=cfg.teacher_sees,
+                                     gaze=cfg.teacher_gaze)
 
 
 def stage2_config(
@@ -503,9 +522,9 @@ def stage2_config(
 def make_training_env(kind: str, world: str, **kwargs: Any) -> Any:
     """A training env of ``kind`` in ``world``; a fused one waits ``TRAINING_FRAME_TIMEOUT``
     for each fused frame (``frame_timeout=`` overrides)."""
-    from rover_train.envs import make_env
+    from rover_train.envs import FUSED_KINDS, make_env
 
-    if kind == "fused":
+    if kind in FUSED_KINDS:
         kwargs.setdefault("frame_timeout", TRAINING_FRAME_TIMEOUT)
     return make_env(kind, world=world, length=TRAIN_LENGTH, **kwargs)
 

@@ -56,9 +56,10 @@ from rover_train.imitation.dagger import (
     run_dagger,
     stage2_config,
 )
-from rover_train.imitation.expert import MANNERS, SEES
+from rover_train.imitation.expert import GAZES, MANNERS, SEES
+from rover_train.imitation.gaze import WithPanHead
 from rover_train.zoo.agent import StudentAgent, StudentNet
-from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE, ENTRIES
+from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE, ENTRIES, STUDENT_FUSED_KINDS
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +105,9 @@ class DAggerRecipe:
     teacher_manners: str = field(default=_D.teacher_manners,
                                  metadata={"choices": tuple(sorted(MANNERS))})
     """The labelling expert's pedestrian terms (``rover_train.imitation.expert.MANNERS``)."""
+    teacher_gaze: str = field(default=_D.teacher_gaze, metadata={"choices": GAZES})
+    """Where the labelling expert points the camera: a gaze entry learns the ``active``
+    gaze teacher's pan targets (``rover_train.imitation.gaze``)."""
     fused_iterations: int = FUSED_ITERATIONS
     """Stage-2 rounds of a fused entry (daemon in the loop)."""
     fused_steps: int = FUSED_STEPS
@@ -145,7 +149,8 @@ class DAggerRecipe:
             seed=self.seed if seed is None else seed,
             synthetic_goals=self.synthetic_goals, synthetic_per_goal=self.synthetic_per_goal,
             near_weight=self.near_weight, teacher_sees=self.teacher_sees,
-            teacher_manners=self.teacher_manners, fit_threads=self.fit_threads,
+            teacher_manners=self.teacher_manners, teacher_gaze=self.teacher_gaze,
+            fit_threads=self.fit_threads,
         )  # fmt: skip
 
     def fused_dagger(self, seed: int | None = None) -> DAggerConfig:
@@ -169,8 +174,14 @@ class DAggerRecipe:
                 f"{self.seed + self.members - 1}; training episodes of seeds above {MAX_SEED} "
                 f"would reach the diagnostic seeds ({DIAGNOSTIC_SEED_BASE}+)"
             )
-        if self.stage1_only and self.kind != "fused":
+        if self.stage1_only and self.kind not in STUDENT_FUSED_KINDS:
             return f"--stage1-only is for fused entries; {self.entry} is made in one stage"
+        if self.kind == "fused-gaze" and self.teacher_gaze != "active":
+            return (f"{self.entry} learns where to look from the gaze teacher: "
+                    f"--teacher-gaze active (got {self.teacher_gaze})")
+        if self.kind == "fused-gaze" and self.teacher_sees != "camera":
+            return (f"{self.entry}'s teacher must react to what its camera shows for looking "
+                    f"to matter: --teacher-sees camera (got {self.teacher_sees})")
         if self.init is not None and not self.init.is_file():
             return f"--init {self.init}: no such student file"
         return None
@@ -183,11 +194,15 @@ def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
     # diagnostic episodes) and keeps personal space (polite); a LIDAR student, whose scan
     # sees all round, from the firm teacher, which passes people in corridors (its
     # ensembles: 89 and 92 % of 200 diagnostic episodes against 86 and 87 % polite).
-    teacher = ({"teacher_sees": "camera", "teacher_manners": "polite"} if kind == "fused"
+    teacher = ({"teacher_sees": "camera", "teacher_manners": "polite"}
+               if kind in STUDENT_FUSED_KINDS
                else {"teacher_sees": "all", "teacher_manners": "firm"})  # fmt: skip
+    if kind == "fused-gaze":
+        teacher["teacher_gaze"] = "active"  # the gaze teacher turns the camera
     return DAggerRecipe(entry=entry, synthetic_goals=150, **teacher, **kw)
 
 
+_MOON_CROSSING = {"pedestrian_mode": "crossing", "n_pedestrians": 3}  # ENTRIES' env
 _PACERS = {"pedestrian_mode": "pacing"}  # the fused entries were made among the pacers
 _CROWD = {"pedestrian_mode": "crowd", "fit_threads": 1}  # the LIDAR entries among the crowd
 
@@ -196,11 +211,14 @@ RECIPES: dict[str, DAggerRecipe] = {
     "lidar-maze": _recipe("lidar-maze", members=2, unmapped_scan=True, **_CROWD),
     "fused-inspect": _recipe("fused-inspect", **_PACERS),
     "fused-maze": _recipe("fused-maze", members=3, **_PACERS),
+    "fused-moon": _recipe("fused-moon", **_MOON_CROSSING),
+    "fused-gaze-moon": _recipe("fused-gaze-moon", **_MOON_CROSSING),
 }
 """The recipe each zoo entry is made with. Ensembles (members) were chosen on the
 diagnostic seeds (among the crowd two LIDAR members meet every target at 3 and 10 people);
 lidar-maze's students see the unmapped scan (34 collided diagnostic episodes of 200 against
-40 without; docs/journal.md)."""
+40 without; docs/journal.md). fused-moon and fused-gaze-moon are one recipe, the camera
+fixed ahead or turned by the student as the gaze teacher turns it (issue 37's comparison)."""
 
 
 @dataclass(frozen=True)
@@ -276,9 +294,10 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
     cfg = recipe.dagger(seed)
     torch.manual_seed(seed)
     init = recipe.init
+    gaze = recipe.kind == "fused-gaze"
     stage1_file = (
         run.member_dir / f"{name}-seed{seed}.stage1.pt"
-        if recipe.kind == "fused" and init is None
+        if recipe.kind in STUDENT_FUSED_KINDS and init is None
         else None
     )
     if run.resume and stage1_file is not None and stage1_file.is_file():
@@ -302,7 +321,10 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
     else:
         # stage 1: the state network in RoverEnv (fast, no daemon), the depth scan read off
         # the fused image computed in this process
+        # (a gaze student's under the gaze env's pan head, the depth scan off the turned camera)
         env = make_training_env("lidar", world, size=FUSED_SIZE, **crowd)
+        if gaze:
+            env = WithPanHead(env)
         if recipe.depth_scan:
             env = WithFusedView(env)
         try:
@@ -311,6 +333,7 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
                 lidar_points=0,
                 image=True,
                 min_speed=-0.6,
+                gaze=gaze,
             )
             state_agent = StudentAgent(StudentNet(replace(fused_spec, image=False)))
             run_dagger(env, world, state_agent, cfg, label=f"distill {name} stage 1")
@@ -325,7 +348,7 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
     if recipe.stage1_only:
         return agent
     # stage 2: everything, with the daemon's fused images
-    env = make_training_env("fused", world, name=run.name, slot=run.slot, **crowd)
+    env = make_training_env(recipe.kind, world, name=run.name, slot=run.slot, **crowd)
     try:
         run_dagger(env, world, agent, recipe.fused_dagger(seed),
                    label=f"distill {name} stage 2")  # fmt: skip

@@ -37,6 +37,7 @@ from rover_train.imitation.distill import RECIPES
 from rover_train.imitation.expert import MANNERS, ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
 from rover_train.recipe import RecipeError
+from rover_train.zoo.registry import STUDENT_FUSED_KINDS
 
 
 def evaluate_agent(
@@ -73,7 +74,7 @@ def entry_env(entry: str, name: str | None = None, **overrides: Any) -> Any:
     """Zoo entry ``entry``'s env (``overrides``: env keywords, e.g. a scenario's); a fused
     one attaches to daemon ``name`` (default: ``$ROVERAV_SHM_NAME``, which rover-pair
     sets)."""
-    if zoo.ENTRIES[entry].kind != "fused":
+    if zoo.ENTRIES[entry].kind not in STUDENT_FUSED_KINDS:
         return zoo.make_env(entry, **overrides)
     from shm_protocol import default_name
 

@@ -31,7 +31,9 @@ and its weights. Its features:
   from 48,000;
 - ``fused_image`` (fused students): the three channels average-pooled to 48x48 through a
   small CNN whose features are added into the MLP's first hidden layer through a
-  projection that starts at zero, so a fused student can start as a state-only one.
+  projection that starts at zero, so a fused student can start as a state-only one;
+- ``gaze`` (gaze students, ``FeatureSpec.gaze``): where the camera looks, so the depth scan
+  (read off the turned camera's image) and the image are placed round the rover.
 
 The output head: a softmax over joint (speed level, heading bin) classes, ``SPEED_LEVELS`` x
 ``HEADING_BINS``, trained with cross-entropy on the expert's action's nearest class. The
@@ -39,7 +41,9 @@ expert's labels are multimodal (turn left or right round a panel, wait or back o
 pedestrian); a regression averages the modes into an action that does neither (the first
 students regressed and were left stuck against obstacles). Decoding takes the most likely
 class and refines it with the probabilities of its neighbours (a circular mean over the
-adjacent heading bins, a mean over the adjacent speed levels).
+adjacent heading bins, a mean over the adjacent speed levels). A gaze student has a second
+head, a softmax over ``PAN_BINS`` pan targets across the gaze env's +-60 degrees, decoded the
+same way; its action is ``[speed, relative heading, pan target]``.
 """
 
 from __future__ import annotations
@@ -56,6 +60,7 @@ from torch import nn
 
 from fused_image import CHANNEL_DEPTH, DEPTH_MAX_M
 from rover_env import FORWARD_CAMERA, LIDAR_SCAN_LAG, lidar_ray_angles, obstacle_map
+from rover_env.constants import PAN_LIMIT
 
 LIDAR_CLIP = 4.0  # m
 FREQUENCIES = (0.5, 1.0, 2.0)  # cycles per world half-size, for position features
@@ -65,6 +70,8 @@ HEADING_BINS = 32  # heading classes of the ``bins`` head (11.25 degrees each)
 SPEED_LEVELS = (-0.6, -0.36, 0.0, 0.175, 0.35, 0.525, 0.7, 0.85, 1.0)
 """Speeds of the ``bins`` head's classes as fractions of ``max_speed`` (the expert's local
 planner uses 0, 0.35, 0.7, 1 and reverses at -0.36; its pursuit speed is continuous)."""
+PAN_BINS = 13
+"""Pan classes of a gaze student's second head: targets -60, -50, ..., +60 degrees."""
 HISTORY_STEPS = 40  # 2 s at the 0.05 s control period
 LIDAR_LAG = 5  # 0.25 s
 SCAN_BOTTOM = 0.12  # m above the ground: lower points are ground (or depth error on it)
@@ -97,6 +104,9 @@ class FeatureSpec:
     not explain, the pedestrians (see :func:`unmapped_scan`)."""
     world: str = ""
     """The world the student was made for (needed by ``unmapped_scan``)."""
+    gaze: bool = False
+    """A gaze student: sees where the camera looks (the ``gaze`` key) and chooses the pan
+    target (a second head of ``PAN_BINS`` classes): it drives RoverEnvFusedGaze."""
 
     def __post_init__(self) -> None:
         if self.unmapped_scan and not (self.lidar_points and self.world):
@@ -115,12 +125,22 @@ class FeatureSpec:
         return self.lidar_points + self.scan_points
 
     @property
-    def n_outputs(self) -> int:
+    def n_drive(self) -> int:
+        """Classes of the driving head (speed level x heading bin)."""
         return len(SPEED_LEVELS) * HEADING_BINS
 
     @property
+    def n_outputs(self) -> int:
+        return self.n_drive + (PAN_BINS if self.gaze else 0)
+
+    @property
+    def action_size(self) -> int:
+        """Values of an action: ``[speed, heading]``, with ``gaze`` the pan target too."""
+        return 3 if self.gaze else 2
+
+    @property
     def state_dim(self) -> int:
-        base = 4 + 4 * 2 * len(FREQUENCIES) + 2 + 2 + 3 + 2 + self.range_points
+        base = 4 + 4 * 2 * len(FREQUENCIES) + 2 + 2 + 3 + 2 + self.range_points + self.gaze
         return base + (3 + self.range_points if self.history else 0)
 
 
@@ -298,6 +318,8 @@ def state_features(obs: dict[str, np.ndarray], spec: FeatureSpec,
     ]
     ranges = range_features(obs, spec)
     parts.append(ranges)
+    if spec.gaze:
+        parts.append([float(obs["gaze"][0]) / PAN_LIMIT])
     if spec.history:
         if history is None:
             raise ValueError("this student sees its recent past: pass history=")
@@ -319,13 +341,23 @@ def image_features(obs: dict[str, np.ndarray]) -> np.ndarray:
 
 def encode_action(action: np.ndarray, spec: FeatureSpec) -> np.ndarray:
     """``[speed, heading]`` -> the stored target ``(speed / max, cos, sin)`` (its class:
-    :func:`action_classes`)."""
+    :func:`action_classes`); a gaze student's ``[speed, heading, pan]`` -> ``(..., pan)``
+    (its pan class: :func:`pan_classes`)."""
     speed, heading = float(action[0]), float(action[1])
-    return np.array([speed / spec.max_speed, math.cos(heading), math.sin(heading)], np.float32)
+    target = [speed / spec.max_speed, math.cos(heading), math.sin(heading)]
+    if spec.gaze:
+        if len(action) != 3:
+            raise ValueError(f"a gaze student learns [speed, heading, pan target]; the label "
+                             f"{np.asarray(action).tolist()} has no pan target: label it with "
+                             "the gaze env's action (PlannerExpert.act_env on a gaze env)")
+        target.append(float(action[2]))
+    return np.array(target, np.float32)
 
 
 _LEVELS = np.asarray(SPEED_LEVELS)
 _BIN_ANGLES = -math.pi + (np.arange(HEADING_BINS) + 0.5) * (2 * math.pi / HEADING_BINS)
+PAN_ANGLES = np.linspace(-PAN_LIMIT, PAN_LIMIT, PAN_BINS)
+"""The pan target of each class of a gaze student's pan head (rad)."""
 
 
 def action_classes(targets: torch.Tensor) -> torch.Tensor:
@@ -338,8 +370,39 @@ def action_classes(targets: torch.Tensor) -> torch.Tensor:
     return level * HEADING_BINS + hbin.clamp(0, HEADING_BINS - 1)
 
 
+def pan_classes(targets: torch.Tensor) -> torch.Tensor:
+    """A gaze student's pan class (the nearest of :data:`PAN_ANGLES`) of encoded targets
+    ``(N, 4)`` (the pan target last)."""
+    angles = torch.as_tensor(PAN_ANGLES, dtype=targets.dtype)
+    return (targets[:, 3:4] - angles[None]).abs().argmin(dim=1)
+
+
+def head_log_probs(out: torch.Tensor, spec: FeatureSpec) -> torch.Tensor:
+    """The network's logits ``(N, n_outputs)`` as log-probabilities, each head normalised on
+    its own (the driving head, and a gaze student's pan head)."""
+    drive = out[:, : spec.n_drive].log_softmax(dim=-1)
+    if not spec.gaze:
+        return drive
+    return torch.cat([drive, out[:, spec.n_drive :].log_softmax(dim=-1)], dim=-1)
+
+
 def decode_action(out: np.ndarray, spec: FeatureSpec) -> np.ndarray:
-    """The network's output (one row of class logits) -> ``[speed, relative heading]``."""
+    """The network's output (one row of class logits) -> ``[speed, relative heading]``, for a
+    gaze student ``[speed, relative heading, pan target]`` (the pan head's most likely class
+    refined by its neighbours' probabilities)."""
+    out = np.asarray(out, dtype=np.float64)
+    drive = _decode_drive(out[: spec.n_drive], spec)
+    if not spec.gaze:
+        return drive
+    q = out[spec.n_drive :]
+    q = np.exp(q - q.max())
+    k = int(np.argmax(q))
+    near = [j for j in (k - 1, k, k + 1) if 0 <= j < PAN_BINS]
+    pan = float(q[near] @ PAN_ANGLES[near] / q[near].sum())
+    return np.array([drive[0], drive[1], pan], dtype=np.float32)
+
+
+def _decode_drive(out: np.ndarray, spec: FeatureSpec) -> np.ndarray:
     logits = np.asarray(out, dtype=np.float64).reshape(len(SPEED_LEVELS), HEADING_BINS)
     p = np.exp(logits - logits.max())
     s, h = np.unravel_index(int(np.argmax(p)), p.shape)
@@ -425,7 +488,7 @@ class EnsembleNet(nn.Module):
         self.members = nn.ModuleList(members)
 
     def forward(self, state: torch.Tensor, image: torch.Tensor | None = None) -> torch.Tensor:
-        outs = torch.stack([m(state, image) for m in self.members]).log_softmax(dim=-1)
+        outs = torch.stack([head_log_probs(m(state, image), self.spec) for m in self.members])
         return outs.mean(dim=0)
 
 

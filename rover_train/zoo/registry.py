@@ -23,6 +23,8 @@ def shown_path(path: Path) -> str:
     return str(path) if rel.startswith("..") else rel
 
 
+STUDENT_FUSED_KINDS = ("fused", "fused-gaze")
+"""Kinds of student that see the fused image (their env needs the daemon)."""
 DAGGER = "dagger"
 RL = "rl"
 FINETUNE = "finetune"
@@ -35,8 +37,9 @@ class EntrySpec:
     RL model's rover-train arguments (``rover_train.recipe``).
 
     :param name: the entry's name (``zoo.load(name)``).
-    :param kind: the env (a ``rover-train --env`` name): ``lidar`` (RoverEnv) or ``fused``
-        (RoverEnvFused) for the students, ``lidar-discrete`` for the RL entries.
+    :param kind: the env (a ``rover-train --env`` name): ``lidar`` (RoverEnv), ``fused``
+        (RoverEnvFused) or ``fused-gaze`` (RoverEnvFusedGaze) for the students,
+        ``lidar-discrete`` for the RL entries.
     :param world: the world it was trained in.
     :param env_kwargs: constructor keywords of the env it was trained for.
     :param trainer: ``dagger``: a student distilled from the planner expert (``<name>.pt``);
@@ -74,7 +77,7 @@ class EntrySpec:
         """``rover_train.imitation.distill`` with ``args``, under rover-pair for a fused
         entry (its stage 2 needs the daemon)."""
         cmd = f"python -m rover_train.imitation.distill {args}"
-        if self.kind == "fused":
+        if self.kind in STUDENT_FUSED_KINDS:
             return f"rover-pair --name distill_{self.world} -- {cmd}"
         return cmd
 
@@ -89,6 +92,11 @@ ENTRIES.update(
      EntrySpec(f"rl-lidar-{world}", "lidar-discrete", world, {"world_n": world}, trainer=RL))
     for world in ("inspect", "maze")
 )  # fmt: skip
+_MOON_CROSSING = {"world_n": "moon", "pedestrian_mode": "crossing", "n_pedestrians": 3}
+ENTRIES.update(
+    (name, EntrySpec(name, kind, "moon", _MOON_CROSSING))
+    for name, kind in (("fused-moon", "fused"), ("fused-gaze-moon", "fused-gaze"))
+)  # the looking pair: the same recipe, the camera fixed or turned by the student
 ENTRIES["lidar-maze-rl"] = EntrySpec(
     "lidar-maze-rl", "lidar", "maze", {"world_n": "maze", "pedestrian_mode": "pacing"},
     trainer=FINETUNE, start="lidar-maze",
