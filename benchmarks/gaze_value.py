@@ -17,10 +17,14 @@ Rows (``rover_train.imitation.expert``, the fused students' ``polite`` manners u
 - **all-seeing teacher**: reacts to every pedestrian all round (``sees="all"``), the camera
   fixed: what looking could at best give.
 
-Optional rows: ``--student-fixed FILE`` / ``--student-gaze FILE``, zoo student files (a
-gaze student's actions have 3 values; a fixed one's 2, its camera kept ahead), driving on
-the fused image computed in this process from the (turned) camera
-(``rover_train.imitation.dagger.FusedView``).
+Optional rows: ``--student-fixed`` / ``--student-gaze``, a zoo entry's name (``fused-moon``,
+``fused-gaze-moon``) or a student file (a gaze student's actions have 3 values; a fixed
+one's 2, its camera kept ahead), driving on the fused image computed in this process from
+the (turned) camera (``rover_train.imitation.dagger.FusedView``: the daemon's network on the
+same frame). With both, the gaze student minus the fixed student, paired, is printed too.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/gaze_value.py --episodes 250 \
+        --scenarios moon-crossing-3 --student-fixed fused-moon --student-gaze fused-gaze-moon
 
 Each row runs RoverEnv with the fused envs' reward constants (``RewardConfig.fused()``, so
 episodes end as in RoverEnvFusedGaze) under :class:`~rover_train.imitation.gaze.WithPanHead`,
@@ -100,10 +104,22 @@ def teacher_act(
     return expert.reset, lambda _obs: expert.act_env(env)
 
 
+def student_path(value: str) -> Path:
+    """A student row's argument: a zoo entry's name (its shipped file) or a file."""
+    from rover_train import zoo
+
+    if value in zoo.ENTRIES:
+        return zoo.ENTRIES[value].path
+    return Path(value)
+
+
 def student_act(path: Path, gaze: bool) -> tuple[Callable[[], None], Callable[[Any], Any]]:
     """(reset, act) of a zoo student file; a fixed student's camera stays ahead."""
     from rover_train.zoo import StudentAgent
 
+    if not path.is_file():
+        raise SystemExit(f"{path}: no such student file (give a zoo entry's name or a file "
+                         "made by rover_train.imitation.distill)")  # fmt: skip
     agent = StudentAgent.load(path)
 
     def act(obs: Any) -> np.ndarray:
@@ -270,11 +286,11 @@ def format_table(rows: list[tuple[str, dict[str, Any]]]) -> str:
     return "\n".join(lines)
 
 
-def format_difference(d: dict[str, list[float]]) -> str:
+def format_difference(d: dict[str, list[float]], who: str = "teacher") -> str:
     def pts(v: list[float]) -> str:
         return f"{100 * v[0]:+.1f} points [{100 * v[1]:+.1f}, {100 * v[2]:+.1f}]"
 
-    return (f"gaze teacher - fixed teacher (paired): success {pts(d['success'])}, "
+    return (f"gaze {who} - fixed {who} (paired): success {pts(d['success'])}, "
             f"ped. collisions {pts(d['pedestrian_collisions'])}, nearest in view "
             f"{pts(d['nearest_in_view'])}")  # fmt: skip
 
@@ -295,8 +311,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         default="polite",
         help="the teachers' pedestrian terms (polite: the fused entries' teacher)",
     )
-    p.add_argument("--student-fixed", type=Path, help="a zoo student file (camera kept ahead)")
-    p.add_argument("--student-gaze", type=Path, help="a zoo gaze student file (3-value actions)")
+    p.add_argument("--student-fixed", type=student_path, metavar="ENTRY|FILE",
+                   help="a fused zoo student (camera kept ahead): an entry's name or a file")
+    p.add_argument("--student-gaze", type=student_path, metavar="ENTRY|FILE",
+                   help="a gaze zoo student (3-value actions): an entry's name or a file")
     p.add_argument("--json", type=Path, help="write the rows and differences here")
     args = p.parse_args(argv)
     if args.episodes < 2 or args.max_steps < 1:
@@ -321,10 +339,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
             results[label] = run_row(scenario, label, teacher, args.episodes, args.seed,
                                      args.max_steps)  # fmt: skip
+        students = {}
         for label, path, gaze in (("fixed student", args.student_fixed, False),
                                   ("gaze student", args.student_gaze, True)):  # fmt: skip
             if path is not None:
-                results[f"{label} ({path.name})"] = run_row(
+                students[label] = f"{label} ({path.name})"
+                results[students[label]] = run_row(
                     scenario, label, lambda _env, path=path, gaze=gaze: student_act(path, gaze),
                     args.episodes, args.seed, args.max_steps, fused_view=True,
                 )  # fmt: skip
@@ -333,8 +353,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"\n{scenario.name}\n")
         print(format_table(rows))
         print("\n" + format_difference(diff))
+        student_diff = None
+        if len(students) == 2:
+            student_diff = paired_difference(results[students["gaze student"]],
+                                             results[students["fixed student"]])  # fmt: skip
+            print(format_difference(student_diff, "student"))
         report["scenarios"][scenario.name] = {
             "rows": dict(rows), "gaze_minus_fixed": diff,
+            "gaze_student_minus_fixed_student": student_diff,
             "episodes": {k: [dataclasses.asdict(e.result) | {"in_view_steps": e.in_view_steps}
                              for e in v] for k, v in results.items()},
         }  # fmt: skip

@@ -136,7 +136,8 @@ def test_a_gaze_recipe_needs_the_gaze_teacher_that_sees_through_its_camera() -> 
     assert replace(RECIPES["fused-moon"], entry=recipe.entry, teacher_gaze="active") == recipe
     assert "--teacher-gaze active" in (replace(recipe, teacher_gaze="fixed").problem() or "")
     assert "--teacher-sees camera" in (replace(recipe, teacher_sees="all").problem() or "")
-    assert zoo.command("fused-gaze-moon").startswith("rover-pair --name distill_moon -- ")
+    command = zoo.command("fused-gaze-moon")
+    assert command.startswith("rover-pair --name distill_fused_gaze_moon -- ")
 
 
 def test_a_gaze_entry_is_distilled_in_two_stages_and_drives_the_gaze_env(tmp_path) -> None:

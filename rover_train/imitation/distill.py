@@ -1,7 +1,7 @@
 """Make the zoo's entries: each entry's recipe, and the command that runs it.
 
     python -m rover_train.imitation.distill lidar-maze        # LIDAR entry, no daemon
-    rover-pair --name distill_maze -- python -m rover_train.imitation.distill fused-maze
+    rover-pair --name distill_fused_maze -- python -m rover_train.imitation.distill fused-maze
     python -m rover_train.imitation.distill --recipe rover_train/zoo/entries/lidar-maze.pt
 
 An entry's recipe (:class:`DAggerRecipe`) is data: :data:`RECIPES` holds the one each entry
@@ -202,7 +202,8 @@ def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
     return DAggerRecipe(entry=entry, synthetic_goals=150, **teacher, **kw)
 
 
-_MOON_CROSSING = {"pedestrian_mode": "crossing", "n_pedestrians": 3}  # ENTRIES' env
+_MOON_CROSSING = {"pedestrian_mode": "crossing", "n_pedestrians": 3}  # ENTRIES' envs
+_CROWD_10 = {"pedestrian_mode": "crowd", "n_pedestrians": 10}
 _PACERS = {"pedestrian_mode": "pacing"}  # the fused entries were made among the pacers
 _CROWD = {"pedestrian_mode": "crowd", "fit_threads": 1}  # the LIDAR entries among the crowd
 
@@ -213,12 +214,16 @@ RECIPES: dict[str, DAggerRecipe] = {
     "fused-maze": _recipe("fused-maze", members=3, **_PACERS),
     "fused-moon": _recipe("fused-moon", **_MOON_CROSSING),
     "fused-gaze-moon": _recipe("fused-gaze-moon", **_MOON_CROSSING),
+    "fused-inspect-10": _recipe("fused-inspect-10", **_CROWD_10),
+    "fused-gaze-inspect-10": _recipe("fused-gaze-inspect-10", **_CROWD_10),
 }
 """The recipe each zoo entry is made with. Ensembles (members) were chosen on the
 diagnostic seeds (among the crowd two LIDAR members meet every target at 3 and 10 people);
 lidar-maze's students see the unmapped scan (34 collided diagnostic episodes of 200 against
-40 without; docs/journal.md). fused-moon and fused-gaze-moon are one recipe, the camera
-fixed ahead or turned by the student as the gaze teacher turns it (issue 37's comparison)."""
+40 without; docs/journal.md). fused-moon and fused-gaze-moon (moon crossings), and
+fused-inspect-10 and fused-gaze-inspect-10 (inspect among a crowd of 10, where looking
+changes what the teacher hits), are pairs of one recipe: the camera fixed ahead, or turned
+by the student as the gaze teacher turns it (issue 37's comparison)."""
 
 
 @dataclass(frozen=True)

@@ -75,10 +75,11 @@ class EntrySpec:
 
     def distill_command(self, args: str) -> str:
         """``rover_train.imitation.distill`` with ``args``, under rover-pair for a fused
-        entry (its stage 2 needs the daemon)."""
+        entry (its stage 2 needs the daemon; one daemon name per entry, so that two entries
+        can be made at once)."""
         cmd = f"python -m rover_train.imitation.distill {args}"
         if self.kind in STUDENT_FUSED_KINDS:
-            return f"rover-pair --name distill_{self.world} -- {cmd}"
+            return f"rover-pair --name distill_{self.name.replace('-', '_')} -- {cmd}"
         return cmd
 
 
@@ -93,10 +94,15 @@ ENTRIES.update(
     for world in ("inspect", "maze")
 )  # fmt: skip
 _MOON_CROSSING = {"world_n": "moon", "pedestrian_mode": "crossing", "n_pedestrians": 3}
+_INSPECT_CROWD_10 = {"world_n": "inspect", "pedestrian_mode": "crowd", "n_pedestrians": 10}
 ENTRIES.update(
-    (name, EntrySpec(name, kind, "moon", _MOON_CROSSING))
-    for name, kind in (("fused-moon", "fused"), ("fused-gaze-moon", "fused-gaze"))
-)  # the looking pair: the same recipe, the camera fixed or turned by the student
+    (name, EntrySpec(name, kind, world, env))
+    for world, env, fixed, gaze in (
+        ("moon", _MOON_CROSSING, "fused-moon", "fused-gaze-moon"),
+        ("inspect", _INSPECT_CROWD_10, "fused-inspect-10", "fused-gaze-inspect-10"),
+    )
+    for name, kind in ((fixed, "fused"), (gaze, "fused-gaze"))
+)  # the looking pairs: one recipe each, the camera fixed or turned by the student
 ENTRIES["lidar-maze-rl"] = EntrySpec(
     "lidar-maze-rl", "lidar", "maze", {"world_n": "maze", "pedestrian_mode": "pacing"},
     trainer=FINETUNE, start="lidar-maze",
