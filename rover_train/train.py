@@ -717,7 +717,9 @@ def train(args: TrainArgs) -> dict[str, Any]:
         "timesteps": int(model.num_timesteps),
         "timesteps_requested": args.timesteps,
         "resumes": record.resumes,
-        "wall_time_s": round(wall, 2),
+        "wall_time_s": round(wall, 2),  # this part's (since the start or the last --resume)
+        "wall_time_total_s": round(sum(h["ended_at"] - h["started_at"] for h in record.history
+                                       if "ended_at" in h), 2),  # every part's, resumes too
         "steps_per_s": round(trained / wall, 1) if wall > 0 and trained > 0 else None,
         "episodes": len(episodes),
         "episodes_truncated_by_faults": int(sum(e.get("truncated_by_fault", 0) for e in episodes)),

@@ -133,6 +133,10 @@ def test_sigint_then_resume_equals_the_run_that_never_stopped(tmp_path: Path) ->
     assert ta == tb
     metrics = json.loads((stopped / "metrics.json").read_text())
     assert metrics["timesteps"] == metrics["timesteps_requested"] == 1024
+    # the training time counts both parts, the resumed one's alone is wall_time_s
+    parts = [h["ended_at"] - h["started_at"] for h in record["history"]]
+    assert metrics["wall_time_total_s"] == pytest.approx(sum(parts), abs=0.02)
+    assert len(parts) == 2 and min(parts) > 0
 
 
 def test_sigterm_to_the_process_group_saves_with_subprocess_workers(tmp_path: Path) -> None:
