@@ -65,6 +65,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.machine import cpu_name  # noqa: E402
+from fused_image import FUSED_SIZE  # noqa: E402
 from rover_env import RoverEnv  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
 from rover_env.scenarios import Scenario, select_scenarios  # noqa: E402
@@ -135,8 +136,9 @@ def student_act(path: Path, gaze: bool) -> tuple[Callable[[], None], Callable[[A
 
 
 def make_env(scenario: Scenario, max_steps: int, fused_view: bool) -> Any:
+    size = {"size": FUSED_SIZE} if fused_view else {}  # the students read the fused image
     env: Any = WithPanHead(RoverEnv(**scenario.env_kwargs(), length=max_steps,
-                                    reward_config=RewardConfig.fused()))  # fmt: skip
+                                    reward_config=RewardConfig.fused(), **size))  # fmt: skip
     if fused_view:
         from rover_train.imitation.dagger import WithFusedView
 

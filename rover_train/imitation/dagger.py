@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from fused_image import FUSED_SIZE
 from rover_env.constants import PAN_LIMIT
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
@@ -185,6 +186,11 @@ class WithFusedView(gym.ObservationWrapper):
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
         h, w = env.unwrapped.camera_size
+        if (h, w) != tuple(FUSED_SIZE):
+            raise ValueError(
+                f"the env renders {h}x{w} frames; a fused student reads the fused env's "
+                f"{FUSED_SIZE[0]}x{FUSED_SIZE[1]} image: make it with size={tuple(FUSED_SIZE)}"
+            )
         self.observation_space = gym.spaces.Dict(
             {**env.observation_space.spaces,
              "fused_image": gym.spaces.Box(0.0, 1.0, (h, w, 3), np.float32)}
