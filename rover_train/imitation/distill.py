@@ -199,11 +199,12 @@ def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
                else {"teacher_sees": "all", "teacher_manners": "firm"})  # fmt: skip
     if kind == "fused-gaze":
         teacher["teacher_gaze"] = "active"  # the gaze teacher turns the camera
-    return DAggerRecipe(entry=entry, synthetic_goals=150, **teacher, **kw)
+    # an entry made for a scenario (ENTRIES' env keywords) is trained among its pedestrians
+    crowd = {k: v for k, v in ENTRIES[entry].env_kwargs.items()
+             if k in ("pedestrian_mode", "n_pedestrians")}  # fmt: skip
+    return DAggerRecipe(entry=entry, synthetic_goals=150, **teacher, **{**crowd, **kw})
 
 
-_MOON_CROSSING = {"pedestrian_mode": "crossing", "n_pedestrians": 3}  # ENTRIES' envs
-_CROWD_10 = {"pedestrian_mode": "crowd", "n_pedestrians": 10}
 _PACERS = {"pedestrian_mode": "pacing"}  # the fused entries were made among the pacers
 _CROWD = {"pedestrian_mode": "crowd", "fit_threads": 1}  # the LIDAR entries among the crowd
 
@@ -212,10 +213,10 @@ RECIPES: dict[str, DAggerRecipe] = {
     "lidar-maze": _recipe("lidar-maze", members=2, unmapped_scan=True, **_CROWD),
     "fused-inspect": _recipe("fused-inspect", **_PACERS),
     "fused-maze": _recipe("fused-maze", members=3, **_PACERS),
-    "fused-moon": _recipe("fused-moon", **_MOON_CROSSING),
-    "fused-gaze-moon": _recipe("fused-gaze-moon", **_MOON_CROSSING),
-    "fused-inspect-10": _recipe("fused-inspect-10", **_CROWD_10),
-    "fused-gaze-inspect-10": _recipe("fused-gaze-inspect-10", **_CROWD_10),
+    "fused-moon": _recipe("fused-moon"),
+    "fused-gaze-moon": _recipe("fused-gaze-moon"),
+    "fused-inspect-10": _recipe("fused-inspect-10"),
+    "fused-gaze-inspect-10": _recipe("fused-gaze-inspect-10"),
 }
 """The recipe each zoo entry is made with. Ensembles (members) were chosen on the
 diagnostic seeds (among the crowd two LIDAR members meet every target at 3 and 10 people);

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from rover_env.scenarios import Scenario
+
 ENTRY_DIR = Path(__file__).resolve().parent / "entries"
 EVAL_SEED_BASE = 100_000
 """Evaluation seeds start here; training (DAgger) episodes use seeds below it."""
@@ -93,13 +95,11 @@ ENTRIES.update(
      EntrySpec(f"rl-lidar-{world}", "lidar-discrete", world, {"world_n": world}, trainer=RL))
     for world in ("inspect", "maze")
 )  # fmt: skip
-_MOON_CROSSING = {"world_n": "moon", "pedestrian_mode": "crossing", "n_pedestrians": 3}
-_INSPECT_CROWD_10 = {"world_n": "inspect", "pedestrian_mode": "crowd", "n_pedestrians": 10}
 ENTRIES.update(
-    (name, EntrySpec(name, kind, world, env))
-    for world, env, fixed, gaze in (
-        ("moon", _MOON_CROSSING, "fused-moon", "fused-gaze-moon"),
-        ("inspect", _INSPECT_CROWD_10, "fused-inspect-10", "fused-gaze-inspect-10"),
+    (name, EntrySpec(name, kind, scenario.world, scenario.env_kwargs()))
+    for scenario, fixed, gaze in (
+        (Scenario("moon", "crossing", 3), "fused-moon", "fused-gaze-moon"),
+        (Scenario("inspect", "crowd", 10), "fused-inspect-10", "fused-gaze-inspect-10"),
     )
     for name, kind in ((fixed, "fused"), (gaze, "fused-gaze"))
 )  # the looking pairs: one recipe each, the camera fixed or turned by the student
