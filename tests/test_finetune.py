@@ -11,22 +11,29 @@ import torch
 
 from rover_train import zoo
 from rover_train.imitation.finetune import (
+    IMAGE_VALUES,
     FineTuner,
     FineTuneRecipe,
     FineTuneRun,
     StudentInterface,
     _make_env,
+    action_log_prob,
     advantages,
     finetune,
+    head_log_probs_of,
     main,
     ppo_losses,
     read_recipe,
 )
 from rover_train.zoo.agent import (
+    PAN_ANGLES,
+    PAN_BINS,
     SPEED_LEVELS,
     action_classes,
     class_action,
     encode_action,
+    head_log_probs,
+    image_features,
     state_features,
 )
 
@@ -188,3 +195,121 @@ def test_the_zoo_names_the_command_that_remakes_it(tuned) -> None:
         )
     else:
         assert "--start lidar-maze" in zoo.command("lidar-maze-rl")
+
+
+# --- fused and gaze students: the fused image computed in the worker, the pan head learnt ---
+
+GAZE_TINY = FineTuneRecipe(start="fused-gaze-moon", timesteps=128, envs=1, n_steps=64,
+                           epochs=1, minibatch=32, value_warmup=1)  # fmt: skip
+
+
+def test_a_recipe_trains_among_its_start_entrys_pedestrians_unless_told() -> None:
+    assert GAZE_TINY.env_kwargs() == {"world": "moon", "pedestrian_mode": "crossing",
+                                      "n_pedestrians": 3}  # fmt: skip
+    told = replace(GAZE_TINY, pedestrian_mode="crowd", n_pedestrians=10)
+    assert told.env_kwargs() == {"world": "moon", "pedestrian_mode": "crowd", "n_pedestrians": 10}
+    assert TINY.env_kwargs()["world"] == "maze"
+    assert "--n-pedestrians must be 0 to 20" in replace(TINY, n_pedestrians=21).problem()
+
+
+def test_a_gaze_student_sees_its_image_and_turns_the_camera_by_its_pan_class() -> None:
+    agent = zoo.load("fused-gaze-moon")
+    assert isinstance(agent, zoo.StudentAgent)
+    spec = agent.spec
+    env = _make_env(GAZE_TINY, spec)
+    try:
+        assert isinstance(env, StudentInterface)
+        assert list(env.action_space.nvec) == [spec.n_drive, PAN_BINS]
+        obs, _ = env.reset(seed=5)
+        assert obs.shape == (spec.state_dim + IMAGE_VALUES,)
+        # what the student computes from the env's own observation, rebuilt by hand
+        fused_view, pan_head = env.env, env.env.env
+        raw = fused_view.observation(pan_head._observation(env.unwrapped._observe()))
+        agent.reset()
+        state = state_features(raw, spec, agent.history)
+        assert np.allclose(obs[: spec.state_dim], state, atol=1e-6)
+        assert np.array_equal(obs[spec.state_dim :], image_features(raw).ravel())
+        # the flat observation gives the network what StudentAgent.act gives it
+        flat = torch.as_tensor(obs)[None]
+        expected = head_log_probs(
+            agent.net(torch.as_tensor(state)[None], torch.as_tensor(image_features(raw))[None]),
+            spec,
+        )
+        heads = head_log_probs_of(agent.net, flat)
+        assert torch.allclose(torch.cat(heads, dim=1), expected, atol=1e-5)
+        assert np.array_equal(env.env_action([3, 0])[:2], class_action(3, spec))
+        assert env.env_action([3, 0])[2] == pytest.approx(PAN_ANGLES[0])
+        for _ in range(15):  # stand still, pan class 0: the camera turns to the left limit
+            _, _, term, trunc, info = env.step([2 * 32 + 16, 0])
+            assert not (term or trunc)
+        assert info["pan"] == pytest.approx(PAN_ANGLES[0], abs=1e-3)
+        with pytest.raises(ValueError, match="outside the pan head"):
+            env.step([0, PAN_BINS])
+    finally:
+        env.close()
+
+
+def test_a_lidar_students_interface_refuses_a_fused_student() -> None:
+    from rover_train.envs import make_env
+
+    spec = zoo.load("fused-moon").spec
+    env = make_env("lidar", world="moon", env_checker=False)
+    try:
+        with pytest.raises(ValueError, match="'fused_image'.*_make_env"):
+            StudentInterface(env, spec)
+    finally:
+        env.close()
+
+
+def test_the_log_probability_of_a_pair_is_the_sum_over_the_heads() -> None:
+    gen = torch.Generator().manual_seed(1)
+    drive = torch.randn(4, 6, generator=gen).log_softmax(dim=1)
+    pan = torch.randn(4, 3, generator=gen).log_softmax(dim=1)
+    actions = torch.tensor([[0, 2], [5, 1], [3, 0], [1, 1]])
+    got = action_log_prob([drive, pan], actions)
+    want = torch.stack([drive[i, a] + pan[i, b] for i, (a, b) in enumerate(actions.tolist())])
+    assert torch.allclose(got, want)
+    assert torch.allclose(
+        action_log_prob([drive], actions[:, 0]), drive.gather(1, actions[:, :1])[:, 0]
+    )
+
+
+def test_both_heads_of_a_gaze_student_count_in_the_kl_term() -> None:
+    import copy
+
+    agent = zoo.load("fused-gaze-moon")
+    spec = agent.spec
+    start = copy.deepcopy(agent.net).eval()
+    net = copy.deepcopy(agent.net)
+    gen = torch.Generator().manual_seed(0)
+    n = 16
+    state = torch.randn(n, spec.state_dim, generator=gen) * 0.3
+    image = torch.randint(0, 256, (n, IMAGE_VALUES), generator=gen).float()
+    batch = {"obs": torch.cat([state, image], dim=1),
+             "actions": torch.zeros(n, 2, dtype=torch.long), "logp": torch.zeros(n),
+             "advantages": torch.randn(n, generator=gen), "returns": torch.zeros(n)}  # fmt: skip
+    critic = torch.nn.Linear(spec.state_dim, 1)
+    assert ppo_losses(net, critic, start, batch, 0.1, 1.0)["kl"].item() == pytest.approx(
+        0, abs=1e-5
+    )
+    with torch.no_grad():  # move the pan head alone: the KL must see it
+        net.out.weight[spec.n_drive :] += 0.5 * torch.randn(
+            PAN_BINS, net.out.weight.shape[1], generator=gen
+        )
+    assert ppo_losses(net, critic, start, batch, 0.1, 1.0)["kl"].item() > 0.01
+
+
+def test_a_fine_tuned_gaze_student_is_a_gaze_student_of_its_entry(tmp_path: Path) -> None:
+    out = tmp_path / "gaze.pt"
+    finetune(GAZE_TINY, FineTuneRun(out=out))
+    agent = zoo.load("fused-gaze-moon", out)
+    assert isinstance(agent, zoo.StudentAgent) and agent.spec.gaze and agent.spec.image
+    assert agent.meta["kind"] == "fused-gaze" and agent.meta["name"] == "fused-gaze-moon-rl"
+    assert read_recipe(out) == GAZE_TINY
+    env = _make_env(GAZE_TINY, agent.spec).env  # the dict observations the agent acts on
+    try:
+        obs, _ = env.reset(seed=0)
+        action = agent.act(obs)
+        assert action.shape == (3,) and env.action_space.contains(action)
+    finally:
+        env.close()

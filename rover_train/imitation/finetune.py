@@ -5,11 +5,16 @@ A zoo student is a softmax over (speed level, heading bin) classes
 (:mod:`rover_train.zoo.agent`), so it is already a policy over a discrete action space:
 :class:`StudentInterface` shows the env to it as its feature vector (with the episode's
 :class:`~rover_train.zoo.agent.ObsHistory`) and takes a class as the action (the class's
-speed and heading). PPO then trains the student's own network as the actor, beside a new
-critic, with one more loss term: ``beta`` times KL(start || actor) on each minibatch's states,
-``beta`` falling from ``kl_start`` to ``kl_end``, so the first updates, made while the critic
-is still poor, cannot unlearn what DAgger taught. The first ``value_warmup`` rollouts train
-the critic alone.
+speed and heading). A fused student's observation also carries its pooled fused image,
+computed in the worker from the env's own camera by the daemon's network
+(:class:`~rover_train.imitation.dagger.WithFusedView`, as in stage 1 of its distillation: no
+daemon is needed); a gaze student's action is a pair, its driving class and its pan class
+(:class:`~rover_train.imitation.gaze.WithPanHead` turns the camera), and both heads learn.
+PPO then trains the student's own network as the actor, beside a new critic on the state
+features, with one more loss term: ``beta`` times KL(start || actor) on each minibatch's
+states (summed over the heads), ``beta`` falling from ``kl_start`` to ``kl_end``, so the
+first updates, made while the critic is still poor, cannot unlearn what DAgger taught. The
+first ``value_warmup`` rollouts train the critic alone.
 
 The result is a student file like any other (``zoo.load`` gives a ``StudentAgent``; it acts
 on the most likely class, refined by its neighbours) whose ``meta["recipe"]`` is this
@@ -42,18 +47,33 @@ import torch
 from gymnasium import spaces
 from torch import nn
 
+from fused_image import FUSED_SIZE
+from rover_env.crowd import MAX_PEDESTRIANS
 from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_train.checkpoint import durable_path
 from rover_train.cli import parse_recipe_command, recipe_dict, recipe_from_dict
 from rover_train.envs import TASKS
 from rover_train.zoo.agent import (
+    PAN_ANGLES,
+    PAN_BINS,
+    POOL,
+    EnsembleNet,
     FeatureSpec,
     ObsHistory,
     StudentAgent,
+    StudentNet,
     class_action,
+    head_log_probs,
+    image_features,
     state_features,
 )
-from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE, ENTRIES, shown_path
+from rover_train.zoo.registry import (
+    DAGGER,
+    DIAGNOSTIC_SEED_BASE,
+    ENTRIES,
+    STUDENT_FUSED_KINDS,
+    shown_path,
+)
 
 log = logging.getLogger(__name__)
 
@@ -65,16 +85,24 @@ REWARD_SCALE = 0.05
 """The critic learns returns in this unit (the nav task's goal pays 100)."""
 CRITIC_LR = 3e-4
 MAX_GRAD_NORM = 0.5
+STARTS = tuple(sorted(name for name, e in ENTRIES.items() if e.trainer == DAGGER))
+"""The zoo entries a fine-tune can start from: the distilled students."""
+IMAGE_VALUES = 3 * (FUSED_SIZE[0] // POOL) * (FUSED_SIZE[1] // POOL)
+"""Values of a fused student's pooled image in its flat observation (after the state)."""
 
 
 @dataclass(frozen=True)
 class FineTuneRecipe:
     """How a fine-tuned student is made (stored in its file: ``--recipe FILE``)."""
 
-    start: str = field(default="lidar-maze", metadata={"choices": ("lidar-inspect", "lidar-maze")})
-    """The zoo student to start from (a LIDAR entry: RoverEnv)."""
-    pedestrian_mode: str = field(default="pacing", metadata={"choices": PEDESTRIAN_MODES})
-    """The pedestrians of the training episodes."""
+    start: str = field(default="lidar-maze", metadata={"choices": STARTS})
+    """The zoo student to start from. Its episodes are RoverEnv's in the entry's world (a
+    fused student's with the fused image computed in the worker, a gaze student's with the
+    camera turned by its pan head)."""
+    pedestrian_mode: str | None = field(default=None, metadata={"choices": PEDESTRIAN_MODES})
+    """The pedestrians of the training episodes (default: the start entry's)."""
+    n_pedestrians: int | None = None
+    """How many (default: the start entry's)."""
     task: str = field(default="nav", metadata={"choices": tuple(TASKS)})
     """What an episode is (``rover-train --task``); ``nav`` ends it at the goal or the first
     collision, as the evaluators count."""
@@ -111,7 +139,20 @@ class FineTuneRecipe:
             return "need 0 <= --kl-end <= --kl-start and 0 < --kl-decay <= 1"
         if self.seed * 1000 + self.envs >= DIAGNOSTIC_SEED_BASE:
             return f"--seed {self.seed} reaches the diagnostic seeds ({DIAGNOSTIC_SEED_BASE})"
+        if self.n_pedestrians is not None and not 0 <= self.n_pedestrians <= MAX_PEDESTRIANS:
+            return f"--n-pedestrians must be 0 to {MAX_PEDESTRIANS}, got {self.n_pedestrians}"
         return None
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """``rover_train.envs.make_env`` keywords of the training episodes: the start entry's
+        env, its pedestrians replaced by the recipe's where given."""
+        kw = dict(ENTRIES[self.start].env_kwargs)
+        kw["world"] = kw.pop("world_n", ENTRIES[self.start].world)
+        if self.pedestrian_mode is not None:
+            kw["pedestrian_mode"] = self.pedestrian_mode
+        if self.n_pedestrians is not None:
+            kw["n_pedestrians"] = self.n_pedestrians
+        return kw
 
     def beta(self, steps: int) -> float:
         """The KL weight after ``steps`` environment steps."""
@@ -136,38 +177,75 @@ class FineTuneRun:
 
 
 class StudentInterface(gym.Wrapper):
-    """RoverEnv as a student sees it and drives it: observations are the student's state
-    features (its ``ObsHistory`` kept per episode), actions its classes
-    (``Discrete(spec.n_outputs)``; :func:`rover_train.zoo.agent.class_action`)."""
+    """RoverEnv as a student sees it and drives it.
+
+    Observations: the student's state features (its ``ObsHistory`` kept per episode), and
+    for a fused student its pooled fused image after them (``IMAGE_VALUES`` values 0-255,
+    :func:`rover_train.zoo.agent.image_features`; the env must give ``fused_image``).
+    Actions: a driving class (``Discrete``; :func:`rover_train.zoo.agent.class_action`), for
+    a gaze student a (driving class, pan class) pair (``MultiDiscrete``; the env must take
+    the gaze env's ``[speed, heading, pan target]``)."""
 
     def __init__(self, env: gym.Env, spec: FeatureSpec) -> None:
         super().__init__(env)
-        if spec.image:
-            raise ValueError("StudentInterface drives LIDAR students (RoverEnv); this one "
-                             "sees the fused image")  # fmt: skip
+        keys = getattr(env.observation_space, "spaces", {})
+        for needed, key in ((spec.image, "fused_image"), (spec.gaze, "gaze")):
+            if needed and key not in keys:
+                raise ValueError(
+                    f"this student reads {key!r}, which the env does not give: "
+                    "make the env with _make_env (WithFusedView, WithPanHead)"
+                )
         self.features = spec
         self.history = ObsHistory(spec)
-        self.observation_space = spaces.Box(-np.inf, np.inf, (spec.state_dim,), np.float32)
-        self.action_space = spaces.Discrete(spec.n_outputs)
+        size = spec.state_dim + (IMAGE_VALUES if spec.image else 0)
+        self.observation_space = spaces.Box(-np.inf, np.inf, (size,), np.float32)
+        self.action_space: spaces.Space[Any] = (
+            spaces.MultiDiscrete([spec.n_drive, PAN_BINS]) if spec.gaze
+            else spaces.Discrete(spec.n_drive)
+        )  # fmt: skip
+
+    def _observe(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        state = state_features(obs, self.features, self.history)
+        if not self.features.image:
+            return state
+        return np.concatenate([state, image_features(obs).ravel().astype(np.float32)])
+
+    def env_action(self, action: Any) -> np.ndarray:
+        """The env's action for the student's class(es) ``action``."""
+        a = np.atleast_1d(np.asarray(action)).astype(np.int64)
+        drive = class_action(int(a[0]), self.features)
+        if not self.features.gaze:
+            return drive
+        if not 0 <= a[1] < PAN_BINS:
+            raise ValueError(f"pan class {a[1]} is outside the pan head's {PAN_BINS} classes")
+        return np.append(drive, np.float32(PAN_ANGLES[a[1]])).astype(np.float32)
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
         obs, info = self.env.reset(**kwargs)
         self.history.reset()
-        return state_features(obs, self.features, self.history), info
+        return self._observe(obs), info
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
-        obs, reward, terminated, truncated, info = self.env.step(
-            class_action(int(action), self.features)
-        )
-        features = state_features(obs, self.features, self.history)
-        return features, float(reward), terminated, truncated, info
+        obs, reward, terminated, truncated, info = self.env.step(self.env_action(action))
+        return self._observe(obs), float(reward), terminated, truncated, info
 
 
 def _make_env(recipe: FineTuneRecipe, spec: FeatureSpec) -> gym.Env:
+    """The training env of ``recipe`` for a student of ``spec``: RoverEnv with the recipe's
+    task (for a fused student rendering the fused size, with the fused image added; for a
+    gaze student under the pan head), seen through :class:`StudentInterface`."""
     from rover_train.envs import make_env
 
-    world = ENTRIES[recipe.start].world
-    env = make_env("lidar", world=world, task=recipe.task, pedestrian_mode=recipe.pedestrian_mode)
+    size = {"size": tuple(FUSED_SIZE)} if spec.image else {}
+    env = make_env("lidar", env_checker=False, task=recipe.task, **size, **recipe.env_kwargs())
+    if spec.gaze:
+        from rover_train.imitation.gaze import WithPanHead
+
+        env = WithPanHead(env)
+    if spec.image:
+        from rover_train.imitation.dagger import WithFusedView
+
+        env = WithFusedView(env)
     return StudentInterface(env, spec)
 
 
@@ -184,27 +262,50 @@ def make_critic(n_inputs: int, hidden: int = 256) -> nn.Module:
     )  # fmt: skip
 
 
-def log_probs(net: nn.Module, obs: torch.Tensor) -> torch.Tensor:
-    """The student network's class log-probabilities."""
-    return torch.log_softmax(net(obs), dim=-1)
+def state_part(obs: torch.Tensor, spec: FeatureSpec) -> torch.Tensor:
+    """The state features of flat :class:`StudentInterface` observations (the critic's
+    input)."""
+    return obs[:, : spec.state_dim]
+
+
+def head_log_probs_of(net: StudentNet | EnsembleNet, obs: torch.Tensor) -> list[torch.Tensor]:
+    """The student network's log-probabilities on flat :class:`StudentInterface`
+    observations, one ``(N, classes)`` tensor per head (driving, then a gaze student's pan)."""
+    spec = net.spec
+    image = None
+    if spec.image:
+        h, w = FUSED_SIZE[0] // POOL, FUSED_SIZE[1] // POOL
+        image = obs[:, spec.state_dim :].reshape(-1, 3, h, w)
+    out = head_log_probs(net(state_part(obs, spec), image), spec)
+    return [out[:, : spec.n_drive], out[:, spec.n_drive :]] if spec.gaze else [out]
+
+
+def action_log_prob(heads: Sequence[torch.Tensor], actions: torch.Tensor) -> torch.Tensor:
+    """The log-probability of each row's action (one class per head: ``(N,)`` or
+    ``(N, heads)``) under ``heads``' log-probabilities: the sum over the heads."""
+    cols = actions[:, None] if actions.dim() == 1 else actions
+    return torch.stack([h.gather(1, cols[:, i : i + 1])[:, 0] for i, h in enumerate(heads)]).sum(0)
 
 
 def ppo_losses(
-    net: nn.Module, critic: nn.Module, start: nn.Module, batch: dict[str, torch.Tensor],
+    net: StudentNet | EnsembleNet, critic: nn.Module, start: StudentNet | EnsembleNet,
+    batch: dict[str, torch.Tensor],
     clip_range: float, beta: float,
 ) -> dict[str, torch.Tensor]:  # fmt: skip
-    """One minibatch's PPO losses: clipped surrogate, value (squared error), and
-    KL(start || actor) over the batch's states."""
-    logp_all = log_probs(net, batch["obs"])
-    logp = logp_all.gather(1, batch["actions"][:, None])[:, 0]
+    """One minibatch's PPO losses: clipped surrogate, value (squared error, the critic on
+    the state features), and KL(start || actor) over the batch's states, summed over the
+    heads."""
+    heads = head_log_probs_of(net, batch["obs"])
+    logp = action_log_prob(heads, batch["actions"])
     ratio = torch.exp(logp - batch["logp"])
     adv = batch["advantages"]
     adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     policy = -torch.min(ratio * adv, ratio.clamp(1 - clip_range, 1 + clip_range) * adv).mean()
-    value = (critic(batch["obs"])[:, 0] - batch["returns"]).pow(2).mean()
+    value = (critic(state_part(batch["obs"], net.spec))[:, 0] - batch["returns"]).pow(2).mean()
     with torch.no_grad():
-        ref = log_probs(start, batch["obs"])
-    kl = (ref.exp() * (ref - logp_all)).sum(dim=1).mean()
+        refs = head_log_probs_of(start, batch["obs"])
+    kl = torch.stack([(r.exp() * (r - h)).sum(dim=1).mean()
+                      for r, h in zip(refs, heads, strict=True)]).sum()  # fmt: skip
     return {"policy": policy, "value": value, "kl": kl, "total": policy + beta * kl}
 
 
@@ -304,8 +405,8 @@ class FineTuner:
         """One rollout of ``n_steps`` per env, with its advantages and returns."""
         r = self.recipe
         n, m = r.n_steps, self.venv.num_envs
-        obs = np.zeros((n, m, self.spec.state_dim), np.float32)
-        actions = np.zeros((n, m), np.int64)
+        obs = np.zeros((n, m, *(self.venv.observation_space.shape or ())), np.float32)
+        actions = np.zeros((n, m, *(self.venv.action_space.shape or ())), np.int64)
         logp = np.zeros((n, m), np.float32)
         values = np.zeros((n, m), np.float32)
         rewards = np.zeros((n, m), np.float32)
@@ -313,10 +414,12 @@ class FineTuner:
         ends: list[tuple[bool, bool, float]] = []
         for t in range(n):
             x = torch.as_tensor(self._obs, dtype=torch.float32)
-            dist = torch.distributions.Categorical(logits=log_probs(self.net, x))
-            a = dist.sample()
-            obs[t], actions[t], logp[t] = self._obs, a.numpy(), dist.log_prob(a).numpy()
-            values[t] = self.critic(x)[:, 0].numpy()
+            heads = head_log_probs_of(self.net, x)
+            picks = [torch.distributions.Categorical(logits=h).sample() for h in heads]
+            a = torch.stack(picks, dim=1) if self.spec.gaze else picks[0]
+            obs[t], actions[t] = self._obs, a.numpy()
+            logp[t] = action_log_prob(heads, a).numpy()
+            values[t] = self.critic(state_part(x, self.spec))[:, 0].numpy()
             next_obs, rew, done, infos = self.venv.step(a.numpy())
             self._obs = np.asarray(next_obs)
             rewards[t] = rew * REWARD_SCALE
@@ -326,11 +429,13 @@ class FineTuner:
                 info = infos[i]
                 if info.get("TimeLimit.truncated", False):
                     last = torch.as_tensor(info["terminal_observation"], dtype=torch.float32)
-                    rewards[t, i] += r.gamma * float(self.critic(last[None])[0, 0])
+                    value = self.critic(state_part(last[None], self.spec))[0, 0]
+                    rewards[t, i] += r.gamma * float(value)
                 ends.append((info.get("goals_reached", 0) > 0, bool(info.get("collision")),
                              float(self._returns[i])))  # fmt: skip
                 self._returns[i] = 0.0
-        last_values = self.critic(torch.as_tensor(self._obs, dtype=torch.float32))[:, 0].numpy()
+        last = state_part(torch.as_tensor(self._obs, dtype=torch.float32), self.spec)
+        last_values = self.critic(last)[:, 0].numpy()
         adv = advantages(rewards, values, dones, last_values, r.gamma, r.gae_lambda)
         batch: dict[str, np.ndarray] = {"obs": obs, "actions": actions, "logp": logp,
                                         "advantages": adv, "returns": adv + values}  # fmt: skip
@@ -389,8 +494,9 @@ class FineTuner:
                          stats.get("collisions", "-"), upd["kl"])  # fmt: skip
 
     def student(self) -> StudentAgent:
-        meta = {"name": f"{self.recipe.start}-rl", "kind": "lidar",
-                "world": ENTRIES[self.recipe.start].world, "recipe": recipe_dict(self.recipe),
+        start = ENTRIES[self.recipe.start]
+        meta = {"name": f"{start.name}-rl", "kind": start.kind, "world": start.world,
+                "recipe": recipe_dict(self.recipe),
                 "finetune": {"steps": self.steps, "wall_s": round(self.wall, 1)}}  # fmt: skip
         return StudentAgent(copy.deepcopy(self.net).eval(), meta)
 
@@ -435,8 +541,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     )  # fmt: skip
     torch.set_num_threads(run.threads)
     out = finetune(recipe, run)
-    print(f"wrote {out}; evaluate it with: python -m rover_train.imitation.zoo_eval "
-          f"{recipe.start}-rl --file {shown_path(out)} --pedestrian-mode {recipe.pedestrian_mode}")
+    start = ENTRIES[recipe.start]
+    cmd = f"python -m rover_train.imitation.zoo_eval {start.name} --file {shown_path(out)}"
+    if recipe.pedestrian_mode is not None:
+        cmd += f" --pedestrian-mode {recipe.pedestrian_mode}"
+    if start.kind in STUDENT_FUSED_KINDS:
+        cmd = f"rover-pair -- {cmd}"
+    print(f"wrote {out}; evaluate it with: {cmd}")
     return 0
 
 

@@ -72,7 +72,9 @@ class EntrySpec:
             cmd = "python -m rover_train.imitation.finetune"
             if self.path.is_file():
                 return f"{cmd} --recipe {shown_path(self.path)} --out {shown_path(self.path)}"
-            return f"{cmd} --start {self.start} --out {shown_path(self.path)}"
+            mode = self.env_kwargs.get("pedestrian_mode")
+            among = f" --pedestrian-mode {mode}" if mode else ""
+            return f"{cmd} --start {self.start}{among} --out {shown_path(self.path)}"
         return self.distill_command(self.name)
 
     def distill_command(self, args: str) -> str:
