@@ -306,6 +306,8 @@ def test_a_fine_tuned_gaze_student_is_a_gaze_student_of_its_entry(tmp_path: Path
     assert isinstance(agent, zoo.StudentAgent) and agent.spec.gaze and agent.spec.image
     assert agent.meta["kind"] == "fused-gaze" and agent.meta["name"] == "fused-gaze-moon-rl"
     assert read_recipe(out) == GAZE_TINY
+    # its recipe (pedestrians: the start entry's) goes through the command line again
+    assert main(["--recipe", str(out), "--out", str(out), "--resume"]) == 0
     env = _make_env(GAZE_TINY, agent.spec).env  # the dict observations the agent acts on
     try:
         obs, _ = env.reset(seed=0)
@@ -313,3 +315,22 @@ def test_a_fine_tuned_gaze_student_is_a_gaze_student_of_its_entry(tmp_path: Path
         assert action.shape == (3,) and env.action_space.contains(action)
     finally:
         env.close()
+
+
+def test_each_shipped_fine_tune_is_its_start_entrys_kind_and_remakes_from_its_file() -> None:
+    shipped = [n for n in zoo.names() if zoo.ENTRIES[n].trainer == zoo.FINETUNE]
+    assert {"fused-inspect-10-rl", "fused-gaze-inspect-10-rl"} <= set(shipped)
+    for name in shipped:
+        spec = zoo.ENTRIES[name]
+        recipe = read_recipe(spec.path)
+        assert recipe.start == spec.start and recipe.problem() is None
+        start = zoo.ENTRIES[spec.start]
+        assert (spec.kind, spec.world, spec.env_kwargs) == (start.kind, start.world,
+                                                            start.env_kwargs)  # fmt: skip
+        agent = zoo.load(name)
+        assert agent.meta["kind"] == spec.kind and agent.spec == zoo.load(spec.start).spec
+        assert agent.meta["finetune"]["steps"] >= recipe.timesteps
+        path = zoo.shown_path(spec.path)
+        assert zoo.command(name) == (
+            f"python -m rover_train.imitation.finetune --recipe {path} --out {path}"
+        )

@@ -105,6 +105,11 @@ ENTRIES.update(
     )
     for name, kind in ((fixed, "fused"), (gaze, "fused-gaze"))
 )  # the looking pairs: one recipe each, the camera fixed or turned by the student
+ENTRIES.update(
+    (f"{start}-rl", EntrySpec(f"{start}-rl", ENTRIES[start].kind, ENTRIES[start].world,
+                              ENTRIES[start].env_kwargs, trainer=FINETUNE, start=start))
+    for start in ("fused-inspect-10", "fused-gaze-inspect-10")
+)  # fmt: skip  # the looking pair among 10, fine-tuned by PPO on the nav task's reward
 ENTRIES["lidar-maze-rl"] = EntrySpec(
     "lidar-maze-rl", "lidar", "maze", {"world_n": "maze", "pedestrian_mode": "pacing"},
     trainer=FINETUNE, start="lidar-maze",
