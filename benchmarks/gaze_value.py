@@ -22,6 +22,9 @@ Optional rows: ``--student-fixed`` / ``--student-gaze``, a zoo entry's name (``f
 one's 2, its camera kept ahead), driving on the fused image computed in this process from
 the (turned) camera (``rover_train.imitation.dagger.FusedView``: the daemon's network on the
 same frame). With both, the gaze student minus the fixed student, paired, is printed too.
+``--hold-camera`` adds the gaze student once more with its pan head overruled, the camera
+held ahead (its depth scan then sees what a fixed student's sees), and prints it minus the
+gaze student that looks: what its looking costs or gains it, apart from how it drives.
 
     PYTHONPATH=. .venv/bin/python benchmarks/gaze_value.py --episodes 250 \
         --scenarios moon-crossing-3 --student-fixed fused-moon --student-gaze fused-gaze-moon
@@ -114,8 +117,11 @@ def student_path(value: str) -> Path:
     return Path(value)
 
 
-def student_act(path: Path, gaze: bool) -> tuple[Callable[[], None], Callable[[Any], Any]]:
-    """(reset, act) of a zoo student file; a fixed student's camera stays ahead."""
+def student_act(
+    path: Path, gaze: bool, hold_camera: bool = False
+) -> tuple[Callable[[], None], Callable[[Any], Any]]:
+    """(reset, act) of a zoo student file; a fixed student's camera stays ahead, and so does
+    a gaze student's with ``hold_camera`` (its pan target overruled by 0)."""
     from rover_train.zoo import StudentAgent
 
     if not path.is_file():
@@ -129,6 +135,8 @@ def student_act(path: Path, gaze: bool) -> tuple[Callable[[], None], Callable[[A
             if a.shape != (3,):
                 raise SystemExit(f"--student-gaze {path}: its actions have {a.size} values, "
                                  "not [speed, heading, pan target]")  # fmt: skip
+            if hold_camera:
+                a[2] = 0.0
             return a
         return np.concatenate([a[:2], [0.0]]).astype(np.float32)
 
@@ -288,11 +296,12 @@ def format_table(rows: list[tuple[str, dict[str, Any]]]) -> str:
     return "\n".join(lines)
 
 
-def format_difference(d: dict[str, list[float]], who: str = "teacher") -> str:
+def format_difference(d: dict[str, list[float]], who: str = "teacher",
+                      rows: tuple[str, str] = ("gaze", "fixed")) -> str:  # fmt: skip
     def pts(v: list[float]) -> str:
         return f"{100 * v[0]:+.1f} points [{100 * v[1]:+.1f}, {100 * v[2]:+.1f}]"
 
-    return (f"gaze {who} - fixed {who} (paired): success {pts(d['success'])}, "
+    return (f"{rows[0]} {who} - {rows[1]} {who} (paired): success {pts(d['success'])}, "
             f"ped. collisions {pts(d['pedestrian_collisions'])}, nearest in view "
             f"{pts(d['nearest_in_view'])}")  # fmt: skip
 
@@ -317,10 +326,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                    help="a fused zoo student (camera kept ahead): an entry's name or a file")
     p.add_argument("--student-gaze", type=student_path, metavar="ENTRY|FILE",
                    help="a gaze zoo student (3-value actions): an entry's name or a file")
+    p.add_argument("--hold-camera", action="store_true",
+                   help="also the gaze student with its camera held ahead (pan head overruled)")
     p.add_argument("--json", type=Path, help="write the rows and differences here")
     args = p.parse_args(argv)
     if args.episodes < 2 or args.max_steps < 1:
         p.error("--episodes must be at least 2 and --max-steps at least 1")
+    if args.hold_camera and args.student_gaze is None:
+        p.error("--hold-camera overrules a gaze student's pan: give --student-gaze too")
     try:
         scenarios = select_scenarios(args.scenarios)
     except ValueError as exc:
@@ -342,12 +355,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             results[label] = run_row(scenario, label, teacher, args.episodes, args.seed,
                                      args.max_steps)  # fmt: skip
         students = {}
-        for label, path, gaze in (("fixed student", args.student_fixed, False),
-                                  ("gaze student", args.student_gaze, True)):  # fmt: skip
+        for label, path, gaze, hold in (
+            ("fixed student", args.student_fixed, False, False),
+            ("gaze student", args.student_gaze, True, False),
+            ("held camera", args.student_gaze if args.hold_camera else None, True, True),
+        ):
             if path is not None:
-                students[label] = f"{label} ({path.name})"
+                shown = "gaze student, camera held ahead" if hold else label
+                students[label] = f"{shown} ({path.name})"
                 results[students[label]] = run_row(
-                    scenario, label, lambda _env, path=path, gaze=gaze: student_act(path, gaze),
+                    scenario, label,
+                    lambda _env, path=path, gaze=gaze, hold=hold: student_act(path, gaze, hold),
                     args.episodes, args.seed, args.max_steps, fused_view=True,
                 )  # fmt: skip
         rows = [(label, summarise(eps)) for label, eps in results.items()]
@@ -355,14 +373,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"\n{scenario.name}\n")
         print(format_table(rows))
         print("\n" + format_difference(diff))
-        student_diff = None
-        if len(students) == 2:
+        student_diff = held_diff = None
+        if "fixed student" in students and "gaze student" in students:
             student_diff = paired_difference(results[students["gaze student"]],
                                              results[students["fixed student"]])  # fmt: skip
             print(format_difference(student_diff, "student"))
+        if "held camera" in students:
+            held_diff = paired_difference(results[students["held camera"]],
+                                          results[students["gaze student"]])  # fmt: skip
+            print(format_difference(held_diff, "student", ("held ahead", "looking")))
         report["scenarios"][scenario.name] = {
             "rows": dict(rows), "gaze_minus_fixed": diff,
             "gaze_student_minus_fixed_student": student_diff,
+            "held_camera_minus_looking": held_diff,
             "episodes": {k: [dataclasses.asdict(e.result) | {"in_view_steps": e.in_view_steps}
                              for e in v] for k, v in results.items()},
         }  # fmt: skip

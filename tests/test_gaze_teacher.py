@@ -229,3 +229,26 @@ def test_gaze_value_benchmark_reports_every_teacher_with_intervals(tmp_path: Pat
             assert lo - 1e-9 <= value <= hi + 1e-9 and 0.0 <= lo and hi <= 1.0
     assert set(report["gaze_minus_fixed"]) == {"success", "pedestrian_collisions",
                                                "nearest_in_view"}  # fmt: skip
+
+
+def test_gaze_value_holds_a_gaze_students_camera_ahead_only_when_asked() -> None:
+    """--hold-camera overrules the gaze student's pan target (0: ahead) and nothing else;
+    without a gaze student it is refused with the fix."""
+    from benchmarks.gaze_value import main, make_env, student_act, student_path
+    from rover_env.scenarios import select_scenarios
+
+    path = student_path("fused-gaze-moon")
+    env = make_env(select_scenarios("moon-crossing-3")[0], 40, fused_view=True)
+    try:
+        looking, held = student_act(path, True), student_act(path, True, hold_camera=True)
+        obs, _ = env.reset(seed=0)
+        for _ in range(5):
+            looking[0](), held[0]()  # each agent from its own reset, the same observation
+            a, b = looking[1](obs), held[1](obs)
+            assert b[2] == 0.0 and np.array_equal(a[:2], b[:2])
+            obs = env.step(a)[0]
+    finally:
+        env.close()
+    with pytest.raises(SystemExit) as exc:
+        main(["--hold-camera", "--episodes", "2"])
+    assert exc.value.code == 2
