@@ -108,8 +108,8 @@ ENTRIES.update(
 ENTRIES.update(
     (f"{start}-rl", EntrySpec(f"{start}-rl", ENTRIES[start].kind, ENTRIES[start].world,
                               ENTRIES[start].env_kwargs, trainer=FINETUNE, start=start))
-    for start in ("fused-inspect-10", "fused-gaze-inspect-10")
-)  # fmt: skip  # the looking pair among 10, fine-tuned by PPO on the nav task's reward
+    for start in ("fused-moon", "fused-gaze-moon", "fused-inspect-10", "fused-gaze-inspect-10")
+)  # fmt: skip  # the looking pairs, fine-tuned by PPO on the nav task's reward
 ENTRIES["lidar-maze-rl"] = EntrySpec(
     "lidar-maze-rl", "lidar", "maze", {"world_n": "maze", "pedestrian_mode": "pacing"},
     trainer=FINETUNE, start="lidar-maze",
