@@ -135,8 +135,8 @@ def student_act(
             if a.shape != (3,):
                 raise SystemExit(f"--student-gaze {path}: its actions have {a.size} values, "
                                  "not [speed, heading, pan target]")  # fmt: skip
-            if hold_camera:
-                a[2] = 0.0
+            if hold_camera:  # a copy: the agent may keep the action it returned
+                a = np.concatenate([a[:2], [0.0]]).astype(np.float32)
             return a
         return np.concatenate([a[:2], [0.0]]).astype(np.float32)
 
