@@ -100,6 +100,10 @@ class Episode:
     in_view_steps: int
 
 
+HELD_ROW = "gaze student, camera held ahead"
+"""The ``--hold-camera`` row's label."""
+
+
 def teacher_act(
     env: Any, world: str, config: ExpertConfig
 ) -> tuple[Callable[[], None], Callable[[Any], Any]]:
@@ -358,11 +362,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         for label, path, gaze, hold in (
             ("fixed student", args.student_fixed, False, False),
             ("gaze student", args.student_gaze, True, False),
-            ("held camera", args.student_gaze if args.hold_camera else None, True, True),
+            (HELD_ROW, args.student_gaze if args.hold_camera else None, True, True),
         ):
             if path is not None:
-                shown = "gaze student, camera held ahead" if hold else label
-                students[label] = f"{shown} ({path.name})"
+                students[label] = f"{label} ({path.name})"
                 results[students[label]] = run_row(
                     scenario, label,
                     lambda _env, path=path, gaze=gaze, hold=hold: student_act(path, gaze, hold),
@@ -378,8 +381,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             student_diff = paired_difference(results[students["gaze student"]],
                                              results[students["fixed student"]])  # fmt: skip
             print(format_difference(student_diff, "student"))
-        if "held camera" in students:
-            held_diff = paired_difference(results[students["held camera"]],
+        if HELD_ROW in students:
+            held_diff = paired_difference(results[students[HELD_ROW]],
                                           results[students["gaze student"]])  # fmt: skip
             print(format_difference(held_diff, "student", ("held ahead", "looking")))
         report["scenarios"][scenario.name] = {

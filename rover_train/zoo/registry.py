@@ -97,18 +97,21 @@ ENTRIES.update(
      EntrySpec(f"rl-lidar-{world}", "lidar-discrete", world, {"world_n": world}, trainer=RL))
     for world in ("inspect", "maze")
 )  # fmt: skip
+LOOKING_PAIRS = {
+    "fused-moon": (Scenario("moon", "crossing", 3), "fused"),
+    "fused-gaze-moon": (Scenario("moon", "crossing", 3), "fused-gaze"),
+    "fused-inspect-10": (Scenario("inspect", "crowd", 10), "fused"),
+    "fused-gaze-inspect-10": (Scenario("inspect", "crowd", 10), "fused-gaze"),
+}
+"""The looking pairs: one recipe and scenario each, the camera fixed or turned by the student."""
 ENTRIES.update(
     (name, EntrySpec(name, kind, scenario.world, scenario.env_kwargs()))
-    for scenario, fixed, gaze in (
-        (Scenario("moon", "crossing", 3), "fused-moon", "fused-gaze-moon"),
-        (Scenario("inspect", "crowd", 10), "fused-inspect-10", "fused-gaze-inspect-10"),
-    )
-    for name, kind in ((fixed, "fused"), (gaze, "fused-gaze"))
-)  # the looking pairs: one recipe each, the camera fixed or turned by the student
+    for name, (scenario, kind) in LOOKING_PAIRS.items()
+)
 ENTRIES.update(
     (f"{start}-rl", EntrySpec(f"{start}-rl", ENTRIES[start].kind, ENTRIES[start].world,
                               ENTRIES[start].env_kwargs, trainer=FINETUNE, start=start))
-    for start in ("fused-moon", "fused-gaze-moon", "fused-inspect-10", "fused-gaze-inspect-10")
+    for start in LOOKING_PAIRS
 )  # fmt: skip  # the looking pairs, fine-tuned by PPO on the nav task's reward
 ENTRIES["lidar-maze-rl"] = EntrySpec(
     "lidar-maze-rl", "lidar", "maze", {"world_n": "maze", "pedestrian_mode": "pacing"},
