@@ -1,4 +1,4 @@
-"""Inference backends for the perception network: OpenVINO, ONNX Runtime or eager torch.
+"""Inference backends for the perception network: eager torch or ONNX Runtime.
 
 :class:`~active_vision.perception.Perception` runs its network through one of these; the
 rest of the system sees only ``Perception``. Both backends own preallocated input and output
@@ -14,24 +14,16 @@ no new array:
 ONNX Runtime's CPU provider with I/O bound to the buffers (``run_with_iobinding``):
 ``intra_op_num_threads`` is the thread count, and the pool waits passively (no spinning),
 for the same reason ``active_vision`` sets ``OMP_WAIT_POLICY=PASSIVE`` for torch.
-``openvino`` (:class:`OpenVinoNetwork`) compiles the same ONNX file in OpenVINO's CPU plugin,
-once per batch size, with its input and output tensors sharing the buffers' memory, in fp32
-arithmetic (``INFERENCE_PRECISION_HINT f32``: on a CPU with AMX its default would be bf16)
-and ``INFERENCE_NUM_THREADS`` threads. On the int8 file it is 1.1-1.3x faster than ONNX
-Runtime at batch 1 and 1.4-1.9x at batch 8 on one thread, with the same outputs to 1e-6 at
-batch 1 (benchmarks/precision_speed.py).
-``auto`` (:func:`resolve_backend`) is ``openvino`` when ``openvino`` imports, else ``onnx`` when
-``onnxruntime`` does, when the export is available; else ``torch`` with one log line saying
-why.
+``auto`` (:func:`resolve_backend`) is ``onnx`` when ``onnxruntime`` imports and the export is
+available, else ``torch`` with one log line saying why.
 
 Precision (``PerceptionConfig.precision``, ``av-daemon --precision``): ``int8`` runs the
 int8 model quantized from the export (static QDQ quantization, per-channel weights, made by
 ``python -m active_vision.training.quantize`` and shipped beside the export as
 ``<export>.int8.onnx``) where the ONNX backend runs, the file is there and the CPU has int8
 dot-product instructions (:func:`cpu_int8_support`: AVX-512 VNNI or AVX-VNNI on x86, the
-dot-product extension on Arm); otherwise, and when the runtime fails to load that file, the
-fp32 export runs, with one log line saying why. Both file backends (``openvino``, ``onnx``)
-follow that rule. ``fp32`` always runs the fp32 export. The
+dot-product extension on Arm); otherwise, and when ONNX Runtime fails to load that file, the
+fp32 export runs, with one log line saying why. ``fp32`` always runs the fp32 export. The
 torch backend runs fp32 whatever is asked.
 """
 
@@ -47,12 +39,8 @@ from torch import nn
 
 logger = logging.getLogger(__name__)
 
-BackendName = Literal["auto", "openvino", "onnx", "torch"]
-BACKENDS: tuple[str, ...] = ("auto", "openvino", "onnx", "torch")
-FILE_BACKENDS: tuple[str, ...] = ("openvino", "onnx")
-"""The backends that run the ONNX file, fastest first (``auto`` takes the first that imports)."""
-_PACKAGES = {"openvino": "openvino", "onnx": "onnxruntime"}
-"""The Python package each file backend needs."""
+BackendName = Literal["auto", "onnx", "torch"]
+BACKENDS: tuple[str, ...] = ("auto", "onnx", "torch")
 Precision = Literal["fp32", "int8"]
 PRECISIONS: tuple[str, ...] = ("fp32", "int8")
 DEFAULT_PRECISION: Precision = "int8"
@@ -91,27 +79,6 @@ def onnxruntime_available() -> bool:
     except ImportError:
         return False
     return True
-
-
-def openvino_available() -> bool:
-    """True when ``openvino`` imports."""
-    try:
-        import openvino  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-def _available(backend: str) -> bool:
-    return openvino_available() if backend == "openvino" else onnxruntime_available()
-
-
-def _missing(backend: str) -> BackendError:
-    package = _PACKAGES[backend]
-    return BackendError(
-        f"--backend {backend} needs {package}, which does not import here. Install it with "
-        f"`pip install {package}`, or use --backend torch (or auto)."
-    )
 
 
 def cpu_int8_support(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[bool, str]:
@@ -185,7 +152,10 @@ class OnnxNetwork:
         try:
             import onnxruntime as ort
         except ImportError as exc:
-            raise _missing("onnx") from exc
+            raise BackendError(
+                f"--backend onnx needs onnxruntime ({exc}). Install it with "
+                "`pip install onnxruntime`, or use --backend torch (or auto)."
+            ) from exc
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = max(1, int(threads))
         opts.inter_op_num_threads = 1
@@ -247,103 +217,14 @@ class OnnxNetwork:
         return out
 
 
-class OpenVinoNetwork:
-    """OpenVINO backend (CPU plugin): the ONNX file compiled once per batch size, with the
-    infer request's input and output tensors sharing the numpy buffers' memory.
-
-    :param path: the ``.onnx`` file, as for :class:`OnnxNetwork`.
-    :param threads: ``INFERENCE_NUM_THREADS``.
-    :param precision: what the file holds (``fp32`` or ``int8``), for the log and readers.
-    :raises BackendError: ``openvino`` is missing or cannot read or compile the file.
-    """
-
-    name = "openvino"
-
-    def __init__(self, path: Path, size: int, threads: int = 1, capacity: int = 1,
-                 precision: Precision = "fp32") -> None:
-        self.precision: str = precision
-        try:
-            import openvino as ov
-        except ImportError as exc:
-            raise _missing("openvino") from exc
-        self._ov = ov
-        self.path = Path(path)
-        self.size = size
-        self.threads = max(1, int(threads))
-        # f32 arithmetic wherever the file does not quantize (the CPU plugin's default on an
-        # AMX CPU is bf16); one stream, so a call runs on at most ``threads`` threads.
-        self.config: dict[str, object] = {
-            "INFERENCE_NUM_THREADS": self.threads, "NUM_STREAMS": 1,
-            "PERFORMANCE_HINT": "LATENCY", "INFERENCE_PRECISION_HINT": "f32",
-            "ENABLE_CPU_PINNING": False,
-        }
-        self._core = ov.Core()
-        try:
-            self._model = self._core.read_model(str(path))
-        except Exception as exc:  # OpenVINO raises RuntimeError subclasses of its own
-            raise BackendError(
-                f"OpenVINO cannot read {path} ({type(exc).__name__}: {exc}). Delete the file "
-                "so it is exported again, or use --backend onnx or torch."
-            ) from exc
-        n_in, n_out = len(self._model.inputs), len(self._model.outputs)
-        if n_in != 1 or n_out != 1:
-            raise BackendError(
-                f"{path}: expected one input and one output, found {n_in} inputs and {n_out} "
-                "outputs; this backend feeds one frame batch. Re-export it with "
-                "active_vision.onnx_export."
-            )
-        self._allocate(max(1, capacity))
-        self._request(1)  # compile now, so a file the plugin cannot run fails here
-
-    def _allocate(self, n: int) -> None:
-        s = self.size
-        self._capacity = n
-        self._in = np.empty((n, 3, s, s), dtype=np.float32)
-        self._out = np.empty((n, RAW_CHANNELS, s, s), dtype=np.float32)
-        self._in_t = torch.from_numpy(self._in)
-        self._out_t = torch.from_numpy(self._out)
-        self._requests: dict[int, tuple[object, torch.Tensor, torch.Tensor]] = {}
-
-    def _request(self, n: int) -> tuple[object, torch.Tensor, torch.Tensor]:
-        if n > self._capacity:
-            self._allocate(n)
-        entry = self._requests.get(n)
-        if entry is None:
-            ov, s = self._ov, self.size
-            model = self._model.clone()
-            model.reshape([n, 3, s, s])
-            try:
-                compiled = self._core.compile_model(model, "CPU", self.config)
-            except Exception as exc:
-                raise BackendError(
-                    f"OpenVINO's CPU plugin cannot compile {self.path} ({type(exc).__name__}: "
-                    f"{exc}); use --backend onnx or torch."
-                ) from exc
-            request = compiled.create_infer_request()
-            request.set_input_tensor(ov.Tensor(self._in[:n], shared_memory=True))
-            request.set_output_tensor(ov.Tensor(self._out[:n], shared_memory=True))
-            logger.debug("openvino: compiled %s for batch %d", self.path.name, n)
-            entry = self._requests[n] = (request, self._in_t[:n], self._out_t[:n])
-        return entry
-
-    def input(self, n: int) -> torch.Tensor:
-        return self._request(n)[1]
-
-    def run(self, n: int) -> torch.Tensor:
-        request, _, out = self._request(n)
-        request.infer()  # type: ignore[attr-defined]
-        return out
-
-
 def resolve_backend(requested: str, weights: Path | None, size: int,
                     precision: str = "fp32") -> tuple[str, Path | None, Precision]:
-    """The backend to run, for a file backend its ``.onnx`` file, and that file's precision.
+    """The backend to run, for ``onnx`` its ``.onnx`` file, and the precision of that file.
 
-    ``auto``: the first of :data:`FILE_BACKENDS` (``openvino``, ``onnx``) whose package
-    imports, when the export is shipped, cached or can be made; otherwise ``torch``, with one
-    log line saying why. ``openvino`` or ``onnx``: that one, and a missing piece is a
-    :class:`BackendError` (or ``OnnxExportError``, ``WeightsError``). ``precision="int8"``
-    on a file backend: the int8 file when it is there and the CPU supports it
+    ``auto``: ``onnx`` when onnxruntime imports and the export is shipped, cached or can be
+    made; otherwise ``torch``, with one log line saying why. ``onnx``: the same, but a
+    missing piece is a :class:`BackendError` (or ``OnnxExportError``, ``WeightsError``).
+    ``precision="int8"`` on ``onnx``: the int8 file when it is there and the CPU supports it
     (:func:`cpu_int8_support`), else the fp32 export with one log line saying why.
     """
     if requested not in BACKENDS:
@@ -360,37 +241,36 @@ def resolve_backend(requested: str, weights: Path | None, size: int,
         onnx_file_for,
     )
 
-    if requested == "auto":
-        backend = next((b for b in FILE_BACKENDS if _available(b)), None)
-        if backend is None:
-            logger.warning("neither openvino nor onnxruntime is installed: perception runs in "
-                           "torch (pip install openvino for the fastest backend)")
-            return "torch", None, "fp32"
-    elif not _available(requested):
-        raise _missing(requested)
-    else:
-        backend = requested
+    if not onnxruntime_available():
+        if requested == "onnx":
+            raise BackendError(
+                "--backend onnx needs onnxruntime, which does not import here. Install it "
+                "with `pip install onnxruntime`, or use --backend torch (or auto)."
+            )
+        logger.warning("onnxruntime is not installed: perception runs in torch "
+                       "(pip install onnxruntime for the faster ONNX backend)")
+        return "torch", None, "fp32"
     try:
         fp32 = onnx_file_for(weights, size)
     except OnnxExportError as exc:
-        if requested != "auto":
+        if requested == "onnx":
             raise
         logger.warning("perception runs in torch: %s", exc)
         return "torch", None, "fp32"
     if precision == "fp32":
-        return backend, fp32, "fp32"
+        return "onnx", fp32, "fp32"
     int8 = int8_file_for(weights, size)
     if int8 is None:
         logger.warning("no int8 model %s%s here or in the cache: perception runs the fp32 "
                        "export; make it with `python -m active_vision.training.quantize`",
                        fp32.name.removesuffix(".onnx"), INT8_SUFFIX)
-        return backend, fp32, "fp32"
+        return "onnx", fp32, "fp32"
     ok, why = cpu_int8_support()
     if not ok:
         logger.warning("this CPU has %s: perception runs the fp32 export, which is as fast "
                        "here (--precision fp32 says so without this line)", why)
-        return backend, fp32, "fp32"
-    return backend, int8, "int8"
+        return "onnx", fp32, "fp32"
+    return "onnx", int8, "int8"
 
 
 __all__ = [
@@ -399,14 +279,11 @@ __all__ = [
     "PRECISIONS",
     "BackendError",
     "BackendName",
-    "FILE_BACKENDS",
     "Network",
     "OnnxNetwork",
-    "OpenVinoNetwork",
     "Precision",
     "TorchNetwork",
     "cpu_int8_support",
     "onnxruntime_available",
-    "openvino_available",
     "resolve_backend",
 ]

@@ -1,7 +1,7 @@
 """av-daemon: camera frames in, fused 96x96x3 observations out, over shared memory.
 
     av-daemon [--name rl_observation] [--slots N] [--size 96] [--depth model|render]
-              [--backend auto|openvino|onnx|torch] [--precision int8|fp32] [--threads 1]
+              [--backend auto|onnx|torch] [--precision int8|fp32] [--threads 1]
               [--source camera|video:PATH|device:N] [--preview PATH]
               [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
               [--heatmap detect|predict] [--predict-weights FILE]
@@ -16,13 +16,12 @@ Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flu
 1. waits for new camera frames on any slot (futex wake-ups, short timeouts; idle costs
    almost no CPU);
 2. runs :class:`~active_vision.perception.Perception` on every slot that has a new frame,
-   as one batch, in OpenVINO, ONNX Runtime or eager torch (``--backend``: ``auto``, the
-   default, is OpenVINO when it is installed, else ONNX Runtime, else torch with one log line
-   saying so; both runtimes run the ONNX file, which ships with the weights, or is exported
-   once into the user cache for other weights, see :mod:`active_vision.onnx_export`;
-   ``--precision int8``, the default, runs the shipped int8 model where this CPU has int8
-   dot-product instructions, else the fp32 export with one log line, see
-   :mod:`active_vision.backends`);
+   as one batch, in ONNX Runtime or eager torch (``--backend``: ``auto``, the default, is
+   ONNX Runtime when it is installed, else torch with one log line saying so; the ONNX file
+   ships with the weights, or is exported once into the user cache for other weights, see
+   :mod:`active_vision.onnx_export`; ``--precision int8``, the default, runs the shipped
+   int8 model where this CPU has int8 dot-product instructions, else the fp32 export with one
+   log line, see :mod:`active_vision.backends`);
 3. publishes each fused frame into its slot's segment with ``source_seq`` = the camera
    frame's ``seq`` (the env waits on that with ``FrameReader.wait_for``);
 4. refreshes the fused segments' heartbeat while idle, and logs per-stage timings (gray,
@@ -105,12 +104,11 @@ class DaemonConfig:
     """``model``: depth channel from the network; ``render``: from the camera frame's 4th
     channel (the env sends RGB + depth)."""
     threads: int = 1
-    """Threads of the perception network (torch threads / the runtime's threads)."""
+    """Threads of the perception network (torch threads / ONNX Runtime intra-op threads)."""
     backend: str = "auto"
-    """``auto`` (OpenVINO when installed, else ONNX Runtime, else torch), ``openvino``,
-    ``onnx`` or ``torch``."""
+    """``auto`` (ONNX Runtime when installed, else torch), ``onnx`` or ``torch``."""
     precision: str = "int8"
-    """``int8`` (the shipped int8 model where it runs here, else fp32 with one
+    """``int8`` (the shipped int8 model in ONNX Runtime where it runs here, else fp32 with one
     log line) or ``fp32``; ``active_vision.backends.DEFAULT_PRECISION``."""
     source: str = "camera"
     """``camera`` (segments written by envs), ``video:PATH`` or ``device:N``."""
@@ -416,13 +414,12 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                    help="depth channel from the network, or from the camera frame's 4th "
                         "channel (renderer's depth)")
     p.add_argument("--backend", choices=BACKENDS, default=d.backend,
-                   help="inference backend of the perception network: auto (default: the "
-                        "first of openvino and onnx that is installed, else torch, with one "
-                        "log line), openvino (OpenVINO's CPU plugin), onnx (ONNX Runtime); "
-                        "both run the .onnx file, which ships with the weights or is "
-                        "exported once into ~/.cache/roverav; or torch (eager)")
+                   help="inference backend of the perception network: auto (default: ONNX "
+                        "Runtime when onnxruntime is installed, else torch, with one log "
+                        "line), onnx (ONNX Runtime; the .onnx file ships with the weights or "
+                        "is exported once into ~/.cache/roverav) or torch (eager)")
     p.add_argument("--precision", choices=PRECISIONS, default=d.precision,
-                   help="int8 (default): the shipped int8 model, where the "
+                   help="int8 (default): the shipped int8 model in ONNX Runtime, where the "
                         "file is there and the CPU has VNNI/dot-product instructions, else "
                         "fp32 with one log line; fp32: the fp32 export (torch: always fp32)")
     p.add_argument("--threads", type=_positive_int, default=d.threads,

@@ -11,8 +11,8 @@ indexed by ``fused_image.CHANNEL_GRAY`` / ``CHANNEL_HEATMAP`` / ``CHANNEL_DEPTH`
 - depth: the AVNet depth head (default), or with ``depth="render"`` the frame's fourth
   channel divided by 255 (the renderer's true depth, already in the depth convention).
 
-All N frames go through the network in one forward pass, in OpenVINO, ONNX Runtime or eager
-torch (``backend``, see :mod:`active_vision.backends`), with buffers and their views allocated
+All N frames go through the network in one forward pass, in eager torch or ONNX Runtime
+(``backend``, see :mod:`active_vision.backends`), with buffers and their views allocated
 once and reused (they grow if a larger batch arrives).
 """
 
@@ -30,11 +30,9 @@ import torch
 
 from active_vision.backends import (
     DEFAULT_PRECISION,
-    FILE_BACKENDS,
     BackendError,
     Network,
     OnnxNetwork,
-    OpenVinoNetwork,
     TorchNetwork,
     resolve_backend,
 )
@@ -63,21 +61,20 @@ class PerceptionConfig:
     depth: DepthSource = "model"
     """``model``: depth from the network; ``render``: from the input frame's 4th channel."""
     threads: int | None = 1
-    """Threads for the network: ``torch.set_num_threads`` (process-wide), and OpenVINO's or
-    ONNX Runtime's thread count; None leaves torch's setting alone (the others then use 1)."""
+    """Threads for the network: ``torch.set_num_threads`` (process-wide) and ONNX Runtime's
+    ``intra_op_num_threads``; None leaves torch's setting alone (ONNX Runtime then uses 1)."""
     weights: Path | None = None
     """Weights file; None means the shipped ``active_vision/weights/avnet.pt``."""
     max_batch: int = 8
     """Batch size the buffers are first allocated for (they grow when needed)."""
     backend: str = "auto"
-    """``auto`` | ``openvino`` | ``onnx`` | ``torch`` (:mod:`active_vision.backends`):
-    ``auto`` is OpenVINO when it imports, else ONNX Runtime (and the export is available),
-    else torch. A ``model`` passed to :class:`Perception` runs in torch."""
+    """``auto`` | ``onnx`` | ``torch`` (:mod:`active_vision.backends`): ``auto`` is ONNX
+    Runtime when it imports (and the export is available), else torch. A ``model`` passed to
+    :class:`Perception` runs in torch unless ``onnx`` is asked for explicitly."""
     precision: str = DEFAULT_PRECISION
-    """``int8`` | ``fp32``: ``int8`` runs the shipped int8 model in OpenVINO or ONNX Runtime
-    where it is there and this CPU has int8 dot-product instructions, else the fp32 export
-    (one log line says why); the torch backend always runs fp32
-    (:mod:`active_vision.backends`)."""
+    """``int8`` | ``fp32``: ``int8`` runs the shipped int8 model in ONNX Runtime where it is
+    there and this CPU has int8 dot-product instructions, else the fp32 export (one log line
+    says why); the torch backend always runs fp32 (:mod:`active_vision.backends`)."""
 
 
 @dataclass
@@ -136,21 +133,21 @@ class Perception:
         requested = self.config.backend
         if model is not None and requested == "auto":
             requested = "torch"
-        if model is not None and requested in FILE_BACKENDS:
+        if model is not None and requested == "onnx":
             raise BackendError(
-                f"backend {requested!r} runs the ONNX export of a weights file, not a model "
-                "object: save the model (active_vision.save_weights) and pass its path as "
+                "backend 'onnx' runs the ONNX export of a weights file, not a model object: "
+                "save the model (active_vision.save_weights) and pass its path as "
                 "PerceptionConfig.weights, or use backend 'torch' with model=."
             )
         backend, onnx_path, precision = resolve_backend(
             requested, self.config.weights, self.config.size, self.config.precision)
         capacity = max(1, self.config.max_batch)
-        if backend in FILE_BACKENDS:
+        if backend == "onnx":
             assert onnx_path is not None
             self.model: AVNet | None = None
-            file_net = self._file_network(backend, onnx_path, precision, capacity)
-            onnx_path = file_net.path
-            self.net: Network = file_net
+            onnx_net = self._onnx_network(onnx_path, precision, capacity)
+            onnx_path = onnx_net.path
+            self.net: Network = onnx_net
         else:
             self.model = model if model is not None else load_model(self.config.weights)
             self.net = TorchNetwork(self.model, self.config.size, capacity=capacity)
@@ -161,24 +158,21 @@ class Perception:
         self._views: dict[int, _Views] = {}
         self._allocate(capacity)
 
-    def _file_network(self, backend: str, path: Path, precision: str,
-                      capacity: int) -> OnnxNetwork | OpenVinoNetwork:
-        """The ``backend`` network of ``path``; an int8 file that the runtime cannot load (a
-        build without its quantized kernels) falls back to the fp32 export with one log
-        line."""
+    def _onnx_network(self, path: Path, precision: str, capacity: int) -> OnnxNetwork:
+        """The ONNX network of ``path``; an int8 file that ONNX Runtime cannot load (a build
+        without its quantized kernels) falls back to the fp32 export with one log line."""
         threads = self.config.threads or 1
-        kind = OpenVinoNetwork if backend == "openvino" else OnnxNetwork
         try:
-            return kind(path, self.config.size, threads=threads, capacity=capacity,
-                        precision=precision)  # type: ignore[arg-type]
+            return OnnxNetwork(path, self.config.size, threads=threads, capacity=capacity,
+                               precision=precision)  # type: ignore[arg-type]
         except BackendError as exc:
             if precision != "int8":
                 raise
             logger.warning("the int8 model does not load here, perception runs the fp32 "
                            "export: %s", exc)
-        _, fp32, _ = resolve_backend(backend, self.config.weights, self.config.size, "fp32")
+        _, fp32, _ = resolve_backend("onnx", self.config.weights, self.config.size, "fp32")
         assert fp32 is not None
-        return kind(fp32, self.config.size, threads=threads, capacity=capacity)
+        return OnnxNetwork(fp32, self.config.size, threads=threads, capacity=capacity)
 
     @property
     def size(self) -> int:
@@ -186,7 +180,7 @@ class Perception:
 
     @property
     def backend(self) -> str:
-        """The backend that runs the network: ``openvino``, ``onnx`` or ``torch``."""
+        """The backend that runs the network: ``onnx`` or ``torch``."""
         return self.net.name
 
     @property

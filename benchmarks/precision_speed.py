@@ -1,25 +1,26 @@
-"""fp32 against int8 perception in ONNX Runtime and OpenVINO, side by side in one run: speed
-at batch 1 and 8 on one thread, and the held-out figures per world of each.
+"""fp32 against int8 perception, side by side in one run: speed at batch 1 and 8 on one
+thread, and the held-out figures per world of each precision.
 
     PYTHONPATH=. .venv/bin/python benchmarks/precision_speed.py [--precision fp32,int8]
-        [--backends onnx,openvino] [--repeats 7] [--iters 200] [--no-quality]
+        [--repeats 7] [--iters 200] [--no-quality] [--openvino]
 
 What runs:
 
 1. :class:`~active_vision.perception.Perception` (the daemon's code path, shipped weights,
-   ``threads=1``) once per backend and precision, on uint8 96x96 frames (random bytes: the
-   network's cost does not depend on them). They are timed **interleaved**: each repeat
-   times ``iters`` calls of every runner in turn, so a change in the shared machine's load
-   falls on all of them; the table gives the median ms/frame over the repeats and each
-   one's speed-up over the first runner (ONNX Runtime fp32), computed per repeat and then
-   the median.
-2. The network alone in each backend and precision, interleaved the same way, plus the
-   fp32 file under OpenVINO's bf16 inference hint (AMX): what the rest of ``Perception``
-   costs, and the low precision that was not chosen.
-3. Unless ``--no-quality``: ``active_vision.training.evaluate`` on the held-out split, fp32
-   (the torch network) and int8 in each backend (per world: IoU, recall, false-positive
-   rate, AbsRel, delta1), and the differences from fp32 against the tolerances of issue 40
-   (0.01 IoU/recall, 0.005 AbsRel/delta1).
+   ONNX Runtime, ``threads=1``) once per precision, on uint8 96x96 rendered-like frames
+   (random bytes: the network's cost does not depend on them). The precisions are timed
+   **interleaved**: each repeat times ``iters`` calls of every precision in turn, so a
+   change in the shared machine's load falls on all of them; the table gives the median
+   ms/frame over the repeats and each one's speed-up over the first precision, computed
+   per repeat and then the median.
+2. With ``--openvino`` (when ``import openvino`` works; it is not a dependency), the network
+   alone in OpenVINO's CPU plugin beside ONNX Runtime's network alone, interleaved the same
+   way: the fp32 export, the fp32 export with the bf16 inference hint (AMX), and the int8
+   QDQ model.
+3. Unless ``--no-quality``: ``active_vision.training.evaluate`` on the held-out split at each
+   precision (per world: IoU, recall, false-positive rate, AbsRel, delta1) and the int8
+   minus fp32 differences against the tolerances of issue 40 (0.01 IoU/recall, 0.005
+   AbsRel/delta1).
 
 Targets (issue 40): int8 >= 2x faster than fp32 ONNX at batch 1 and at batch 8 on one
 thread; quality within the tolerances in every world. Name the CPU and the machine's other
@@ -36,7 +37,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -74,78 +74,68 @@ def interleaved(runners: dict[str, object], batch: int, iters: int, repeats: int
             for n, v in times.items()}
 
 
-RUNTIMES = {"onnx": "ORT", "openvino": "OpenVINO"}
-"""The file backends measured, by the short name the table gives them; ORT first (its fp32
-is the baseline: the issue's "fp32 ONNX")."""
-
-
-def perception_runners(backends: list[str], precisions: list[str], batch: int
-                       ) -> dict[str, object]:
+def perception_runners(precisions: list[str], batch: int) -> dict[str, object]:
     frames = np.random.default_rng(0).integers(0, 256, (batch, 96, 96, 3), dtype=np.uint8)
     out = {}
-    for backend in backends:
-        for prec in precisions:
-            p = Perception(PerceptionConfig(threads=1, max_batch=batch, backend=backend,
-                                            precision=prec))
-            if p.precision != prec:
-                raise SystemExit(f"{prec} does not run here (see the log line above)")
-            out[f"{RUNTIMES[backend]} {prec} (Perception)"] = (lambda p=p: p(frames))
+    for prec in precisions:
+        p = Perception(PerceptionConfig(threads=1, max_batch=batch, backend="onnx",
+                                        precision=prec))
+        if p.precision != prec:
+            raise SystemExit(f"{prec} does not run here (see the log line above)")
+        out[f"ORT {prec} (Perception)"] = (lambda p=p: p(frames))
     return out
 
 
-def network_runners(backends: list[str], precisions: list[str], batch: int
-                    ) -> dict[str, object]:
-    """The network alone, each backend and precision; with OpenVINO also the fp32 file under
-    the bf16 inference hint (AMX), the other low precision it offers."""
-    from active_vision.backends import OnnxNetwork, OpenVinoNetwork
+def network_runners(batch: int) -> dict[str, object]:
+    """The network alone: ONNX Runtime fp32/int8 and OpenVINO fp32/bf16/int8."""
+    import openvino as ov
+
+    from active_vision.backends import OnnxNetwork
     from active_vision.onnx_export import int8_file_for, onnx_file_for
 
-    files = {"fp32": onnx_file_for(), "int8": int8_file_for()}
-    assert files["int8"] is not None, "no int8 model: python -m active_vision.training.quantize"
-    x = torch.from_numpy(np.random.default_rng(0).random((batch, 3, 96, 96), dtype=np.float32))
+    fp32, int8 = onnx_file_for(), int8_file_for()
+    assert int8 is not None, "no int8 model: python -m active_vision.training.quantize"
+    x = np.random.default_rng(0).random((batch, 3, 96, 96), dtype=np.float32)
     out: dict[str, object] = {}
-    kinds = {"onnx": OnnxNetwork, "openvino": OpenVinoNetwork}
-    rows = [(b, prec, prec) for b in backends for prec in precisions]
-    if "openvino" in backends:
-        rows.append(("openvino", "fp32", "bf16"))
-    for backend, prec, shown in rows:
-        net = kinds[backend](files[prec], 96, threads=1, capacity=batch,  # type: ignore[arg-type]
-                             precision=prec)  # type: ignore[arg-type]
-        if shown == "bf16":
-            assert isinstance(net, OpenVinoNetwork)
-            net.config["INFERENCE_PRECISION_HINT"] = "bf16"
-            net._requests.clear()  # compiled again under the hint at first use
-        net.input(batch).copy_(x)
-        out[f"{RUNTIMES[backend]} {shown} (network)"] = (lambda net=net: net.run(batch))
+    for name, path, prec in (("ORT fp32", fp32, "fp32"), ("ORT int8", int8, "int8")):
+        net = OnnxNetwork(path, 96, threads=1, capacity=batch, precision=prec)  # type: ignore[arg-type]
+        net.input(batch).copy_(__import__("torch").from_numpy(x))
+        out[name] = (lambda net=net: net.run(batch))
+    core = ov.Core()
+    for name, path, hint in (("OpenVINO fp32", fp32, "f32"), ("OpenVINO bf16", fp32, "bf16"),
+                             ("OpenVINO int8 (QDQ)", int8, "f32")):
+        model = core.read_model(str(path))
+        model.reshape({0: [batch, 3, 96, 96]})
+        compiled = core.compile_model(model, "CPU", {
+            "INFERENCE_NUM_THREADS": 1, "NUM_STREAMS": 1, "PERFORMANCE_HINT": "LATENCY",
+            "INFERENCE_PRECISION_HINT": hint})
+        req = compiled.create_infer_request()
+        req.set_input_tensor(ov.Tensor(x))
+        out[name] = req.infer
     return out
 
 
-def quality(backends: list[str], precisions: list[str]) -> None:
+def quality(precisions: list[str]) -> None:
     from active_vision.models import load_model
     from active_vision.training.evaluate import evaluate, heldout
 
     data = heldout(split="heldout")
     model = load_model(None)
-    # fp32 is the torch network in every backend (evaluate's reference); int8 per runtime
-    runs = [("fp32", "auto")] if "fp32" in precisions else []
-    runs += [("int8", b) for b in backends if "int8" in precisions]
-    per = {f"{prec} {RUNTIMES.get(b, b) if prec == 'int8' else ''}".strip():
-           evaluate(model, data, threads=1, precision=prec, backend=b).per_world
-           for prec, b in runs}
+    per = {prec: evaluate(model, data, threads=1, precision=prec).per_world
+           for prec in precisions}
     print("\nheld-out quality per world (evaluate, 2700 driving frames):")
-    print(f"  {'precision':<14} {'world':<8} " + " ".join(f"{k[:10]:>10}" for k in FIGURES))
-    for name, worlds in per.items():
+    print(f"  {'precision':<9} {'world':<8} " + " ".join(f"{k[:10]:>10}" for k in FIGURES))
+    for prec, worlds in per.items():
         for w, f in worlds.items():
-            print(f"  {name:<14} {w:<8} " + " ".join(f"{f[k]:10.4f}" for k in FIGURES))
-    names = list(per)
-    if len(names) > 1:
-        base = names[0]
-        for name in names[1:]:
-            print(f"  {name} - {base}, against the tolerances:")
+            print(f"  {prec:<9} {w:<8} " + " ".join(f"{f[k]:10.4f}" for k in FIGURES))
+    if len(precisions) > 1:
+        base = precisions[0]
+        for prec in precisions[1:]:
+            print(f"  {prec} - {base}, against the tolerances:")
             for w in per[base]:
                 parts = []
                 for k in FIGURES:
-                    d = per[name][w][k] - per[base][w][k]
+                    d = per[prec][w][k] - per[base][w][k]
                     loss = -d if k in ("iou", "recall", "delta1") else d
                     tol = TOLERANCES.get(k)
                     mark = "" if tol is None else (" ok" if loss <= tol else " OVER")
@@ -162,30 +152,36 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", type=int, default=200, help="calls per repeat at batch 1 "
                    "(batch 8: a quarter)")
     p.add_argument("--no-quality", action="store_true")
-    p.add_argument("--backends", default="onnx,openvino",
-                   help="comma-separated file backends (onnx, openvino); the first one's "
-                   "first precision is the baseline")
+    p.add_argument("--openvino", action="store_true",
+                   help="also time the network in OpenVINO (if it imports)")
     a = p.parse_args(argv)
     precisions = [s.strip() for s in a.precision.split(",") if s.strip()]
     bad = [s for s in precisions if s not in PRECISIONS]
     if bad or not precisions:
         p.error(f"--precision: give some of {', '.join(PRECISIONS)}, got {a.precision!r}")
-    backends = [s.strip() for s in a.backends.split(",") if s.strip()]
-    if not backends or any(b not in RUNTIMES for b in backends):
-        p.error(f"--backends: give some of {', '.join(RUNTIMES)}, got {a.backends!r}")
     if a.repeats < 1 or a.iters < 4:
         p.error("--repeats must be >= 1 and --iters >= 4")
     print(f"CPU: {cpu_name()}; load average before: {os.getloadavg()[0]:.2f}")
     print(f"{'runner':<28} {'batch':>5} {'ms/frame':>9} {'speed-up':>9}")
-    for make in (perception_runners, network_runners):
-        for batch in BATCHES:
-            iters = a.iters if batch == 1 else max(4, a.iters // 4)
-            runners = make(backends, precisions, batch)
-            for name, (ms, up) in interleaved(runners, batch, iters, a.repeats).items():
-                print(f"{name:<28} {batch:5d} {ms:9.3f} {up:8.2f}x")
+    for batch in BATCHES:
+        iters = a.iters if batch == 1 else max(4, a.iters // 4)
+        runners = perception_runners(precisions, batch)
+        for name, (ms, up) in interleaved(runners, batch, iters, a.repeats).items():
+            print(f"{name:<28} {batch:5d} {ms:9.3f} {up:8.2f}x")
+    if a.openvino:
+        try:
+            import openvino  # noqa: F401
+        except ImportError as exc:
+            print(f"OpenVINO: not measured ({exc})")
+        else:
+            for batch in BATCHES:
+                iters = a.iters if batch == 1 else max(4, a.iters // 4)
+                for name, (ms, up) in interleaved(network_runners(batch), batch, iters,
+                                                  a.repeats).items():
+                    print(f"{name + ' (network)':<28} {batch:5d} {ms:9.3f} {up:8.2f}x")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     if not a.no_quality:
-        quality(backends, precisions)
+        quality(precisions)
     return 0
 
 

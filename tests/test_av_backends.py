@@ -1,6 +1,5 @@
-"""Perception backends: ONNX Runtime and OpenVINO against eager torch and each other on
-rendered frames, the versioned ONNX export and its cache, thread counts, and the fall-backs
-(OpenVINO -> ONNX Runtime -> torch) when a runtime is not installed."""
+"""Perception backends: ONNX Runtime against eager torch on rendered frames, the versioned
+ONNX export and its cache, thread count, and the fall-back to torch without onnxruntime."""
 
 from __future__ import annotations
 
@@ -17,7 +16,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
-from active_vision.backends import BackendError, OnnxNetwork, OpenVinoNetwork  # noqa: E402
+from active_vision.backends import BackendError, OnnxNetwork  # noqa: E402
 from active_vision.models import DEFAULT_WEIGHTS, AVNet, AVNetConfig, save_weights  # noqa: E402
 from active_vision.onnx_export import (  # noqa: E402
     onnx_file_for,
@@ -51,34 +50,6 @@ def test_onnx_fused_frames_equal_torch_on_rendered_frames(rendered: np.ndarray) 
     assert np.abs(batched - ref).max() <= TOLERANCE
     for i in (0, 5, 11):  # batch 1 (its own I/O binding) gives the same frames
         assert np.abs(onnx(rendered[i]) - ref[i]).max() <= TOLERANCE
-
-
-@pytest.mark.parametrize("precision", ["fp32", "int8"])
-def test_openvino_fused_frames_equal_onnx_runtime_on_rendered_frames(
-        rendered: np.ndarray, precision: str) -> None:
-    """The same file in both runtimes gives the same fused frames, at batch 12 and 1 (each
-    batch size is its own compiled model)."""
-    ov = Perception(PerceptionConfig(backend="openvino", precision=precision,
-                                     max_batch=len(rendered)))
-    ort = Perception(PerceptionConfig(backend="onnx", precision=precision,
-                                      max_batch=len(rendered)))
-    assert (ov.backend, ov.precision, ort.precision) == ("openvino", precision, precision)
-    ref = ort(rendered).copy()
-    assert ref[..., CHANNEL_HEATMAP].max() > 0.5
-    # int8: the runtimes' int8 kernels may round a requantized activation to the next step
-    tolerance = TOLERANCE if precision == "fp32" else 0.03
-    assert np.abs(ov(rendered) - ref).max() <= tolerance
-    for i in (0, 7):
-        assert np.abs(ov(rendered[i]) - ref[i]).max() <= tolerance
-
-
-def test_auto_is_openvino_in_fp32_arithmetic_on_the_threads_asked_for() -> None:
-    net = Perception(PerceptionConfig(backend="auto", threads=2)).net
-    assert isinstance(net, OpenVinoNetwork)
-    compiled = net._request(1)[0].get_compiled_model()  # type: ignore[attr-defined]
-    assert compiled.get_property("INFERENCE_NUM_THREADS") == 2
-    # not the bf16 an AMX CPU would otherwise pick for what the file does not quantize
-    assert str(compiled.get_property("INFERENCE_PRECISION_HINT")) == "<Type: 'float32'>"
 
 
 def test_onnx_depth_render_takes_the_fourth_channel(rendered: np.ndarray) -> None:
@@ -134,36 +105,17 @@ def test_onnx_thread_count_is_honoured_and_does_not_spin() -> None:
     assert opts.get_session_config_entry("session.intra_op.allow_spinning") == "0"
 
 
-NO_RUNTIMES = "import sys; sys.modules['onnxruntime'] = sys.modules['openvino'] = None\n"
-"""Makes ``import onnxruntime`` and ``import openvino`` fail in a fresh interpreter."""
-
-
-def _without(code: str, prelude: str = NO_RUNTIMES) -> subprocess.CompletedProcess[str]:
-    """Run ``code`` in a fresh interpreter after ``prelude`` (default: no runtime imports)."""
+def _without_onnxruntime(code: str) -> subprocess.CompletedProcess[str]:
+    """Run ``code`` in a fresh interpreter where ``import onnxruntime`` fails."""
+    prelude = "import sys; sys.modules['onnxruntime'] = None\n"
     return subprocess.run(
         [sys.executable, "-c", prelude + code], capture_output=True, text=True, timeout=120,
         cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)),
     )  # fmt: skip
 
 
-def test_without_openvino_auto_runs_onnx_runtime() -> None:
-    res = _without(
-        "from active_vision import Perception, PerceptionConfig\n"
-        "from active_vision.backends import BackendError\n"
-        "print('backend', Perception(PerceptionConfig(backend='auto')).backend)\n"
-        "try:\n"
-        "    Perception(PerceptionConfig(backend='openvino'))\n"
-        "except BackendError as exc:\n"
-        "    print('openvino refused:', exc)\n",
-        prelude="import sys; sys.modules['openvino'] = None\n",
-    )
-    assert res.returncode == 0, res.stderr
-    assert "backend onnx" in res.stdout
-    assert "openvino refused:" in res.stdout and "pip install openvino" in res.stdout
-
-
-def test_missing_runtimes_fall_back_to_torch_with_one_log_line() -> None:
-    res = _without(
+def test_missing_onnxruntime_falls_back_to_torch_with_one_log_line() -> None:
+    res = _without_onnxruntime(
         "import logging; logging.basicConfig(level=logging.WARNING)\n"
         "from active_vision import Perception, PerceptionConfig\n"
         "from active_vision.backends import BackendError\n"
@@ -180,10 +132,10 @@ def test_missing_runtimes_fall_back_to_torch_with_one_log_line() -> None:
     assert len(lines) == 1, res.stderr
 
 
-def test_daemon_without_runtimes_serves_with_torch() -> None:
+def test_daemon_without_onnxruntime_serves_with_torch() -> None:
     name = f"test_avb_{uuid.uuid4().hex[:8]}"
     code = (
-        NO_RUNTIMES + "import runpy\n"
+        "import sys, runpy; sys.modules['onnxruntime'] = None\n"
         f"sys.argv = ['av-daemon', '--name', '{name}', '--backend', 'auto']\n"
         "runpy.run_module('active_vision', run_name='__main__')\n"
     )
@@ -210,7 +162,7 @@ def test_daemon_backend_flag_is_validated_and_explicit_onnx_without_it_fails() -
     )  # fmt: skip
     assert res.returncode == 2 and "--backend" in res.stderr
     name = f"test_avb_{uuid.uuid4().hex[:8]}"
-    res = _without(
+    res = _without_onnxruntime(
         "from active_vision.daemon import main\n"
         f"sys.exit(main(['--name', '{name}', '--backend', 'onnx']))\n"
     )
@@ -220,11 +172,10 @@ def test_daemon_backend_flag_is_validated_and_explicit_onnx_without_it_fails() -
 
 
 def test_unknown_backend_and_onnx_with_a_model_object_are_named_errors() -> None:
-    with pytest.raises(BackendError, match="auto, openvino, onnx, torch"):
+    with pytest.raises(BackendError, match="auto, onnx, torch"):
         Perception(PerceptionConfig(backend="tensorrt"))
-    for backend in ("onnx", "openvino"):
-        with pytest.raises(BackendError, match="PerceptionConfig.weights"):
-            Perception(PerceptionConfig(backend=backend), model=AVNet().eval())
+    with pytest.raises(BackendError, match="PerceptionConfig.weights"):
+        Perception(PerceptionConfig(backend="onnx"), model=AVNet().eval())
     assert Perception(PerceptionConfig(backend="auto"), model=AVNet().eval()).backend == "torch"
 
 

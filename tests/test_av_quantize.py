@@ -88,7 +88,7 @@ def test_shipped_int8_model_is_named_for_the_shipped_weights() -> None:
 def test_auto_picks_int8_here_and_says_so_once(caplog: pytest.LogCaptureFixture) -> None:
     with caplog.at_level(logging.INFO, logger="active_vision"):
         p = Perception(PerceptionConfig())
-    assert (p.backend, p.precision) == ("openvino", "int8")
+    assert (p.backend, p.precision) == ("onnx", "int8")
     lines = [r.getMessage() for r in caplog.records if "perception backend" in r.getMessage()]
     assert len(lines) == 1 and "int8" in lines[0]
     # the torch backend runs fp32 whatever is asked, without a warning
@@ -109,26 +109,24 @@ def _warnings(caplog: pytest.LogCaptureFixture) -> list[str]:
     return [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
 
 
-@pytest.mark.parametrize("backend", ["openvino", "onnx"])
 def test_missing_int8_file_falls_back_to_fp32_with_one_log_line(
-        small_export: Path, caplog: pytest.LogCaptureFixture, backend: str) -> None:
+        small_export: Path, caplog: pytest.LogCaptureFixture) -> None:
     with caplog.at_level(logging.INFO, logger="active_vision"):
-        p = Perception(PerceptionConfig(size=32, weights=small_export, backend=backend,
+        p = Perception(PerceptionConfig(size=32, weights=small_export, backend="onnx",
                                         precision="int8"))
-    assert (p.backend, p.precision) == (backend, "fp32")
+    assert (p.backend, p.precision) == ("onnx", "fp32")
     warnings = _warnings(caplog)
     assert len(warnings) == 1, warnings
     assert "quantize" in warnings[0] or "CPU" in warnings[0]
 
 
-@pytest.mark.parametrize("backend", ["openvino", "onnx"])
 def test_unloadable_int8_file_falls_back_to_fp32_with_one_log_line(
-        small_export: Path, caplog: pytest.LogCaptureFixture, backend: str) -> None:
+        small_export: Path, caplog: pytest.LogCaptureFixture) -> None:
     (small_export.parent / int8_file_name(small_export, 32)).write_bytes(b"not a model")
     with caplog.at_level(logging.INFO, logger="active_vision"):
-        p = Perception(PerceptionConfig(size=32, weights=small_export, backend=backend,
+        p = Perception(PerceptionConfig(size=32, weights=small_export, backend="auto",
                                         precision="int8"))
-    assert (p.backend, p.precision) == (backend, "fp32")
+    assert (p.backend, p.precision) == ("onnx", "fp32")
     assert len(_warnings(caplog)) == 1, _warnings(caplog)
     p(np.zeros((2, 32, 32, 3), np.uint8))  # and it serves
 

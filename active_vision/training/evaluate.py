@@ -65,7 +65,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from active_vision.backends import FILE_BACKENDS, PRECISIONS, BackendError, resolve_backend
+from active_vision.backends import PRECISIONS, BackendError
 from active_vision.models import MIN_DEPTH_M, AVNet, load_model
 from active_vision.perception import (
     CHANNEL_DEPTH,
@@ -229,18 +229,17 @@ def figures_of(c: FrameCounts) -> dict[str, float]:
 
 
 def _fused_frames(model: AVNet, data: Dataset, batch: int, threads: int | None,
-                  precision: str = "fp32", weights: Path | None = None,
-                  backend: str = "auto") -> Iterator[tuple[int, np.ndarray]]:
+                  precision: str = "fp32", weights: Path | None = None
+                  ) -> Iterator[tuple[int, np.ndarray]]:
     """(index, fused frame) of every frame of ``data``, through :class:`Perception` as the
     daemon runs it: ``model`` in torch for ``fp32``; for ``int8``, the int8 ONNX model of
-    ``weights`` (default: the shipped ones), which ``model`` must be loaded from, in
-    ``backend`` (``auto``: the daemon's choice)."""
+    ``weights`` (default: the shipped ones), which ``model`` must be loaded from."""
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if precision == "int8":
         perception = Perception(PerceptionConfig(
             size=data.rgb.shape[1], threads=threads, max_batch=batch, weights=weights,
-            backend=backend, precision="int8"))
+            backend="onnx", precision="int8"))
         if perception.precision != "int8":  # the fallback logged why
             raise BackendError(
                 f"no int8 model of {weights or 'the shipped weights'} runs here (see the log "
@@ -279,16 +278,14 @@ def episode_intervals(units: Sequence[FrameCounts], resamples: int = BOOTSTRAP_R
 
 
 def evaluate(model: AVNet, data: Dataset, *, batch: int = 32, threads: int | None = None,
-             precision: str = "fp32", weights: Path | None = None,
-             backend: str = "auto") -> Metrics:
+             precision: str = "fp32", weights: Path | None = None) -> Metrics:
     """Run ``model`` through :class:`Perception` on ``data`` and compute :class:`Metrics`
-    (``precision="int8"``: the int8 model of ``weights`` in ``backend`` instead, see
-    :func:`_fused_frames`)."""
+    (``precision="int8"``: the int8 model of ``weights`` instead, see :func:`_fused_frames`)."""
     total = FrameCounts()
     per_world = {w: FrameCounts() for w in data.worlds}
     units: dict[tuple[str, int, int], FrameCounts] = {}
     episode = np.asarray(data.episode)
-    for i, fused in _fused_frames(model, data, batch, threads, precision, weights, backend):
+    for i, fused in _fused_frames(model, data, batch, threads, precision, weights):
         c = frame_counts(fused[:, :, CHANNEL_HEATMAP], fused[:, :, CHANNEL_DEPTH],
                          data.mask[i], data.depth[i])
         total.add(c)
@@ -491,9 +488,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--precision", choices=PRECISIONS, default="fp32",
                    help="fp32: the torch network; int8: its int8 ONNX model (made by "
                    "active_vision.training.quantize; an error when it does not run here)")
-    p.add_argument("--backend", choices=("auto", *FILE_BACKENDS), default="auto",
-                   help="the runtime of the int8 model: auto (default) is the daemon's choice "
-                   "(openvino when installed, else onnx)")
     p.add_argument("--json", action="store_true", help="end with one JSON line of the figures")
     p.add_argument("--heatmap", choices=("detect", "predict"), default="detect",
                    help="predict: also evaluate the predictive heatmap (future occupancy)")
@@ -513,15 +507,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                          pedestrian_mode=args.pedestrian_mode, n_pedestrians=args.pedestrians))
     model = load_model(args.weights)
     m = evaluate(model, data, threads=args.threads, precision=args.precision,
-                 weights=args.weights, backend=args.backend)
-    backend = ("torch" if args.precision == "fp32"
-               else resolve_backend(args.backend, args.weights, data.rgb.shape[1], "int8")[0])
+                 weights=args.weights)
     print(format_metrics(m))
     if args.sweep:
         print(format_sweep(threshold_sweep(model, data, args.sweep, threads=args.threads)))
     if args.depth_bands:
         print(format_depth_bands(depth_bands(model, data, threads=args.threads)))
-    out: dict[str, object] = {**m.summary(), "precision": args.precision, "backend": backend,
+    out: dict[str, object] = {**m.summary(), "precision": args.precision,
                               "pedestrian_mode": args.pedestrian_mode,
                               "n_pedestrians": args.pedestrians,
                               "frames": m.frames, "pedestrians": m.pedestrians,
