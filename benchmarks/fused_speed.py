@@ -9,15 +9,14 @@ for each perception backend (torch and onnx) side by side in one run.
 
 Every env row is one (backend, precision) combination: the daemon runs with ``--backend B
 --precision P``. With ``--repeats N`` all rows are run N times in interleaved rounds and
-each cell is the median over the rounds; the last column gives each row's 1-env steps/s
-over the first row's (measured in the same run).
+each cell is the median over the rounds; the last column gives each row's steps/s at the
+first env count over the first row's (measured in the same run).
 
 For each backend the daemon (``av-daemon --backend B``) serves 1 env, then 2 envs on 2
-slots; then ``rover-train --env fused`` (PPO, rover-train's defaults, 1 env) trains for
-``--train-steps`` steps against a daemon of that backend and its steps/s is read from its
-``metrics.json`` (plus one run of the last backend with the PPO update on every core,
-``--update-threads 0``). The onnx/torch ratio of 1-env steps/s is
-printed at the end.
+slots (``--envs``: other counts, each env its own process); then ``rover-train --env
+fused`` (PPO, rover-train's defaults, 1 env) trains for ``--train-steps`` steps against a
+daemon of that backend and its steps/s is read from its ``metrics.json`` (plus one run of
+the last backend with the PPO update on every core, ``--update-threads 0``).
 
 Per step the env advances physics (0.05 s of simulated time), renders its camera,
 publishes the frame and waits for the daemon's fused frame. The table splits a step into
@@ -230,7 +229,7 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
             alone_perc.setdefault(k, []).append(
                 perception_alone(a.threads, backend, n=200, weights=weights,
                                  precision=precision))
-            for n_envs in (1, 2):
+            for n_envs in a.envs:
                 name = f"bench_fused_{os.getpid()}_{r}_{k}_{n_envs}"
                 with spawn_daemon(name, n_envs, extra_args=daemon_args(
                         a.threads, backend, weights, precision)):
@@ -242,19 +241,19 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
     print(
         "\n| backend | precision | envs | steps/s (all envs) | x seed (20/s) "
         "| ms/step | physics ms | render ms | daemon round trip ms | perception alone ms "
-        "| round trip - perception ms | efficiency | reset ms | 1-env steps/s / row 1 |"
+        f"| round trip - perception ms | efficiency | reset ms | {a.envs[0]}-env steps/s / row 1 |"
     )
     print("|---" * 14 + "|", flush=True)
     base = None
     for k, (backend, precision, weights) in enumerate(runs):
         label = backend if weights is None else f"{backend}, {weights.name}"
         perc = float(np.median(alone_perc[k]))
-        for n_envs in (1, 2):
+        for n_envs in a.envs:
             agg, step_s, phys, rend, rt, reset_s = np.median(
                 np.array(cells[(k, n_envs)]), axis=0)
             stages = phys + rend + perc + 2 * alone_ipc
             ratio = ""
-            if n_envs == 1:
+            if n_envs == a.envs[0]:
                 base = agg if base is None else base
                 ratio = f"{agg / base:.2f}x"
             print(f"| {label} | {precision} | {n_envs} | {agg:.0f} | "
@@ -263,6 +262,18 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
                   f"{(rt - perc) * 1e3:.2f} | {stages / step_s:.2f} | {reset_s * 1e3:.1f} | "
                   f"{ratio} |", flush=True)  # fmt: skip
     print("\nms/step, physics, render, round trip and efficiency are those of env 0.")
+
+
+def env_counts(text: str) -> list[int]:
+    """``--envs``: comma-separated positive env counts."""
+    try:
+        counts = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 1:
+        raise argparse.ArgumentTypeError(
+            f"give positive env counts separated by commas, e.g. 1,2,8; got {text!r}")
+    return counts
 
 
 def main() -> int:
@@ -275,6 +286,9 @@ def main() -> int:
                    help="comma-separated daemon --precision values, in run order (fp32,int8)")
     p.add_argument("--repeats", type=int, default=1,
                    help="interleaved rounds of all env rows; cells are medians")
+    p.add_argument("--envs", type=env_counts, default=[1, 2],
+                   help="comma-separated env counts of the env rows, each on its own daemon "
+                   "slot (default 1,2); the last column compares the first count's rows")
     p.add_argument("--train-steps", type=int, default=5120,
                    help="rover-train --env fused steps per backend (0: skip)")
     p.add_argument("--skip-envs", action="store_true", help="only the training rows")
