@@ -135,13 +135,12 @@ def student_act(
 
     def act(obs: Any) -> np.ndarray:
         a = np.asarray(agent.act(obs), dtype=np.float32).reshape(-1)
-        if gaze:
-            if a.shape != (3,):
-                raise SystemExit(f"--student-gaze {path}: its actions have {a.size} values, "
-                                 "not [speed, heading, pan target]")  # fmt: skip
-            if hold_camera:  # a copy: the agent may keep the action it returned
-                a = np.concatenate([a[:2], [0.0]]).astype(np.float32)
+        if gaze and a.shape != (3,):
+            raise SystemExit(f"--student-gaze {path}: its actions have {a.size} values, "
+                             "not [speed, heading, pan target]")  # fmt: skip
+        if gaze and not hold_camera:
             return a
+        # the camera ahead, in a new array: the agent may keep the action it returned
         return np.concatenate([a[:2], [0.0]]).astype(np.float32)
 
     return agent.reset, act
