@@ -141,3 +141,41 @@ def test_extractor_tells_a_graze_from_open_ground_and_bearings_across_pi() -> No
     assert proximity == pytest.approx(np.full(32, expected), rel=1e-5)
     assert expected > 5 * 0.2 / 6.0  # five times the bounds scaling's gap (0.2 m of 12 m)
     assert np.allclose(x[0, -3:], x[1, -3:], atol=3e-3)  # (near distance, cos, sin) of bearing
+
+
+def test_map_features_put_the_goal_where_the_env_put_it(tmp_path: Path) -> None:
+    """RoverExtractor(map_features=True) recovers the goal's map position from the pose, the
+    yaw and the target after real steps, and a model trained with --map-features saves and
+    loads with the feature on (a zoo entry made with it needs that)."""
+    import gymnasium as gym
+    import numpy as np
+    import torch
+    from stable_baselines3 import PPO
+
+    import rover_env  # noqa: F401  (registers the ids)
+    from rover_train.policies import MAP_SCALE_M, RoverExtractor, map_inputs
+
+    env = gym.make("roverav/RoverEnvDiscrete-v0", world_n="maze")
+    try:
+        obs, info = env.reset(seed=3)
+        for _ in range(30):
+            obs, _, _, _, info = env.step(7)
+        rows = map_inputs({k: torch.as_tensor(v[None]) for k, v in obs.items()})[0].numpy()
+        assert rows[:2] * MAP_SCALE_M == pytest.approx(obs["pose"][:2], abs=1e-4)
+        assert rows[2:4] * MAP_SCALE_M == pytest.approx(np.asarray(info["goal"][:2]), abs=0.05)
+        assert np.hypot(rows[4], rows[5]) == pytest.approx(1.0)
+        space = env.observation_space
+        plain, mapped = RoverExtractor(space), RoverExtractor(space, map_features=True)
+        sample = {k: torch.as_tensor(v[None]) for k, v in obs.items()}
+        assert (mapped.vector_inputs(sample).shape[1]
+                == plain.vector_inputs(sample).shape[1] + 6)  # fmt: skip
+        model = PPO("MultiInputPolicy", env, n_steps=8, batch_size=8, device="cpu",
+                    policy_kwargs={"features_extractor_class": RoverExtractor,
+                                   "features_extractor_kwargs": {"map_features": True}})
+        model.save(tmp_path / "m.zip")
+        assert PPO.load(tmp_path / "m.zip", device="cpu").policy.features_extractor.map_features
+    finally:
+        env.close()
+    no_imu = gym.spaces.Dict({k: s for k, s in space.spaces.items() if k != "imu"})
+    with pytest.raises(ValueError, match="imu"):
+        RoverExtractor(no_imu, map_features=True)
