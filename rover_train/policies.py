@@ -9,13 +9,6 @@ apart over the 12 m reach, and a goal 1 m away and one 10 m away 0.18 apart over
 target's 100 m: PPO's policies drove into panels they could not tell from open ground
 (docs/journal.md). So the MLP also sees each LIDAR range as ``exp(-range / PROXIMITY_M)``
 and the target as (distance within ``GOAL_NEAR_M``, cos and sin of its bearing).
-
-Where to go in a maze depends on where the goal is on the map, not only where it lies from
-the rover: a goal straight ahead behind the maze's middle wall needs a detour one in front
-of it does not. ``map_features=True`` adds the rover's and the goal's map positions (the goal
-from the pose, the yaw and the target) in units of ``MAP_SCALE_M``, and the cos and sin of the
-yaw. Without them the MLP saw the rover's position in 1/30ths of its +-30 m bounds (the
-maze's +-6 m as +-0.2) and the goal only relative to the rover.
 """
 
 from __future__ import annotations
@@ -31,12 +24,8 @@ PROXIMITY_M = 0.5
 0.5 m, 0.14 at 1 m)."""
 GOAL_NEAR_M = 12.0
 """Metres: the target distance feature is min(distance, GOAL_NEAR_M) scaled to [-1, 1]."""
-MAP_SCALE_M = 10.0
-"""Metres: ``map_features`` positions are x / MAP_SCALE_M, y / MAP_SCALE_M."""
 LIDAR_KEY = "lidar"
 TARGET_KEY = "target"  # (distance m, bearing rad)
-POSE_KEY = "pose"  # (x, y, z) m
-IMU_KEY = "imu"  # (pitch, roll, yaw) rad
 
 
 def _is_image(space: gym.Space) -> bool:
@@ -49,20 +38,12 @@ class RoverExtractor(BaseFeaturesExtractor):
     :param observation_space: the env's Dict observation space
     :param cnn_dim: features produced by the CNN per image key
     :param mlp_dim: features produced by the MLP over all vector keys together
-    :param map_features: also give the MLP the rover's and the goal's map positions and the
-        yaw's cos and sin (needs the ``pose``, ``imu`` and ``target`` keys)
     """
 
-    def __init__(self, observation_space: gym.spaces.Dict, cnn_dim: int = 128, mlp_dim: int = 64,
-                 map_features: bool = False):  # fmt: skip
-        missing = {POSE_KEY, IMU_KEY, TARGET_KEY} - set(observation_space.spaces)
-        if map_features and missing:
-            raise ValueError(f"map_features needs the observation keys {sorted(missing)}, "
-                             "which this env does not have")  # fmt: skip
+    def __init__(self, observation_space: gym.spaces.Dict, cnn_dim: int = 128, mlp_dim: int = 64):
         image_keys = [k for k, s in observation_space.spaces.items() if _is_image(s)]
         vector_keys = [k for k in observation_space.spaces if k not in image_keys]
         super().__init__(observation_space, features_dim=cnn_dim * len(image_keys) + mlp_dim)
-        self.map_features = map_features
         self.image_keys = image_keys
         self.vector_keys = vector_keys
         self.cnns = nn.ModuleDict()
@@ -114,17 +95,4 @@ class RoverExtractor(BaseFeaturesExtractor):
             dist, bearing = observations[TARGET_KEY][:, 0], observations[TARGET_KEY][:, 1]
             near = torch.clamp(dist, max=GOAL_NEAR_M) * (2.0 / GOAL_NEAR_M) - 1.0
             inputs.append(torch.stack([near, torch.cos(bearing), torch.sin(bearing)], dim=1))
-        if self.map_features:
-            inputs.append(map_inputs(observations))
         return torch.cat(inputs, dim=1)
-
-
-def map_inputs(observations: dict[str, torch.Tensor]) -> torch.Tensor:
-    """(rover x, rover y, goal x, goal y) / MAP_SCALE_M and (cos, sin) of the yaw, per row."""
-    x, y = observations[POSE_KEY][:, 0], observations[POSE_KEY][:, 1]
-    yaw = observations[IMU_KEY][:, 2]
-    dist, bearing = observations[TARGET_KEY][:, 0], observations[TARGET_KEY][:, 1]
-    gx = x + dist * torch.cos(yaw + bearing)
-    gy = y + dist * torch.sin(yaw + bearing)
-    return torch.stack([x / MAP_SCALE_M, y / MAP_SCALE_M, gx / MAP_SCALE_M, gy / MAP_SCALE_M,
-                        torch.cos(yaw), torch.sin(yaw)], dim=1)  # fmt: skip

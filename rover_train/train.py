@@ -175,9 +175,6 @@ class TrainArgs:
     """SAC/DQN: environment steps collected before the first update."""
     exploration_fraction: float = 0.3
     """DQN: fraction of training over which epsilon anneals."""
-    map_features: bool = False
-    """The policy also sees the rover's and the goal's map positions (RoverExtractor's
-    map_features): where a detour round a wall starts depends on them."""
 
 
 _ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
@@ -470,8 +467,7 @@ def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
         "seed": args.seed,
         "device": args.device,
         "tensorboard_log": str(tb_dir),
-        "policy_kwargs": {"features_extractor_class": RoverExtractor,
-                          "features_extractor_kwargs": {"map_features": args.map_features}},
+        "policy_kwargs": {"features_extractor_class": RoverExtractor},
         "verbose": 0,
     }
     return cls(**hyperparameters(args), **common)
