@@ -7,6 +7,7 @@ Stable-Baselines3's own. Both packages come with ``pip install 'roverav[train]'`
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -57,11 +58,17 @@ class ModelAgent:
     calling it) -> action, keeping a recurrent policy's LSTM state from step to step;
     :meth:`reset` starts an episode (call it after each ``env.reset()``;
     ``rover_train.evaluate.run_episode`` does). It is a zoo ``Agent``
-    (``rover_train.zoo.load`` returns one for an RL entry)."""
+    (``rover_train.zoo.load`` returns one for an RL entry).
 
-    def __init__(self, model: Any, deterministic: bool = True) -> None:
+    :param observe: applied to each observation before the model sees it (a model trained
+        with ``rover-train --waypoint`` gets its ``waypoint`` key this way).
+    """
+
+    def __init__(self, model: Any, deterministic: bool = True,
+                 observe: Callable[[Any], Any] | None = None) -> None:  # fmt: skip
         self.model = model
         self.deterministic = deterministic
+        self.observe = observe
         self.reset()
 
     def reset(self) -> None:
@@ -69,6 +76,8 @@ class ModelAgent:
         self._episode_start = np.ones((1,), dtype=bool)
 
     def __call__(self, obs: Any) -> Any:
+        if self.observe is not None:
+            obs = self.observe(obs)
         action, self._state = self.model.predict(
             obs, state=self._state, episode_start=self._episode_start,
             deterministic=self.deterministic,

@@ -224,11 +224,13 @@ def env_factory(
     kind: str,
     monitor_dir: str | None = None,
     append_monitor: bool = False,
+    waypoint: bool = False,
     **kwargs: Any,
 ) -> Callable[[], gym.Env]:
     """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker.
 
-    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``: ``EpisodeRng`` lets a
+    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``, with ``waypoint`` (LIDAR
+    kinds) ``WithWaypoint`` around the env (:mod:`rover_train.waypoint`): ``EpisodeRng`` lets a
     resumed run restart each episode in flight from its start. ``append_monitor`` appends
     to the slot's ``monitor.csv`` (a resumed run) instead of starting it afresh. Fused envs
     are made with ``report_latency=True``: the trainer logs ``charts/frame_latency_ms``.
@@ -249,6 +251,10 @@ def env_factory(
             )
         else:
             env = make_env(kind, **kwargs)
+        if waypoint:
+            from rover_train.waypoint import WithWaypoint
+
+            env = WithWaypoint(env, kwargs["world"])
         env = EpisodeRng(env)
         filename = None
         if monitor_dir is not None:

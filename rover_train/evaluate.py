@@ -28,7 +28,7 @@ import argparse
 import json
 import logging
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -43,6 +43,8 @@ from rover_env.worlds import WORLD_CHOICES
 from rover_train.algos import ALGOS, RECURRENT, ModelAgent, algo_class
 from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
 from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
+from rover_train.recipe import RecipeError, read_recipe
+from rover_train.waypoint import WithWaypoint, observer
 from shm_protocol.names import default_name, default_slots
 
 VIDEO_PANEL = 256  # pixels per side of each video panel
@@ -101,11 +103,23 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
         except Exception as exc:  # noqa: BLE001 - try the next algorithm
             errors.append(f"{name}: {exc}")
             continue
-        check_spaces(model, loaded, env)
-        if name in RECURRENT:
-            return ModelAgent(loaded)
+        observe = _waypoint_observer(model, env)
+        seen = env if observe is None else WithWaypoint(env, env.unwrapped.world)
+        check_spaces(model, loaded, seen)
+        if name in RECURRENT or observe is not None:
+            return ModelAgent(loaded, observe=observe)
         return lambda obs: loaded.predict(obs, deterministic=True)[0]
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
+
+
+def _waypoint_observer(model: Path, env: Any) -> Callable[[Any], Any] | None:
+    """For a model trained with ``rover-train --waypoint``: what adds the ``waypoint`` key to
+    ``env``'s observations (on ``env``'s world map); else None."""
+    try:
+        waypoint = read_recipe(model).get("waypoint", False)
+    except RecipeError:  # a model .zip rover-train did not write
+        return None
+    return observer(env.unwrapped.world) if waypoint else None
 
 
 def run_metrics(model: Path | None) -> dict[str, Any]:

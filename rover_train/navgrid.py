@@ -59,6 +59,28 @@ class CostToGo:
             points.append(grid.centre(i, j))
         return points
 
+    def pursuit_point(
+        self, x: float, y: float, lookahead: float, sight_clearance: float, samples: int
+    ) -> tuple[float, float]:
+        """The point to steer at from (x, y): the goal when it is nearer than ``lookahead``
+        and in plain sight, else the farthest point of the descent within ``lookahead`` that
+        a straight line reaches keeping ``sight_clearance`` (checked at ``samples`` points)."""
+        goal, grid = self.goal, self.grid
+        t = np.linspace(0.0, 1.0, samples)
+        if math.hypot(goal[0] - x, goal[1] - y) < lookahead:
+            xs, ys = x + (goal[0] - x) * t, y + (goal[1] - y) * t
+            if grid.clearance_at(xs, ys).min() > sight_clearance:
+                return goal
+        path = self.descent(x, y, lookahead)
+        if not path:
+            return goal
+        pts = np.asarray(path)
+        xs = x + (pts[:, 0, None] - x) * t[None, :]
+        ys = y + (pts[:, 1, None] - y) * t[None, :]
+        visible = np.flatnonzero(grid.clearance_at(xs, ys).min(axis=1) > sight_clearance)
+        k = int(visible[-1]) if len(visible) else 0
+        return float(pts[k, 0]), float(pts[k, 1])
+
 
 _NEIGHBOURS = (
     (1, 0, 1.0),

@@ -8,7 +8,9 @@ Scaled by its bounds alone, a LIDAR range of 0.3 m (a collision) and one of 0.5 
 apart over the 12 m reach, and a goal 1 m away and one 10 m away 0.18 apart over the
 target's 100 m: PPO's policies drove into panels they could not tell from open ground
 (docs/journal.md). So the MLP also sees each LIDAR range as ``exp(-range / PROXIMITY_M)``
-and the target as (distance within ``GOAL_NEAR_M``, cos and sin of its bearing).
+and the target as (distance within ``GOAL_NEAR_M``, cos and sin of its bearing), and the
+map planner's waypoint, where the observation has one (``rover-train --waypoint``), also as
+the cos and sin of its bearing.
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import numpy as np
 import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
+
+from rover_train.waypoint import WAYPOINT_KEY
 
 PROXIMITY_M = 0.5
 """Metres: the LIDAR's proximity features are exp(-range / PROXIMITY_M) (0.55 at 0.3 m, 0.37 at
@@ -95,4 +99,7 @@ class RoverExtractor(BaseFeaturesExtractor):
             dist, bearing = observations[TARGET_KEY][:, 0], observations[TARGET_KEY][:, 1]
             near = torch.clamp(dist, max=GOAL_NEAR_M) * (2.0 / GOAL_NEAR_M) - 1.0
             inputs.append(torch.stack([near, torch.cos(bearing), torch.sin(bearing)], dim=1))
+        if WAYPOINT_KEY in self.vector_keys:
+            bearing = observations[WAYPOINT_KEY][:, 1]
+            inputs.append(torch.stack([torch.cos(bearing), torch.sin(bearing)], dim=1))
         return torch.cat(inputs, dim=1)

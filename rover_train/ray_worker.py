@@ -55,6 +55,8 @@ class WorkerConfig:
     """How many walk (None: the world's default)."""
     connect_timeout: float = 30.0
     """Seconds an env waits for its daemon's segments."""
+    waypoint: bool = False
+    """LIDAR kinds: the map planner's waypoint in the observation (``rover-train --waypoint``)."""
     daemon_args: tuple[str, ...] = ("--threads", "1")
     """Extra av-daemon flags."""
     daemon_max_restarts: int = 3
@@ -75,6 +77,7 @@ def worker_config(args: Any) -> WorkerConfig:
         pedestrian_mode=args.pedestrian_mode,
         n_pedestrians=args.n_pedestrians,
         connect_timeout=max(args.connect_timeout, 30.0),
+        waypoint=args.waypoint,
     )
 
 
@@ -141,7 +144,8 @@ class EnvWorker:
                                     name=self.name, length=cfg.length, task=cfg.task,
                                     pedestrian_mode=cfg.pedestrian_mode,
                                     n_pedestrians=cfg.n_pedestrians,
-                                    connect_timeout=cfg.connect_timeout)  # fmt: skip
+                                    connect_timeout=cfg.connect_timeout,
+                                    waypoint=cfg.waypoint)  # fmt: skip
                 self.envs.append(thunk())
         except BaseException:
             self.close()

@@ -200,21 +200,7 @@ class PlannerExpert:
     def pursuit_point(self, x: float, y: float, goal: tuple[float, float]) -> tuple[float, float]:
         """The point the rover steers at: the goal when in plain sight and near, else the
         farthest visible point of the planned path within ``LOOKAHEAD``."""
-        if math.hypot(goal[0] - x, goal[1] - y) < LOOKAHEAD:
-            t = np.linspace(0.0, 1.0, _SIGHT_SAMPLES)
-            xs, ys = x + (goal[0] - x) * t, y + (goal[1] - y) * t
-            if self.grid.clearance_at(xs, ys).min() > SIGHT_CLEARANCE:
-                return goal
-        path = self.field(goal).descent(x, y, LOOKAHEAD)
-        if not path:
-            return goal
-        pts = np.asarray(path)
-        t = np.linspace(0.0, 1.0, _SIGHT_SAMPLES)
-        xs = x + (pts[:, 0, None] - x) * t[None, :]
-        ys = y + (pts[:, 1, None] - y) * t[None, :]
-        visible = np.flatnonzero(self.grid.clearance_at(xs, ys).min(axis=1) > SIGHT_CLEARANCE)
-        k = int(visible[-1]) if len(visible) else 0
-        return float(pts[k, 0]), float(pts[k, 1])
+        return self.field(goal).pursuit_point(x, y, LOOKAHEAD, SIGHT_CLEARANCE, _SIGHT_SAMPLES)
 
     def act(
         self,

@@ -101,8 +101,11 @@ def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent 
         return StudentAgent.load(file)
     from rover_train.algos import ModelAgent, algo_class
     from rover_train.recipe import read_recipe
+    from rover_train.waypoint import observer
 
-    return ModelAgent(algo_class(read_recipe(file)["algo"]).load(file, device="cpu"))
+    recipe = read_recipe(file)
+    model = algo_class(recipe["algo"]).load(file, device="cpu")
+    return ModelAgent(model, observe=observer(recipe["world"]) if recipe.get("waypoint") else None)
 
 
 __all__ = [
