@@ -229,8 +229,8 @@ def env_factory(
 ) -> Callable[[], gym.Env]:
     """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker.
 
-    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``, with ``waypoint`` (LIDAR
-    kinds) ``WithWaypoint`` around the env (:mod:`rover_train.waypoint`): ``EpisodeRng`` lets a
+    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``, and with ``waypoint``
+    ``WithWaypoint`` around the env (:mod:`rover_train.waypoint`); ``EpisodeRng`` lets a
     resumed run restart each episode in flight from its start. ``append_monitor`` appends
     to the slot's ``monitor.csv`` (a resumed run) instead of starting it afresh. Fused envs
     are made with ``report_latency=True``: the trainer logs ``charts/frame_latency_ms``.

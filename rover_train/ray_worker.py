@@ -56,7 +56,7 @@ class WorkerConfig:
     connect_timeout: float = 30.0
     """Seconds an env waits for its daemon's segments."""
     waypoint: bool = False
-    """LIDAR kinds: the map planner's waypoint in the observation (``rover-train --waypoint``)."""
+    """The map planner's waypoint in the observation (``rover-train --waypoint``)."""
     daemon_args: tuple[str, ...] = ("--threads", "1")
     """Extra av-daemon flags."""
     daemon_max_restarts: int = 3

@@ -97,9 +97,9 @@ class TrainArgs:
     at the first goal, with the goal reward and is_success, at the first collision or after
     600 steps; progress pays 10 per metre, and LIDAR envs charge clearance under 0.6 m)."""
     waypoint: bool = False
-    """LIDAR envs: add the map planner's next waypoint to the observation (the ``waypoint``
-    key: distance and bearing of the point the planner expert steers at, from the world's
-    map; rover_train.waypoint). The maze's RL entry uses it."""
+    """Add the map planner's next waypoint to the observation (the ``waypoint`` key: distance
+    and bearing of the point the planner expert steers at, on the world's map;
+    rover_train.waypoint). The maze's RL entry uses it."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), recurrent-ppo (all envs: PPO with an LSTM policy, from sb3-contrib),
     sac (lidar, fused) or dqn (discrete)."""
@@ -318,9 +318,6 @@ def validate(args: TrainArgs) -> str | None:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
     if args.task not in TASKS:  # the CLI's choices say so too; TrainArgs built in code
         return f"--task must be one of {', '.join(TASKS)}, got {args.task!r}"
-    if args.waypoint and args.env in FUSED_KINDS:
-        return (f"--waypoint is for the LIDAR envs (lidar, lidar-discrete): --env {args.env} "
-                "has no pose in its observation to plan from; drop --waypoint")  # fmt: skip
     return (contrib_missing(args.algo) or _validate_ray(args) or _validate_values(args)
             or _validate_device(args))  # fmt: skip
 

@@ -6,7 +6,8 @@ metres, first away from it. A reactive policy over the LIDAR, the target and the
 that detour poorly from the reward (PPO from scratch: timeouts at the middle wall,
 ``benchmarks/RESULTS.md``). Navigation stacks pair such a policy with a global planner on the
 known map and give it the planner's next subgoal (as Arena-Rosnav's DRL local planners do).
-:class:`WithWaypoint` does that for RoverEnv: it adds the key ``waypoint`` = (distance m,
+:class:`WithWaypoint` does that for any roverav env (they share the seed's ``pose``, ``imu``
+and ``target`` keys): it adds the key ``waypoint`` = (distance m,
 bearing rad relative to the rover's heading) of the point the planner expert would steer at,
 the farthest point of the world map's shortest path (:mod:`rover_train.navgrid`) within
 ``WAYPOINT_LOOKAHEAD`` m that the rover sees in a straight line, or the goal when near and
@@ -115,8 +116,8 @@ class WithWaypoint(gym.ObservationWrapper):
         space = env.observation_space
         missing = {"pose", "imu", "target"} - set(getattr(space, "spaces", {}))
         if missing:
-            raise ValueError(f"the waypoint needs the observation keys {sorted(missing)}, "
-                             f"which this env does not have (use a LIDAR env)")  # fmt: skip
+            raise ValueError(f"the waypoint is planned from the observation keys pose, imu "
+                             f"and target; this env lacks {sorted(missing)}")  # fmt: skip
         self.waypoints = Waypoints(world)
         self.observation_space = spaces.Dict({**space.spaces, WAYPOINT_KEY: waypoint_space()})
 

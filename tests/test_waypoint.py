@@ -15,7 +15,7 @@ import rover_env  # noqa: F401  (registers the roverav/ ids)
 from rover_env.worlds import make_world
 from rover_train import zoo
 from rover_train.evaluate import load_policy
-from rover_train.train import parse_args, train, validate
+from rover_train.train import parse_args, train
 from rover_train.waypoint import WAYPOINT_KEY, Waypoints, WithWaypoint
 
 MAZE = make_world("maze")
@@ -68,7 +68,7 @@ def test_the_waypoint_key_is_computed_from_the_observation_alone() -> None:
     env.close()
 
 
-def test_the_waypoint_needs_a_pose_to_plan_from(capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_waypoint_needs_a_pose_to_plan_from() -> None:
     class NoPose(gym.ObservationWrapper):
         def __init__(self, env: gym.Env) -> None:
             super().__init__(env)
@@ -80,10 +80,6 @@ def test_the_waypoint_needs_a_pose_to_plan_from(capsys: pytest.CaptureFixture[st
 
     with pytest.raises(ValueError, match="pose"):
         WithWaypoint(NoPose(gym.make("roverav/RoverEnv-v0", world_n="maze")), "maze")
-    with pytest.raises(SystemExit):
-        parse_args(["--env", "fused", "--waypoint"])
-    assert "--waypoint is for the LIDAR envs" in capsys.readouterr().err
-    assert validate(parse_args(["--env", "lidar", "--waypoint"])) is None
 
 
 def test_a_model_trained_with_the_waypoint_drives_the_plain_env(tmp_path: Path) -> None:
