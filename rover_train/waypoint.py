@@ -38,7 +38,7 @@ from rover_train.navgrid import CostToGo, OccupancyGrid
 WAYPOINT_KEY = "waypoint"
 WAYPOINT_RES = 0.2
 """Metres per cell of the waypoint's map (the expert's 0.1 m costs 0.1-0.17 s a goal in the
-maze, this 15-25 ms)."""
+maze, this 13-23 ms)."""
 WAYPOINT_LOOKAHEAD = 2.0
 """Metres of planned path the waypoint may be taken from."""
 WAYPOINT_SIGHT_CLEARANCE = 0.45
@@ -105,7 +105,7 @@ def observer(world: str | WorldSpec) -> Callable[[dict[str, Any]], dict[str, Any
 
 
 class WithWaypoint(gym.ObservationWrapper):
-    """RoverEnv with the ``waypoint`` key (see the module docstring).
+    """A roverav env with the ``waypoint`` key (see the module docstring).
 
     :param world: the env's world (a name or a :class:`WorldSpec`).
     :raises ValueError: the env's observations lack ``pose``, ``imu`` or ``target``.
