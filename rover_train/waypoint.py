@@ -94,8 +94,15 @@ def waypoint_space() -> spaces.Box:
 
 
 def with_waypoint(obs: dict[str, Any], waypoints: Waypoints) -> dict[str, Any]:
-    """``obs`` with the ``waypoint`` key added (a new dict)."""
-    return {**obs, WAYPOINT_KEY: waypoints.observe(obs)}
+    """``obs`` with the ``waypoint`` key added (a new dict): ``(2,)`` for one observation,
+    ``(n, 2)`` for a batch of ``n`` (a vector env's)."""
+    pose = np.asarray(obs["pose"])
+    if pose.ndim == 1:
+        return {**obs, WAYPOINT_KEY: waypoints.observe(obs)}
+    keys = ("pose", "imu", "target")
+    rows = [waypoints.observe({k: np.asarray(obs[k])[i] for k in keys})
+            for i in range(pose.shape[0])]  # fmt: skip
+    return {**obs, WAYPOINT_KEY: np.stack(rows)}
 
 
 def observer(world: str | WorldSpec) -> Callable[[dict[str, Any]], dict[str, Any]]:

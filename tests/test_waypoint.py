@@ -16,7 +16,7 @@ from rover_env.worlds import make_world
 from rover_train import zoo
 from rover_train.evaluate import load_policy
 from rover_train.train import parse_args, train
-from rover_train.waypoint import WAYPOINT_KEY, Waypoints, WithWaypoint
+from rover_train.waypoint import WAYPOINT_KEY, Waypoints, WithWaypoint, with_waypoint
 
 MAZE = make_world("maze")
 
@@ -66,6 +66,19 @@ def test_the_waypoint_key_is_computed_from_the_observation_alone() -> None:
         assert math.cos(bearing - (math.atan2(py - y, px - x) - yaw)) == pytest.approx(1.0)
         obs, *_ = env.step(env.action_space.sample())
     env.close()
+
+
+def test_a_batch_of_observations_gets_one_waypoint_a_row() -> None:
+    env = gym.make("roverav/RoverEnvDiscrete-v0", world_n="maze")
+    singles = [env.reset(seed=s)[0] for s in (1, 2, 3)]
+    env.close()
+    batch = {k: np.stack([o[k] for o in singles]) for k in singles[0]}
+    waypoints = Waypoints("maze")
+    rows = with_waypoint(batch, waypoints)[WAYPOINT_KEY]
+    assert rows.shape == (3, 2)
+    for row, obs in zip(rows, singles, strict=True):
+        assert np.array_equal(row, with_waypoint(obs, waypoints)[WAYPOINT_KEY])
+    assert len({tuple(r) for r in rows}) == 3  # each row its own episode's
 
 
 def test_the_waypoint_needs_a_pose_to_plan_from() -> None:
