@@ -28,7 +28,7 @@ import argparse
 import json
 import logging
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,7 +44,7 @@ from rover_train.algos import ALGOS, RECURRENT, ModelAgent, algo_class
 from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
 from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
 from rover_train.recipe import RecipeError, read_recipe
-from rover_train.waypoint import WithWaypoint, observer
+from rover_train.waypoint import WithWaypoint
 from shm_protocol.names import default_name, default_slots
 
 VIDEO_PANEL = 256  # pixels per side of each video panel
@@ -103,23 +103,22 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
         except Exception as exc:  # noqa: BLE001 - try the next algorithm
             errors.append(f"{name}: {exc}")
             continue
-        observe = _waypoint_observer(model, env)
-        seen = env if observe is None else WithWaypoint(env, env.unwrapped.world)
+        seen = _with_waypoint_if_trained_so(model, env)
         check_spaces(model, loaded, seen)
-        if name in RECURRENT or observe is not None:
-            return ModelAgent(loaded, observe=observe)
+        if name in RECURRENT or seen is not env:
+            return ModelAgent(loaded, observe=None if seen is env else seen.observation)
         return lambda obs: loaded.predict(obs, deterministic=True)[0]
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
 
 
-def _waypoint_observer(model: Path, env: Any) -> Callable[[Any], Any] | None:
-    """For a model trained with ``rover-train --waypoint``: what adds the ``waypoint`` key to
-    ``env``'s observations (on ``env``'s world map); else None."""
+def _with_waypoint_if_trained_so(model: Path, env: Any) -> Any:
+    """``env`` as a model trained with ``rover-train --waypoint`` sees it (``WithWaypoint``
+    on ``env``'s world map), or ``env`` itself for any other model."""
     try:
         waypoint = read_recipe(model).get("waypoint", False)
     except RecipeError:  # a model .zip rover-train did not write
-        return None
-    return observer(env.unwrapped.world) if waypoint else None
+        return env
+    return WithWaypoint(env, env.unwrapped.world) if waypoint else env
 
 
 def run_metrics(model: Path | None) -> dict[str, Any]:

@@ -82,6 +82,34 @@ class CostToGo:
         return float(pts[k, 0]), float(pts[k, 1])
 
 
+def goal_key(goal: tuple[float, float]) -> tuple[float, float]:
+    """A goal rounded to the millimetre: the key fields are cached under."""
+    return round(float(goal[0]), 3), round(float(goal[1]), 3)
+
+
+class FieldCache:
+    """Cost-to-go fields of one grid by goal (:func:`goal_key`), computed on first use; all
+    are dropped when more than ``size`` are held."""
+
+    def __init__(self, grid: OccupancyGrid, size: int = 64) -> None:
+        self.grid = grid
+        self.size = size
+        self._fields: dict[tuple[float, float], CostToGo] = {}
+
+    def peek(self, goal: tuple[float, float]) -> CostToGo | None:
+        """The field of ``goal`` if it is held, else None (nothing is computed)."""
+        return self._fields.get(goal_key(goal))
+
+    def get(self, goal: tuple[float, float]) -> CostToGo:
+        key = goal_key(goal)
+        f = self._fields.get(key)
+        if f is None:
+            if len(self._fields) > self.size:
+                self._fields.clear()
+            f = self._fields[key] = CostToGo(self.grid, key)
+        return f
+
+
 _NEIGHBOURS = (
     (1, 0, 1.0),
     (-1, 0, 1.0),

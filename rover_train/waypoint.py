@@ -33,7 +33,7 @@ from gymnasium import spaces
 
 from rover_env.controller import wrap_angle
 from rover_env.worlds import WorldSpec, make_world
-from rover_train.navgrid import CostToGo, OccupancyGrid
+from rover_train.navgrid import FieldCache, OccupancyGrid
 
 WAYPOINT_KEY = "waypoint"
 WAYPOINT_RES = 0.2
@@ -48,7 +48,6 @@ distance, plus that)."""
 WAYPOINT_MAX_M = 5.0
 """The distance's bound in the observation space (a rover outside the map's edge is clipped)."""
 _SIGHT_SAMPLES = 21  # points checked along a line of sight (every 0.1 m at the lookahead)
-_FIELD_CACHE = 64  # goals whose fields are kept
 
 
 class Waypoints:
@@ -58,20 +57,11 @@ class Waypoints:
     def __init__(self, world: str | WorldSpec) -> None:
         self.world = make_world(world) if isinstance(world, str) else world
         self.grid = OccupancyGrid(self.world, res=WAYPOINT_RES)
-        self._fields: dict[tuple[float, float], CostToGo] = {}
-
-    def field(self, goal: tuple[float, float]) -> CostToGo:
-        key = (round(float(goal[0]), 3), round(float(goal[1]), 3))
-        f = self._fields.get(key)
-        if f is None:
-            if len(self._fields) >= _FIELD_CACHE:
-                self._fields.clear()
-            f = self._fields[key] = CostToGo(self.grid, key)
-        return f
+        self.fields = FieldCache(self.grid)
 
     def point(self, x: float, y: float, goal: tuple[float, float]) -> tuple[float, float]:
         """The map point to steer at from (x, y) towards ``goal``."""
-        return self.field(goal).pursuit_point(
+        return self.fields.get(goal).pursuit_point(
             x, y, WAYPOINT_LOOKAHEAD, WAYPOINT_SIGHT_CLEARANCE, _SIGHT_SAMPLES
         )
 

@@ -48,7 +48,14 @@ from rover_env.controller import wrap_angle
 from rover_env.rover import CAMERA_FOVY
 from rover_env.worlds import WorldSpec, make_world
 from rover_train.imitation.gaze import GazeConfig, GazePolicy
-from rover_train.navgrid import GRID_RES, HARD_CLEARANCE, CostToGo, OccupancyGrid
+from rover_train.navgrid import (
+    GRID_RES,
+    HARD_CLEARANCE,
+    CostToGo,
+    FieldCache,
+    OccupancyGrid,
+    goal_key,
+)
 
 LOOKAHEAD = 1.2  # m of planned path the pursuit point may be taken from
 SIGHT_CLEARANCE = 0.3  # m: the straight segment to the pursuit point keeps this clearance
@@ -168,7 +175,7 @@ class PlannerExpert:
         self.world = make_world(world) if isinstance(world, str) else world
         self.config = config if config is not None else ExpertConfig()
         self.grid = OccupancyGrid(self.world)
-        self._fields: dict[tuple[float, float], CostToGo] = {}
+        self._fields = FieldCache(self.grid)
         self._last_peds: np.ndarray | None = None
         self._last_time: float | None = None
         self._velocities: np.ndarray | None = None
@@ -187,15 +194,9 @@ class PlannerExpert:
         self._progress_log: list[tuple[float, float]] = []
 
     def field(self, goal: tuple[float, float]) -> CostToGo:
-        key = (round(float(goal[0]), 3), round(float(goal[1]), 3))
-        if self._detour is not None and self._detour.goal == key:
+        if self._detour is not None and self._detour.goal == goal_key(goal):
             return self._detour
-        f = self._fields.get(key)
-        if f is None:
-            if len(self._fields) > 64:
-                self._fields.clear()
-            f = self._fields[key] = CostToGo(self.grid, key)
-        return f
+        return self._fields.get(goal)
 
     def pursuit_point(self, x: float, y: float, goal: tuple[float, float]) -> tuple[float, float]:
         """The point the rover steers at: the goal when in plain sight and near, else the
@@ -273,10 +274,8 @@ class PlannerExpert:
             return
         if self._detour is not None and time > self._detour_until:
             self._detour = None
-        key = (round(float(goal[0]), 3), round(float(goal[1]), 3))
-        value = self._fields[key].value(x, y) if key in self._fields else self.field(goal).value(
-            x, y
-        )
+        plain = self._fields.peek(goal)
+        value = (plain if plain is not None else self.field(goal)).value(x, y)
         log = self._progress_log
         log.append((time, value))
         while log and log[0][0] < time - STALL_TIME:
@@ -284,7 +283,7 @@ class PlannerExpert:
         if self._detour is None and near.any() and log[0][0] <= time - STALL_TIME + 0.1:
             if log[0][1] - value < STALL_PROGRESS / self.grid.res:
                 extra = self.grid.discs_cost(peds[near], PERSONAL_SPACE, DETOUR_COST)
-                self._detour = CostToGo(self.grid, key, extra)
+                self._detour = CostToGo(self.grid, goal_key(goal), extra)
                 self._detour_until = time + DETOUR_TIME
                 log.clear()
 
