@@ -1,17 +1,21 @@
 """Inference backends for the perception network: eager torch or ONNX Runtime.
 
 :class:`~active_vision.perception.Perception` runs its network through one of these; the
-rest of the system sees only ``Perception``. Both backends own preallocated input and output
-buffers (grown when a larger batch arrives, views cached per batch size), so a frame costs
-no new array:
+rest of the system sees only ``Perception``. A backend maps camera frames to fused frames
+(:mod:`fused_image`: luminance, heatmap, depth from the network). Both own preallocated
+input and output buffers (grown when a larger batch arrives, views cached per batch size),
+so a frame costs no new array:
 
-- ``write`` the batch into :meth:`Network.input` (``(n, 3, S, S)`` float32, RGB in [0, 1]),
-- call :meth:`Network.run` and read the raw maps ``(n, 2, S, S)`` it returns (a view of the
-  backend's output buffer, overwritten by the next call).
+- write the batch into :meth:`Network.input` (``(n, S, S, 3)`` uint8 RGB),
+- call :meth:`Network.run` and read the fused frames ``(n, S, S, 3)`` float32 it returns (a
+  view of the backend's output buffer, overwritten by the next call).
 
-``torch`` (:class:`TorchNetwork`) runs the module in eager mode on a channels-last input.
-``onnx`` (:class:`OnnxNetwork`) runs the ONNX export (:mod:`active_vision.onnx_export`) in
-ONNX Runtime's CPU provider with I/O bound to the buffers (``run_with_iobinding``):
+``torch`` (:class:`TorchNetwork`) runs the module in eager mode on a channels-last input,
+with the conversions around it in torch. ``onnx`` (:class:`OnnxNetwork`) runs the ONNX
+export (:mod:`active_vision.onnx_export`), which holds the conversions as graph nodes, in
+ONNX Runtime's CPU provider with I/O bound to the buffers (``run_with_iobinding``): one
+call a batch and no other array operation (0.1 ms a frame less than the same conversions
+in torch around the network, benchmarks/RESULTS.md);
 ``intra_op_num_threads`` is the thread count, and the pool waits passively (no spinning),
 for the same reason ``active_vision`` sets ``OMP_WAIT_POLICY=PASSIVE`` for torch.
 ``auto`` (:func:`resolve_backend`) is ``onnx`` when ``onnxruntime`` imports and the export is
@@ -37,6 +41,9 @@ import numpy as np
 import torch
 from torch import nn
 
+from active_vision.models import HEAD_DEPTH, HEAD_HEATMAP, log_depth_to_channel
+from fused_image import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP, LUMA_WEIGHTS
+
 logger = logging.getLogger(__name__)
 
 BackendName = Literal["auto", "onnx", "torch"]
@@ -48,8 +55,6 @@ DEFAULT_PRECISION: Precision = "int8"
 in every world, and about 2x faster on one thread (benchmarks/precision_speed.py)."""
 _INT8_CPU_FLAGS = ("avx512_vnni", "avx_vnni", "asimddp")
 """/proc/cpuinfo flags of int8 dot-product instructions (x86 VNNI, Arm dot product)."""
-RAW_CHANNELS = 2
-"""Channels of the network's raw output (heatmap logit, log depth)."""
 
 
 class BackendError(RuntimeError):
@@ -63,12 +68,13 @@ class Network(Protocol):
     precision: str
     """``fp32`` or ``int8``: what the network computes in."""
 
-    def input(self, n: int) -> torch.Tensor:
-        """Writable ``(n, 3, S, S)`` float32 input buffer for a batch of ``n``."""
+    def input(self, n: int) -> np.ndarray:
+        """Writable ``(n, S, S, 3)`` uint8 input buffer (RGB frames) for a batch of ``n``."""
         ...
 
-    def run(self, n: int) -> torch.Tensor:
-        """Run on the first ``n`` inputs; raw maps ``(n, 2, S, S)`` (reused buffer)."""
+    def run(self, n: int) -> np.ndarray:
+        """Run on the first ``n`` inputs; fused frames ``(n, S, S, 3)`` float32 in [0, 1]
+        (a view of a reused buffer)."""
         ...
 
 
@@ -102,7 +108,9 @@ def cpu_int8_support(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[bool, str]:
 
 
 class TorchNetwork:
-    """Eager torch backend: the module on a channels-last view of an NHWC buffer."""
+    """Eager torch backend: uint8 -> float and the luminance into planes, the module on a
+    channels-last view, sigmoid and the depth conversion into the planes, one interleaving
+    copy into the fused frames (elementwise ops on strided outputs cost twice as much)."""
 
     name = "torch"
     precision = "fp32"
@@ -110,35 +118,57 @@ class TorchNetwork:
     def __init__(self, model: nn.Module, size: int, capacity: int = 1) -> None:
         self.model = model.eval().to(memory_format=torch.channels_last)
         self.size = size
-        self._views: dict[int, torch.Tensor] = {}
+        self._views: dict[int, tuple[torch.Tensor, ...]] = {}
         self._allocate(max(1, capacity))
 
     def _allocate(self, n: int) -> None:
         s = self.size
         self._capacity = n
+        self._frames = np.empty((n, s, s, 3), dtype=np.uint8)
         # NHWC storage: permuted to NCHW it is a channels_last tensor for the convolutions.
         self._nhwc = torch.empty((n, s, s, 3), dtype=torch.float32)
+        self._planes = torch.empty((n, 3, s, s), dtype=torch.float32)
+        self._out = np.empty((n, s, s, 3), dtype=np.float32)
         self._views = {}
 
-    def input(self, n: int) -> torch.Tensor:
+    def input(self, n: int) -> np.ndarray:
         if n > self._capacity:
             self._allocate(n)
-        view = self._views.get(n)
-        if view is None:
-            view = self._views[n] = self._nhwc[:n].permute(0, 3, 1, 2)
-        return view
+        return self._frames[:n]
+
+    def _views_for(self, n: int) -> tuple[torch.Tensor, ...]:
+        v = self._views.get(n)
+        if v is None:
+            planes = self._planes[:n]
+            v = self._views[n] = (
+                torch.from_numpy(self._frames[:n]).permute(0, 3, 1, 2),
+                self._nhwc[:n].permute(0, 3, 1, 2), planes, planes.permute(0, 2, 3, 1),
+                torch.from_numpy(self._out[:n]))
+        return v
 
     @torch.inference_mode()
-    def run(self, n: int) -> torch.Tensor:
-        return self.model(self.input(n))
+    def run(self, n: int) -> np.ndarray:
+        self.input(n)
+        u8, x, planes, planes_nhwc, out = self._views_for(n)
+        x.copy_(u8)
+        gray = planes[:, CHANNEL_GRAY]
+        torch.mul(x[:, 0], LUMA_WEIGHTS[0] / 255.0, out=gray)
+        gray.add_(x[:, 1], alpha=LUMA_WEIGHTS[1] / 255.0)
+        gray.add_(x[:, 2], alpha=LUMA_WEIGHTS[2] / 255.0)
+        x.mul_(1.0 / 255.0)
+        raw = self.model(x)
+        torch.sigmoid(raw[:, HEAD_HEATMAP], out=planes[:, CHANNEL_HEATMAP])
+        log_depth_to_channel(raw[:, HEAD_DEPTH], out=planes[:, CHANNEL_DEPTH])
+        out.copy_(planes_nhwc)
+        return self._out[:n]
 
 
 class OnnxNetwork:
     """ONNX Runtime backend (CPU provider) with inputs and outputs bound to numpy buffers.
 
-    :param path: the ``.onnx`` file (one float32 input ``(batch, 3, S, S)``, one output;
-        an int8 model quantizes and dequantizes inside, so its input and output are float32
-        too).
+    :param path: the ``.onnx`` file (:mod:`active_vision.onnx_export`): one uint8 input
+        ``(batch, S, S, 3)``, one float32 output ``(batch, S, S, 3)``; an int8 model
+        quantizes and dequantizes inside, so its input and output are the same.
     :param threads: ``intra_op_num_threads``.
     :param precision: what the file holds (``fp32`` or ``int8``), for the log and readers.
     :raises BackendError: ``onnxruntime`` is missing or the file cannot be loaded.
@@ -178,6 +208,14 @@ class OnnxNetwork:
                 f"({[i.name for i in inputs]}) and {len(outputs)} outputs; this backend "
                 "feeds one frame batch. Re-export it with active_vision.onnx_export."
             )
+        shape = [inputs[0].type, outputs[0].type, *inputs[0].shape[1:], *outputs[0].shape[1:]]
+        if shape != ["tensor(uint8)", "tensor(float)", size, size, 3, size, size, 3]:
+            raise BackendError(
+                f"{path}: expected uint8 frames (batch, {size}, {size}, 3) in and fused frames "
+                f"out, found {inputs[0].type} {inputs[0].shape} -> {outputs[0].type} "
+                f"{outputs[0].shape} (an export of another version or size). Delete it so it "
+                "is exported again (python -m active_vision.onnx_export), or use --backend "
+                "torch.")
         self._in_name, self._out_name = inputs[0].name, outputs[0].name
         self.path = Path(path)
         self.size = size
@@ -188,30 +226,28 @@ class OnnxNetwork:
     def _allocate(self, n: int) -> None:
         s = self.size
         self._capacity = n
-        self._in = np.empty((n, 3, s, s), dtype=np.float32)
-        self._out = np.empty((n, RAW_CHANNELS, s, s), dtype=np.float32)
-        self._in_t = torch.from_numpy(self._in)
-        self._out_t = torch.from_numpy(self._out)
-        self._bound: dict[int, tuple[object, torch.Tensor, torch.Tensor]] = {}
+        self._in = np.empty((n, s, s, 3), dtype=np.uint8)
+        self._out = np.empty((n, s, s, 3), dtype=np.float32)
+        self._bound: dict[int, tuple[object, np.ndarray, np.ndarray]] = {}
 
-    def _binding(self, n: int) -> tuple[object, torch.Tensor, torch.Tensor]:
+    def _binding(self, n: int) -> tuple[object, np.ndarray, np.ndarray]:
         if n > self._capacity:
             self._allocate(n)
         entry = self._bound.get(n)
         if entry is None:
             s = self.size
             binding = self.session.io_binding()
-            binding.bind_input(self._in_name, "cpu", 0, np.float32, (n, 3, s, s),
+            binding.bind_input(self._in_name, "cpu", 0, np.uint8, (n, s, s, 3),
                                self._in.ctypes.data)
-            binding.bind_output(self._out_name, "cpu", 0, np.float32,
-                                (n, RAW_CHANNELS, s, s), self._out.ctypes.data)
-            entry = self._bound[n] = (binding, self._in_t[:n], self._out_t[:n])
+            binding.bind_output(self._out_name, "cpu", 0, np.float32, (n, s, s, 3),
+                                self._out.ctypes.data)
+            entry = self._bound[n] = (binding, self._in[:n], self._out[:n])
         return entry
 
-    def input(self, n: int) -> torch.Tensor:
+    def input(self, n: int) -> np.ndarray:
         return self._binding(n)[1]
 
-    def run(self, n: int) -> torch.Tensor:
+    def run(self, n: int) -> np.ndarray:
         binding, _, out = self._binding(n)
         self.session.run_with_iobinding(binding)
         return out

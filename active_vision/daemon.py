@@ -24,8 +24,8 @@ Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flu
    log line, see :mod:`active_vision.backends`);
 3. publishes each fused frame into its slot's segment with ``source_seq`` = the camera
    frame's ``seq`` (the env waits on that with ``FrameReader.wait_for``);
-4. refreshes the fused segments' heartbeat while idle, and logs per-stage timings (gray,
-   heatmap+depth, publish) every ``--log-every`` frames.
+4. refreshes the fused segments' heartbeat while idle, and logs per-stage timings (input,
+   network, publish) every ``--log-every`` frames.
 
 Every slot keeps its own history of its last ``K`` (5) fused detection frames
 (:class:`~active_vision.history.SlotHistory`), cleared when a camera frame carries the
@@ -338,10 +338,10 @@ class Daemon:
                 pub = 1e3 * publish_s / max(tm.frames, 1)
                 wall = time.perf_counter() - t_log
                 logger.info(
-                    "%d frames in %d batches (%.2f/batch): gray %.3f ms/frame, heatmap+depth "
+                    "%d frames in %d batches (%.2f/batch): input %.3f ms/frame, network "
                     "%.3f, publish %.3f, total %.3f; %.1f frames/s",
-                    tm.frames, tm.batches, tm.frames / max(tm.batches, 1), ms["gray"],
-                    ms["heatmap+depth"], pub, ms["gray"] + ms["heatmap+depth"] + pub,
+                    tm.frames, tm.batches, tm.frames / max(tm.batches, 1), ms["input"],
+                    ms["network"], pub, ms["input"] + ms["network"] + pub,
                     tm.frames / wall if wall > 0 else 0.0,
                 )
                 tm.reset()

@@ -5,15 +5,16 @@
 ``docs/architecture.md``) into fused frames ``(N, S, S, 3)`` float32 in [0, 1], channels
 indexed by ``fused_image.CHANNEL_GRAY`` / ``CHANNEL_HEATMAP`` / ``CHANNEL_DEPTH``:
 
-- gray: ITU-R BT.601 luminance ``0.299 R + 0.587 G + 0.114 B`` (what OpenCV's
-  ``COLOR_RGB2GRAY`` computes), divided by 255;
+- gray: ITU-R BT.601 luminance ``0.299 R + 0.587 G + 0.114 B`` (``fused_image.LUMA_WEIGHTS``,
+  what OpenCV's ``COLOR_RGB2GRAY`` computes), divided by 255;
 - heatmap: the :class:`~active_vision.models.AVNet` heatmap head (sigmoid);
 - depth: the AVNet depth head (default), or with ``depth="render"`` the frame's fourth
   channel divided by 255 (the renderer's true depth, already in the depth convention).
 
-All N frames go through the network in one forward pass, in eager torch or ONNX Runtime
-(``backend``, see :mod:`active_vision.backends`), with buffers and their views allocated
-once and reused (they grow if a larger batch arrives).
+All N frames go through the backend in one call, eager torch or ONNX Runtime (``backend``,
+see :mod:`active_vision.backends`): it turns uint8 frames into fused frames, conversions
+included (in ONNX Runtime they are nodes of the exported graph). Buffers are allocated once
+and reused (they grow if a larger batch arrives).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, NamedTuple
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -36,20 +37,13 @@ from active_vision.backends import (
     TorchNetwork,
     resolve_backend,
 )
-from active_vision.models import (
-    HEAD_DEPTH,
-    HEAD_HEATMAP,
-    AVNet,
-    load_model,
-    log_depth_to_channel,
-)
-from fused_image import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP, FUSED_SIZE
+from active_vision.models import AVNet, load_model
+from fused_image import CHANNEL_DEPTH, FUSED_SIZE, LUMA_WEIGHTS
 
 logger = logging.getLogger(__name__)
 
 DepthSource = Literal["model", "render"]
-#: BT.601 luma weights, scaled so uint8 RGB maps to gray in [0, 1].
-_LUMA = (0.299 / 255.0, 0.587 / 255.0, 0.114 / 255.0)
+_INV255 = np.float32(1.0 / 255.0)
 
 
 @dataclass
@@ -81,35 +75,25 @@ class PerceptionConfig:
 class StageTimes:
     """Accumulated wall time per stage (seconds) and the number of frames processed."""
 
-    gray: float = 0.0
+    input: float = 0.0
+    """Checking the frames and writing them into the backend's input (resized if needed)."""
     network: float = 0.0
+    """The backend's call: uint8 frames to fused frames (conversions and the network)."""
     frames: int = 0
     batches: int = 0
     extra: dict[str, float] = field(default_factory=dict)
 
     def reset(self) -> None:
-        self.gray = self.network = 0.0
+        self.input = self.network = 0.0
         self.frames = self.batches = 0
         self.extra.clear()
 
     def per_frame_ms(self) -> dict[str, float]:
-        """Milliseconds per frame for each stage (``gray``, ``heatmap+depth``, extras)."""
+        """Milliseconds per frame for each stage (``input``, ``network``, extras)."""
         n = max(self.frames, 1)
-        out = {"gray": 1e3 * self.gray / n, "heatmap+depth": 1e3 * self.network / n}
+        out = {"input": 1e3 * self.input / n, "network": 1e3 * self.network / n}
         out.update({k: 1e3 * v / n for k, v in self.extra.items()})
         return out
-
-
-class _Views(NamedTuple):
-    """Tensor views for one batch size, made once and reused by every call of that size."""
-
-    x: torch.Tensor  # network input (n, 3, S, S)
-    gray: torch.Tensor  # planes[:, CHANNEL_GRAY]
-    heat: torch.Tensor  # planes[:, CHANNEL_HEATMAP]
-    depth: torch.Tensor  # planes[:, CHANNEL_DEPTH]
-    planes_nhwc: torch.Tensor  # planes (n, 3, S, S) seen as (n, S, S, 3)
-    out_t: torch.Tensor  # (n, S, S, 3) output tensor
-    out: np.ndarray  # the same memory, what __call__ returns
 
 
 class Perception:
@@ -155,7 +139,6 @@ class Perception:
                     f" ({onnx_path.name})" if onnx_path is not None else "")
         self.timings = StageTimes()
         self._capacity = 0
-        self._views: dict[int, _Views] = {}
         self._allocate(capacity)
 
     def _onnx_network(self, path: Path, precision: str, capacity: int) -> OnnxNetwork:
@@ -189,28 +172,12 @@ class Perception:
         return self.net.precision
 
     def _allocate(self, n: int) -> None:
-        s = self.config.size
         self._capacity = n
-        self._resized = np.empty((n, s, s, 4), dtype=np.uint8)
-        # Each channel is computed into a contiguous plane (elementwise ops on strided
-        # outputs cost twice as much), then one interleaving copy makes the fused frame.
-        self._planes = torch.empty((n, 3, s, s), dtype=torch.float32)
-        self._out = np.empty((n, s, s, 3), dtype=np.float32)
-        self._out_t = torch.from_numpy(self._out)
-        self._views = {}
-        self.net.input(n)  # grows the backend's buffers too
+        self.net.input(n)  # grows the backend's buffers
 
-    def _views_for(self, n: int) -> _Views:
-        v = self._views.get(n)
-        if v is None:
-            planes = self._planes[:n]
-            v = self._views[n] = _Views(
-                self.net.input(n), planes[:, CHANNEL_GRAY], planes[:, CHANNEL_HEATMAP],
-                planes[:, CHANNEL_DEPTH], planes.permute(0, 2, 3, 1), self._out_t[:n],
-                self._out[:n])
-        return v
-
-    def _input(self, frames: np.ndarray) -> np.ndarray:
+    def _input(self, frames: np.ndarray) -> tuple[int, np.ndarray | None]:
+        """Write ``frames`` into the backend's input; the batch size, and the renderer's
+        depth plane ``(n, S, S)`` uint8 when ``depth="render"``."""
         if frames.ndim == 3:
             frames = frames[None]
         if frames.ndim != 4 or frames.shape[-1] not in (3, 4) or frames.dtype != np.uint8:
@@ -228,14 +195,12 @@ class Perception:
             logger.debug("growing perception buffers from %d to %d frames", self._capacity, n)
             self._allocate(n)
         s = self.config.size
-        if (h, w) == (s, s):
-            return frames
-        out = self._resized[:n, :, :, :c]
-        for i in range(n):
-            out[i] = cv2.resize(frames[i], (s, s), interpolation=cv2.INTER_AREA).reshape(s, s, c)
-        return out
+        if (h, w) != (s, s):
+            frames = np.stack([cv2.resize(f, (s, s), interpolation=cv2.INTER_AREA)
+                               .reshape(s, s, c) for f in frames])
+        self.net.input(n)[...] = frames[..., :3]
+        return n, (frames[..., 3] if self.config.depth == "render" else None)
 
-    @torch.inference_mode()
     def __call__(self, frames: np.ndarray) -> np.ndarray:
         """Fused frames ``(N, S, S, 3)`` float32 for uint8 ``frames`` ``(N, H, W, 3|4)``.
 
@@ -243,39 +208,23 @@ class Perception:
         Copy it if you keep it.
         """
         t0 = time.perf_counter()
-        frames = self._input(np.asarray(frames))
-        n = frames.shape[0]
-        v = self._views_for(n)
-        u8 = torch.from_numpy(frames if frames.flags.c_contiguous else np.ascontiguousarray(frames))
-        x = v.x
-        # uint8 -> float straight into the network's input buffer (NCHW view), then the
-        # BT.601 luminance from its three planes and the [0, 1] scaling, all in place.
-        x.copy_(u8[..., :3].permute(0, 3, 1, 2))
-        gray = v.gray
-        torch.mul(x[:, 0], _LUMA[0], out=gray)
-        gray.add_(x[:, 1], alpha=_LUMA[1]).add_(x[:, 2], alpha=_LUMA[2])
-        if self.config.depth == "render":
-            v.depth.copy_(u8[..., 3])
-            v.depth.mul_(1.0 / 255.0)
-        x.mul_(1.0 / 255.0)
+        n, render_depth = self._input(np.asarray(frames))
         t1 = time.perf_counter()
-        raw = self.net.run(n)
-        torch.sigmoid(raw[:, HEAD_HEATMAP], out=v.heat)
-        if self.config.depth == "model":
-            log_depth_to_channel(raw[:, HEAD_DEPTH], out=v.depth)
-        v.out_t.copy_(v.planes_nhwc)
+        out = self.net.run(n)
+        if render_depth is not None:
+            np.multiply(render_depth, _INV255, out=out[..., CHANNEL_DEPTH])
         t2 = time.perf_counter()
-        self.timings.gray += t1 - t0
+        self.timings.input += t1 - t0
         self.timings.network += t2 - t1
         self.timings.frames += n
         self.timings.batches += 1
-        return v.out
+        return out
 
 
 def gray_of(frames: np.ndarray) -> np.ndarray:
     """Reference grayscale (float32 in [0, 1]) of uint8 RGB frames ``(..., 3)``."""
     rgb = np.asarray(frames)[..., :3].astype(np.float32)
-    return rgb @ np.asarray(_LUMA, dtype=np.float32)
+    return rgb @ (np.asarray(LUMA_WEIGHTS, dtype=np.float32) * _INV255)
 
 
 __all__ = ["DepthSource", "Perception", "PerceptionConfig", "StageTimes", "gray_of"]

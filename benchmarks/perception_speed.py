@@ -9,8 +9,8 @@ What runs:
 1. ``Perception`` (the daemon's code path, shipped weights, all three channels, depth from
    the network) on uint8 96x96 frames: the median over ``repeats`` runs of ``iters``
    calls (and the best run, which is what the code costs when the shared machine is quiet),
-   split into the stages the daemon logs (gray = uint8->float + luminance,
-   heatmap+depth = the network and the copy into the fused buffer).
+   split into the stages the daemon logs (input = checking the frames and copying them into
+   the backend's buffer, network = the backend's call: uint8 frames to fused frames).
 2. The daemon end to end: ``python -m active_vision`` in a subprocess; this process plays the
    env (publishes camera frames, waits for each fused frame by ``source_seq``), with 1 slot
    in lock step and with 8 slots (8 frames published, then 8 waited for).
@@ -376,19 +376,19 @@ def main(argv: list[str] | None = None) -> int:
           f"{torch.__version__}")
     print(f"perception backend: {Perception(PerceptionConfig(backend=args.backend)).backend}")
     print()
-    print("| configuration | gray | heatmap+depth | total ms/frame (best run) | frames/s |")
+    print("| configuration | input | network | total ms/frame (best run) | frames/s |")
     print("|---|---:|---:|---:|---:|")
     for threads in (1, 2):
         for batch in (1, 8):
             r = bench_perception(threads, batch, args)
             print(f"| Perception batch {batch}, {threads} thread{'s' if threads > 1 else ''} "
-                  f"| {r['gray']:.3f} | {r['heatmap+depth']:.3f} | {r['total']:.3f} "
+                  f"| {r['input']:.3f} | {r['network']:.3f} | {r['total']:.3f} "
                   f"({r['best']:.3f}) | {1e3 / r['total']:.0f} |")
     for w in args.weights:
         for batch in (1, 8):
             r = bench_perception(1, batch, args, weights=w)
-            print(f"| {w.name}: Perception batch {batch}, 1 thread | {r['gray']:.3f} | "
-                  f"{r['heatmap+depth']:.3f} | {r['total']:.3f} ({r['best']:.3f}) | "
+            print(f"| {w.name}: Perception batch {batch}, 1 thread | {r['input']:.3f} | "
+                  f"{r['network']:.3f} | {r['total']:.3f} ({r['best']:.3f}) | "
                   f"{1e3 / r['total']:.0f} |")
     if args.daemon:
         for slots in (1, 8):

@@ -33,7 +33,9 @@ FUSED_DTYPE: np.dtype[Any] = np.dtype("<f4")
 """The fused image's dtype: little-endian float32."""
 
 CHANNEL_GRAY = 0
-"""Luminance of the camera frame, in [0, 1]."""
+"""Luminance of the camera frame, in [0, 1]: ``LUMA_WEIGHTS`` over its RGB, divided by 255."""
+LUMA_WEIGHTS: tuple[float, float, float] = (0.299, 0.587, 0.114)
+"""ITU-R BT.601 luminance weights of R, G, B (what OpenCV's ``COLOR_RGB2GRAY`` uses)."""
 CHANNEL_HEATMAP = 1
 """Pedestrian heatmap, in [0, 1] (the reward reads this channel). Seed 001 calls channel 1
 depth; seeds 000 and 002 and the reward's use of it as the heatmap settle it."""
@@ -74,6 +76,7 @@ __all__ = [
     "FUSED_DTYPE",
     "FUSED_SHAPE",
     "FUSED_SIZE",
+    "LUMA_WEIGHTS",
     "channel_to_depth",
     "depth_to_channel",
 ]

@@ -16,9 +16,16 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
 
-from active_vision.backends import BackendError, OnnxNetwork  # noqa: E402
-from active_vision.models import DEFAULT_WEIGHTS, AVNet, AVNetConfig, save_weights  # noqa: E402
+from active_vision.backends import BackendError, OnnxNetwork, TorchNetwork  # noqa: E402
+from active_vision.models import (  # noqa: E402
+    DEFAULT_WEIGHTS,
+    AVNet,
+    AVNetConfig,
+    load_model,
+    save_weights,
+)
 from active_vision.onnx_export import (  # noqa: E402
+    export_network,
     onnx_file_for,
     onnx_file_name,
     write_export_beside,
@@ -82,19 +89,29 @@ def test_other_weights_are_exported_once_into_the_cache(tmp_path: Path) -> None:
     stamp = path.stat().st_mtime_ns
     assert onnx_file_for(weights, 64, cache_dir=cache) == path
     assert path.stat().st_mtime_ns == stamp  # found, not exported again
+    # uint8 frames in, fused frames out, any batch: batch 3 through the export equals the
+    # torch backend on the same weights file (the file holds fp16-rounded weights)
+    net = OnnxNetwork(path, 64, threads=1, capacity=3)
+    ref = TorchNetwork(load_model(weights), 64, capacity=3)
+    frames = np.random.default_rng(3).integers(0, 256, (3, 64, 64, 3), dtype=np.uint8)
+    net.input(3)[...] = frames
+    ref.input(3)[...] = frames
+    got, want = net.run(3), ref.run(3)
+    assert got.shape == (3, 64, 64, 3) and got.dtype == np.float32
+    assert np.abs(got - want).max() <= TOLERANCE
     # a changed weights file gets another name: the old export is never reused
     save_weights(AVNet(AVNetConfig(widths=(8, 16, 24, 32))), weights)
     assert onnx_file_name(weights, 64) != path.name
-    # dynamic batch axis: batch 3 through the export equals torch
-    net = OnnxNetwork(path, 64, threads=1, capacity=3)
-    x = torch.rand(3, 3, 64, 64)
-    net.input(3).copy_(x)
-    with torch.inference_mode():
-        ref = model.fuse_for_inference()(x)
-    got = net.run(3)
-    assert got.shape == (3, 2, 64, 64)
-    # the file holds fp16-rounded weights (save_weights), the model in memory does not
-    assert torch.allclose(got, ref, atol=5e-2)
+
+
+def test_a_file_of_another_export_version_is_refused_with_the_fix(tmp_path: Path) -> None:
+    weights = save_weights(AVNet(AVNetConfig(widths=(8, 16, 24, 32))).eval(),
+                           tmp_path / "small.pt")
+    old = export_network(weights, 32, tmp_path / "network.onnx")  # float in, raw maps out
+    with pytest.raises(BackendError, match="exported again"):
+        OnnxNetwork(old, 32)
+    with pytest.raises(BackendError, match="exported again"):  # right version, wrong size
+        OnnxNetwork(onnx_file_for(weights, 64, cache_dir=tmp_path / "cache"), 32)
 
 
 def test_onnx_thread_count_is_honoured_and_does_not_spin() -> None:

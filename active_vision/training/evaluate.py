@@ -67,12 +67,7 @@ import numpy as np
 
 from active_vision.backends import PRECISIONS, BackendError
 from active_vision.models import MIN_DEPTH_M, AVNet, load_model
-from active_vision.perception import (
-    CHANNEL_DEPTH,
-    CHANNEL_HEATMAP,
-    Perception,
-    PerceptionConfig,
-)
+from active_vision.perception import Perception, PerceptionConfig
 from active_vision.training.dataset import (
     DEFAULT_DATA_DIR,
     SPLIT_SEEDS,
@@ -81,7 +76,7 @@ from active_vision.training.dataset import (
     DatasetConfig,
     build,
 )
-from fused_image import DEPTH_MAX_M, channel_to_depth
+from fused_image import CHANNEL_DEPTH, CHANNEL_HEATMAP, DEPTH_MAX_M, channel_to_depth
 from rover_env.pedestrians import PEDESTRIAN_MODES
 
 logger = logging.getLogger(__name__)

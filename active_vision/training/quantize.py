@@ -1,8 +1,10 @@
 """The int8 model of the perception network: static quantization of its ONNX export.
 
-``python -m active_vision.training.quantize [--weights PATH]`` quantizes the fp32 export of
-the weights (:mod:`active_vision.onnx_export`) with ONNX Runtime's ``quantize_static`` and
-writes it beside the export as ``<weights stem>-<sha256, 16 hex>-s<side>-x<version>.int8.onnx``
+``python -m active_vision.training.quantize [--weights PATH]`` exports the network of the
+weights (:func:`active_vision.onnx_export.export_network`), quantizes it with ONNX Runtime's
+``quantize_static``, wraps it in the same float32 frame-to-fused-frame conversions as the
+fp32 export (:func:`active_vision.onnx_export.fuse_pre_post`) and writes it beside the
+export as ``<weights stem>-<sha256, 16 hex>-s<side>-x<version>.int8.onnx``
 (:func:`active_vision.onnx_export.int8_file_name`), removing older int8 files of the same
 stem and side there. The daemon runs it with ``--precision int8``
 (:mod:`active_vision.backends`).
@@ -47,8 +49,9 @@ from active_vision.models import DEFAULT_WEIGHTS
 from active_vision.onnx_export import (
     INPUT_NAME,
     INT8_SUFFIX,
+    export_network,
+    fuse_file,
     int8_file_name,
-    onnx_file_for,
 )
 from active_vision.training.dataset import DEFAULT_DATA_DIR
 from fused_image import FUSED_SIZE
@@ -172,7 +175,8 @@ def head_nodes(model_path: Path) -> list[str]:
 
 def quantize_file(fp32: Path, out: Path, frames: np.ndarray,
                   config: QuantizeRecipe | None = None) -> Path:
-    """Quantize the fp32 ONNX file ``fp32`` into ``out`` (written atomically), calibrated on
+    """Quantize the fp32 ONNX file ``fp32`` of the network (float input, raw maps out: not
+    the wrapped file the backend runs) into ``out`` (written atomically), calibrated on
     ``frames`` (float32 ``(n, 3, S, S)`` in [0, 1]), with the recipe in its metadata.
 
     :raises QuantizeError: onnxruntime's quantization tools are missing or failed.
@@ -217,9 +221,12 @@ def quantize_file(fp32: Path, out: Path, frames: np.ndarray,
 def write_int8_beside(weights: Path = DEFAULT_WEIGHTS, size: int = FUSED_SIZE[0],
                       out_dir: Path | None = None, data_dir: Path = DEFAULT_DATA_DIR,
                       config: QuantizeRecipe | None = None) -> Path:
-    """Quantize the export of ``weights`` (exported first if needed), calibrated on the
-    validation split, into ``out_dir`` (default: beside the weights) under its versioned
-    name, and remove older int8 files of the same stem and side there."""
+    """Quantize the network of ``weights``, calibrated on the validation split, wrap it
+    (:func:`~active_vision.onnx_export.fuse_pre_post`) into ``out_dir`` (default: beside the
+    weights) under its versioned name, and remove older int8 files of the same stem and side
+    there."""
+    import tempfile
+
     from active_vision.training.evaluate import heldout
 
     cfg = config or QuantizeRecipe()
@@ -230,7 +237,10 @@ def write_int8_beside(weights: Path = DEFAULT_WEIGHTS, size: int = FUSED_SIZE[0]
         raise QuantizeError(f"validation frames are {val.rgb.shape[1]} px, the model {size} px")
     frames = calibration_frames(val.rgb, cfg.calibration_frames, cfg.seed)
     path = out_dir / int8_file_name(weights, size)
-    quantize_file(onnx_file_for(weights, size), path, frames, cfg)
+    with tempfile.TemporaryDirectory() as tmp:
+        network = export_network(weights, size, Path(tmp) / "network.onnx")
+        quantized = quantize_file(network, Path(tmp) / "network.int8.onnx", frames, cfg)
+        fuse_file(quantized, path, size)
     for old in out_dir.glob(f"{weights.stem}-*-s{size}-x*{INT8_SUFFIX}"):
         if old != path:
             old.unlink()
