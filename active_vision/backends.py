@@ -55,6 +55,8 @@ DEFAULT_PRECISION: Precision = "int8"
 in every world, and about 2x faster on one thread (benchmarks/precision_speed.py)."""
 _INT8_CPU_FLAGS = ("avx512_vnni", "avx_vnni", "asimddp")
 """/proc/cpuinfo flags of int8 dot-product instructions (x86 VNNI, Arm dot product)."""
+_INT8_DISABLED_OPTIMIZERS = ("NchwcTransformer",)
+"""ONNX Runtime graph passes left out for the int8 model (see :class:`OnnxNetwork`)."""
 
 
 class BackendError(RuntimeError):
@@ -193,9 +195,14 @@ class OnnxNetwork:
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         opts.log_severity_level = 3
+        # The int8 model runs its quantized convolutions in ORT's NHWC int8 kernels; the
+        # NCHWc layout pass only re-lays out the fp32 head and the Resizes around them, with
+        # a reorder each way, and costs 10-30 % of the int8 model's time (RESULTS.md).
+        disabled = list(_INT8_DISABLED_OPTIMIZERS) if precision == "int8" else []
         try:
             self.session = ort.InferenceSession(str(path), opts,
-                                                providers=["CPUExecutionProvider"])
+                                                providers=["CPUExecutionProvider"],
+                                                disabled_optimizers=disabled)
         except Exception as exc:  # ORT raises its own Fail/InvalidGraph types
             raise BackendError(
                 f"ONNX Runtime cannot load {path} ({type(exc).__name__}: {exc}). Delete the "

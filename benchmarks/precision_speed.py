@@ -2,22 +2,19 @@
 thread, and the held-out figures per world of each precision.
 
     PYTHONPATH=. .venv/bin/python benchmarks/precision_speed.py [--precision fp32,int8]
-        [--repeats 7] [--iters 200] [--no-quality] [--openvino]
+        [--repeats 7] [--iters 200] [--no-quality]
 
 What runs:
 
 1. :class:`~active_vision.perception.Perception` (the daemon's code path, shipped weights,
    ONNX Runtime, ``threads=1``) once per precision, on uint8 96x96 rendered-like frames
-   (random bytes: the network's cost does not depend on them). The precisions are timed
+   (random bytes: the network's cost does not depend on them); a call is one ONNX Runtime
+   run of the export, uint8 frames to fused frames. The precisions are timed
    **interleaved**: each repeat times ``iters`` calls of every precision in turn, so a
    change in the shared machine's load falls on all of them; the table gives the median
    ms/frame over the repeats and each one's speed-up over the first precision, computed
    per repeat and then the median.
-2. With ``--openvino`` (when ``import openvino`` works; it is not a dependency), the network
-   alone in OpenVINO's CPU plugin beside ONNX Runtime's network alone, interleaved the same
-   way: the fp32 export, the fp32 export with the bf16 inference hint (AMX), and the int8
-   QDQ model.
-3. Unless ``--no-quality``: ``active_vision.training.evaluate`` on the held-out split at each
+2. Unless ``--no-quality``: ``active_vision.training.evaluate`` on the held-out split at each
    precision (per world: IoU, recall, false-positive rate, AbsRel, delta1) and the int8
    minus fp32 differences against the tolerances of issue 40 (0.01 IoU/recall, 0.005
    AbsRel/delta1).
@@ -86,35 +83,6 @@ def perception_runners(precisions: list[str], batch: int) -> dict[str, object]:
     return out
 
 
-def network_runners(batch: int) -> dict[str, object]:
-    """The network alone: ONNX Runtime fp32/int8 and OpenVINO fp32/bf16/int8."""
-    import openvino as ov
-
-    from active_vision.backends import OnnxNetwork
-    from active_vision.onnx_export import int8_file_for, onnx_file_for
-
-    fp32, int8 = onnx_file_for(), int8_file_for()
-    assert int8 is not None, "no int8 model: python -m active_vision.training.quantize"
-    x = np.random.default_rng(0).random((batch, 3, 96, 96), dtype=np.float32)
-    out: dict[str, object] = {}
-    for name, path, prec in (("ORT fp32", fp32, "fp32"), ("ORT int8", int8, "int8")):
-        net = OnnxNetwork(path, 96, threads=1, capacity=batch, precision=prec)  # type: ignore[arg-type]
-        net.input(batch).copy_(__import__("torch").from_numpy(x))
-        out[name] = (lambda net=net: net.run(batch))
-    core = ov.Core()
-    for name, path, hint in (("OpenVINO fp32", fp32, "f32"), ("OpenVINO bf16", fp32, "bf16"),
-                             ("OpenVINO int8 (QDQ)", int8, "f32")):
-        model = core.read_model(str(path))
-        model.reshape({0: [batch, 3, 96, 96]})
-        compiled = core.compile_model(model, "CPU", {
-            "INFERENCE_NUM_THREADS": 1, "NUM_STREAMS": 1, "PERFORMANCE_HINT": "LATENCY",
-            "INFERENCE_PRECISION_HINT": hint})
-        req = compiled.create_infer_request()
-        req.set_input_tensor(ov.Tensor(x))
-        out[name] = req.infer
-    return out
-
-
 def quality(precisions: list[str]) -> None:
     from active_vision.models import load_model
     from active_vision.training.evaluate import evaluate, heldout
@@ -152,8 +120,6 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", type=int, default=200, help="calls per repeat at batch 1 "
                    "(batch 8: a quarter)")
     p.add_argument("--no-quality", action="store_true")
-    p.add_argument("--openvino", action="store_true",
-                   help="also time the network in OpenVINO (if it imports)")
     a = p.parse_args(argv)
     precisions = [s.strip() for s in a.precision.split(",") if s.strip()]
     bad = [s for s in precisions if s not in PRECISIONS]
@@ -168,17 +134,6 @@ def main(argv: list[str] | None = None) -> int:
         runners = perception_runners(precisions, batch)
         for name, (ms, up) in interleaved(runners, batch, iters, a.repeats).items():
             print(f"{name:<28} {batch:5d} {ms:9.3f} {up:8.2f}x")
-    if a.openvino:
-        try:
-            import openvino  # noqa: F401
-        except ImportError as exc:
-            print(f"OpenVINO: not measured ({exc})")
-        else:
-            for batch in BATCHES:
-                iters = a.iters if batch == 1 else max(4, a.iters // 4)
-                for name, (ms, up) in interleaved(network_runners(batch), batch, iters,
-                                                  a.repeats).items():
-                    print(f"{name + ' (network)':<28} {batch:5d} {ms:9.3f} {up:8.2f}x")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     if not a.no_quality:
         quality(precisions)
