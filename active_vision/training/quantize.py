@@ -39,6 +39,7 @@ import json
 import logging
 import os
 import sys
+import tempfile
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -225,8 +226,6 @@ def write_int8_beside(weights: Path = DEFAULT_WEIGHTS, size: int = FUSED_SIZE[0]
     (:func:`~active_vision.onnx_export.fuse_pre_post`) into ``out_dir`` (default: beside the
     weights) under its versioned name, and remove older int8 files of the same stem and side
     there."""
-    import tempfile
-
     from active_vision.training.evaluate import heldout
 
     cfg = config or QuantizeRecipe()
