@@ -4,6 +4,7 @@ them under their own file name, and leaves the pacers' split and its name as the
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 from pathlib import Path
@@ -49,3 +50,36 @@ def test_evaluate_renders_and_reports_a_crowd_split(tmp_path: Path,
     assert len(files) == 1 and "_pcrowd6_" in files[0]
     data = ds.Dataset.load(tmp_path / files[0])
     assert len(data) == 30 and np.all(data.kind == ds.KIND_DRIVING)
+
+
+def test_training_crowds_are_parsed_and_bad_ones_refused_with_the_fix() -> None:
+    from active_vision.training.train import crowd_config, parse_crowds
+
+    assert parse_crowds("pacing, crowd:3,crowd:10") == ("pacing", "crowd:3", "crowd:10")
+    assert crowd_config("groups:8") == ("groups", 8)
+    assert crowd_config("oblivious") == ("oblivious", None)
+    for bad, named in (("walkers:3", "unknown pedestrian mode"), ("crowd:0", "1..20"),
+                       ("crowd:21", "1..20"), ("crowd:x", "integer"), ("", "e.g.")):
+        with pytest.raises(argparse.ArgumentTypeError, match=named):
+            parse_crowds(bad)
+
+
+def test_the_training_split_is_the_frames_shared_among_its_crowds(tmp_path: Path) -> None:
+    from active_vision.training.train import AVNetRecipe, training_split
+
+    recipe = AVNetRecipe(frames=25, worlds=("maze", "inspect"), crowds=("pacing", "crowd:7"))
+    data = training_split(recipe, tmp_path)
+    files = sorted(p.name for p in tmp_path.glob("*.npz"))
+    # one cached file per scene, each from its own seed: 13 pacing frames, 12 among 7 people
+    assert len(files) == 2 and "_s0_n13_" in files[0] and "_s1_n12_" in files[1]
+    assert "_pcrowd7_" in files[1]
+    assert len(data) == 25 and data.worlds == ("maze", "inspect")
+    pacing, crowd = ds.Dataset.load(tmp_path / files[0]), ds.Dataset.load(tmp_path / files[1])
+    assert np.array_equal(data.rgb[:13], pacing.rgb) and np.array_equal(data.rgb[13:], crowd.rgb)
+    # driving episodes of the two scenes keep distinct numbers
+    first, second = np.asarray(data.episode)[:13], np.asarray(data.episode)[13:]
+    assert set(first[first >= 0]).isdisjoint(second[second >= 0])
+    # a recipe of pacers alone reads the file it always read
+    alone = training_split(AVNetRecipe(frames=13, worlds=("maze", "inspect")), tmp_path)
+    assert np.array_equal(alone.rgb, pacing.rgb)
+    assert len(list(tmp_path.glob("*.npz"))) == 2

@@ -187,6 +187,23 @@ class Dataset:
                 step=z["step"].astype(np.int64) if "step" in z else None,
             )
 
+    @classmethod
+    def concatenate(cls, parts: Sequence[Dataset]) -> Dataset:
+        """One dataset of ``parts`` in order (same worlds); episodes are renumbered so that
+        each part's driving episodes stay apart. Its seed is the first part's."""
+        worlds = parts[0].worlds
+        if any(p.worlds != worlds for p in parts):
+            raise ValueError(f"datasets of different worlds: {[p.worlds for p in parts]}")
+        episodes, offset = [], 0
+        for p in parts:
+            e = np.asarray(p.episode)
+            episodes.append(np.where(e >= 0, e + offset, -1))
+            offset += int(e.max(initial=-1)) + 1
+        return cls(*(np.concatenate([getattr(p, k) for p in parts])
+                     for k in ("rgb", "depth", "mask", "world")),
+                   worlds, np.concatenate([p.kind for p in parts]), parts[0].seed,
+                   np.concatenate(episodes), np.concatenate([np.asarray(p.step) for p in parts]))
+
     def subset(self, index: np.ndarray) -> Dataset:
         return Dataset(self.rgb[index], self.depth[index], self.mask[index], self.world[index],
                        self.worlds, self.kind[index], self.seed,

@@ -80,6 +80,8 @@ from active_vision.training.dataset import (
     build,
 )
 from fused_image import DEPTH_MAX_M
+from rover_env.crowd import MAX_PEDESTRIANS
+from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_train.cli import parse_recipe_command, recipe_dict, recipe_from_dict
 
 logger = logging.getLogger(__name__)
@@ -135,6 +137,50 @@ def parse_worlds(text: str) -> tuple[str, ...]:
     return worlds
 
 
+def parse_crowds(text: str) -> tuple[str, ...]:
+    """Pedestrian scenes from ``"pacing,crowd:3,crowd:10"`` (an argparse ``type``): a
+    ``RoverSim`` pedestrian mode, optionally ``:N`` pedestrians per world."""
+    crowds = tuple(c.strip() for c in text.split(",") if c.strip())
+    if not crowds:
+        raise argparse.ArgumentTypeError(f"{text!r}: give pedestrian scenes, e.g. "
+                                         "pacing,crowd:3,crowd:10")
+    for c in crowds:
+        try:
+            crowd_config(c)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return crowds
+
+
+def crowd_config(spec: str) -> tuple[str, int | None]:
+    """``(pedestrian_mode, n_pedestrians)`` of one ``--crowds`` entry (``"crowd:10"``)."""
+    mode, _, count = spec.partition(":")
+    if mode not in PEDESTRIAN_MODES:
+        raise ValueError(f"{spec!r}: unknown pedestrian mode {mode!r}; give one of "
+                         f"{', '.join(PEDESTRIAN_MODES)}, optionally with :N pedestrians")
+    if not count:
+        return mode, None
+    if not count.isdigit() or not 0 < int(count) <= MAX_PEDESTRIANS:
+        raise ValueError(f"{spec!r}: give the pedestrians as an integer in 1..{MAX_PEDESTRIANS}, "
+                         "e.g. crowd:10")
+    return mode, int(count)
+
+
+def training_split(cfg: AVNetRecipe, data_dir: Path) -> Dataset:
+    """The training frames of recipe ``cfg``: ``cfg.frames`` split evenly over ``cfg.crowds``,
+    scene k rendered (and cached in ``data_dir``) from seed ``TRAIN_SEED + k``, so a recipe with
+    only ``pacing`` reads the same file as before crowds were a recipe field."""
+    n = len(cfg.crowds)
+    parts = []
+    for k, spec in enumerate(cfg.crowds):
+        mode, count = crowd_config(spec)
+        frames = cfg.frames // n + (1 if k < cfg.frames % n else 0)
+        parts.append(Dataset.load(build(data_dir, DatasetConfig(
+            frames=frames, seed=TRAIN_SEED + k, worlds=cfg.worlds, pedestrian_mode=mode,
+            n_pedestrians=count))))
+    return parts[0] if n == 1 else Dataset.concatenate(parts)
+
+
 def parse_world_weights(text: str) -> dict[str, float]:
     """Per-world weights from ``"moon=4,maze=1"`` (an argparse ``type``; ``""``: none)."""
     weights: dict[str, float] = {}
@@ -162,6 +208,11 @@ class AVNetRecipe:
     worlds: tuple[str, ...] = field(default=TRAIN_WORLDS, metadata={"parse": parse_worlds})
     """Worlds to render the training split from, cycled episode by episode and frame by
     frame (a name twice gets twice the frames), comma-separated."""
+    crowds: tuple[str, ...] = field(default=("pacing",), metadata={"parse": parse_crowds})
+    """Pedestrian scenes the training split is rendered among, comma-separated: a
+    pedestrian mode (``pacing``, ``crowd``, ``oblivious``, ``crossing``, ``groups``), with
+    ``:N`` for N pedestrians per world (e.g. ``pacing,crowd:3,crowd:10``); the frames are
+    split evenly between them."""
     epochs: int = 15
     """Passes over the training data."""
     batch: int = 32
@@ -375,9 +426,7 @@ def train(cfg: AVNetRecipe, run: TrainRun | None = None, data: Dataset | None = 
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
     if data is None:
-        path = run.data or build(run.data_dir, DatasetConfig(frames=cfg.frames, seed=TRAIN_SEED,
-                                                            worlds=cfg.worlds))
-        data = Dataset.load(path)
+        data = Dataset.load(run.data) if run.data else training_split(cfg, run.data_dir)
     dev = torch.device(cfg.device)
     rgb = torch.from_numpy(data.rgb).permute(0, 3, 1, 2).contiguous().to(dev)  # uint8 N,3,H,W
     mask = torch.from_numpy(data.mask).unsqueeze(1).float().to(dev)
