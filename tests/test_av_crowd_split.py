@@ -83,3 +83,21 @@ def test_the_training_split_is_the_frames_shared_among_its_crowds(tmp_path: Path
     alone = training_split(AVNetRecipe(frames=13, worlds=("maze", "inspect")), tmp_path)
     assert np.array_equal(alone.rgb, pacing.rgb)
     assert len(list(tmp_path.glob("*.npz"))) == 2
+
+
+def test_the_predictor_trains_among_its_crowds_and_evaluates_among_one(tmp_path: Path) -> None:
+    from active_vision.training import predict_train as pt
+
+    recipe = pt.PredictRecipe(episodes=5, crowds=("pacing", "crowd:6"))
+    data = pt.training_sequences(recipe, tmp_path)
+    names = sorted(p.name for p in tmp_path.glob("pred_*.npz"))
+    # scene k from seed TRAIN_SEED + k: 3 episodes among the pacers, 2 among 6 crowd people
+    assert len(names) == 2 and "_s0_e3_v" in names[0] and "_s1_e2_pcrowd6_v" in names[1]
+    pacing = pt.SequenceData.load(tmp_path / names[0])
+    crowd = pt.SequenceData.load(tmp_path / names[1])
+    assert len(data.rgb) == len(pacing.rgb) + len(crowd.rgb)
+    assert len(data.target_row) == len(pacing.target_row) + len(crowd.target_row)
+    # the second scene's targets point at its own frames, after the first scene's
+    shifted = data.target_row[len(pacing.target_row):]
+    assert np.array_equal(data.rgb[shifted], crowd.rgb[crowd.target_row])
+    assert np.all(data.episode_row[len(pacing.target_row):] >= len(pacing.rgb))

@@ -63,6 +63,8 @@ import numpy as np
 from active_vision.training.driving import DriveRecorder
 from active_vision.training.lighting import random_lighting
 from fused_image import FUSED_SIZE
+from rover_env.crowd import MAX_PEDESTRIANS
+from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_env.worlds import WORLD_NAMES
 
 logger = logging.getLogger(__name__)
@@ -210,15 +212,49 @@ class Dataset:
                        np.asarray(self.episode)[index], np.asarray(self.step)[index])
 
 
+def parse_crowds(text: str) -> tuple[str, ...]:
+    """Pedestrian scenes from ``"pacing,crowd:3,crowd:10"`` (an argparse ``type``): a
+    ``RoverSim`` pedestrian mode, optionally ``:N`` pedestrians per world."""
+    crowds = tuple(c.strip() for c in text.split(",") if c.strip())
+    if not crowds:
+        raise argparse.ArgumentTypeError(f"{text!r}: give pedestrian scenes, e.g. "
+                                         "pacing,crowd:3,crowd:10")
+    for c in crowds:
+        try:
+            crowd_config(c)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return crowds
+
+
+def crowd_config(spec: str) -> tuple[str, int | None]:
+    """``(pedestrian_mode, n_pedestrians)`` of one ``--crowds`` entry (``"crowd:10"``)."""
+    mode, _, count = spec.partition(":")
+    if mode not in PEDESTRIAN_MODES:
+        raise ValueError(f"{spec!r}: unknown pedestrian mode {mode!r}; give one of "
+                         f"{', '.join(PEDESTRIAN_MODES)}, optionally with :N pedestrians")
+    if not count:
+        return mode, None
+    if not count.isdigit() or not 0 < int(count) <= MAX_PEDESTRIANS:
+        raise ValueError(f"{spec!r}: give the pedestrians as an integer in 1..{MAX_PEDESTRIANS}, "
+                         "e.g. crowd:10")
+    return mode, int(count)
+
+
+def crowd_tag(pedestrian_mode: str, n_pedestrians: int | None) -> str:
+    """The part of a cache file's name that names its pedestrians (none for the pacers' 3,
+    so their files keep the names they always had)."""
+    if pedestrian_mode == "pacing" and n_pedestrians is None:
+        return ""
+    return f"_p{pedestrian_mode}" + ("" if n_pedestrians is None else str(n_pedestrians))
+
+
 def dataset_path(out_dir: Path, config: DatasetConfig) -> Path:
     """The file :func:`build` writes for ``config`` in ``out_dir``."""
     tag = "-".join(config.worlds)
     drive = f"_d{round(100 * config.drive_fraction)}" + (
         "" if config.appearance == "random" else f"_{config.appearance}")
-    if config.pedestrian_mode != "pacing" or config.n_pedestrians is not None:
-        # other pedestrians: another file (the pacers' 3 keep the names they always had)
-        drive += f"_p{config.pedestrian_mode}" + (
-            "" if config.n_pedestrians is None else str(config.n_pedestrians))
+    drive += crowd_tag(config.pedestrian_mode, config.n_pedestrians)
     return Path(out_dir) / (f"av_{tag}_s{config.seed}_n{config.frames}_{config.size}px"
                             f"{drive}_v{DATASET_VERSION}.npz")
 

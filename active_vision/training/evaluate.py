@@ -520,7 +520,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         from active_vision.training.predict_train import evaluate_heldout, figure_rows
 
         pm = evaluate_heldout(args.predict_weights, args.weights, args.data_dir,
-                              threads=args.threads)
+                              threads=args.threads, split=args.split,
+                              pedestrian_mode=args.pedestrian_mode,
+                              n_pedestrians=args.pedestrians)
         keys = ("predict_iou", "detect_baseline_iou", "oracle_now_iou")
         print(f"predictive heatmap, {pm['targets']} held-out targets (IoU with the 1.5 s "
               "future-occupancy mask):")

@@ -57,9 +57,13 @@ from active_vision.training.dataset import (
     WORLDS,
     DatasetConfig,
     FrameRenderer,
+    crowd_config,
+    crowd_tag,
+    parse_crowds,
 )
 from active_vision.training.driving import DriveRecorder
 from fused_image import CHANNEL_HEATMAP, FUSED_SIZE
+from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_train.cli import parse_recipe_command, recipe_dict, recipe_from_dict
 
 logger = logging.getLogger(__name__)
@@ -107,17 +111,36 @@ class SequenceData:
                        tuple(str(w) for w in z["worlds"]))
 
 
-def sequence_path(data_dir: Path, seed: int, episodes: int,
-                  worlds: Sequence[str] = WORLDS) -> Path:
+    @classmethod
+    def concatenate(cls, parts: Sequence[SequenceData]) -> SequenceData:
+        """One file's worth of ``parts`` in order (same worlds), rows renumbered."""
+        worlds = parts[0].worlds
+        if any(p.worlds != worlds for p in parts):
+            raise ValueError(f"sequences of different worlds: {[p.worlds for p in parts]}")
+        offsets = np.cumsum([0] + [len(p.rgb) for p in parts[:-1]])
+        return cls(np.concatenate([p.rgb for p in parts]),
+                   np.concatenate([p.target_row + o for p, o in zip(parts, offsets, strict=True)]),
+                   np.concatenate([p.episode_row + o for p, o in zip(parts, offsets, strict=True)]),
+                   np.concatenate([p.world for p in parts]),
+                   np.concatenate([p.future for p in parts]),
+                   np.concatenate([p.now for p in parts]), worlds)
+
+
+def sequence_path(data_dir: Path, seed: int, episodes: int, worlds: Sequence[str] = WORLDS,
+                  pedestrian_mode: str = "pacing", n_pedestrians: int | None = None) -> Path:
     return Path(data_dir) / (f"pred_{'-'.join(worlds)}_s{seed}_e{episodes}"
+                             f"{crowd_tag(pedestrian_mode, n_pedestrians)}"
                              f"_v{PRED_DATA_VERSION}.npz")
 
 
 def render_sequences(seed: int, episodes: int, worlds: Sequence[str] = WORLDS,
-                     size: int = FUSED_SIZE[0]) -> SequenceData:
+                     size: int = FUSED_SIZE[0], pedestrian_mode: str = "pacing",
+                     n_pedestrians: int | None = None) -> SequenceData:
     """Record ``episodes`` episodes (episode e in world ``e % W``, generator
-    ``default_rng([seed, 2, e])``)."""
-    cfg = DatasetConfig(size=size, worlds=tuple(worlds))
+    ``default_rng([seed, 2, e])``) among pedestrians walking by ``pedestrian_mode``,
+    ``n_pedestrians`` of them (None: the world's 3)."""
+    cfg = DatasetConfig(size=size, worlds=tuple(worlds), pedestrian_mode=pedestrian_mode,
+                        n_pedestrians=n_pedestrians)
     recorders: dict[str, DriveRecorder] = {}
     rgb, trow, erow, world, future, now = [], [], [], [], [], []
     rows = 0
@@ -149,14 +172,16 @@ def render_sequences(seed: int, episodes: int, worlds: Sequence[str] = WORLDS,
                         tuple(worlds))
 
 
-def build_sequences(data_dir: Path, seed: int, episodes: int,
-                    worlds: Sequence[str] = WORLDS) -> SequenceData:
+def build_sequences(data_dir: Path, seed: int, episodes: int, worlds: Sequence[str] = WORLDS,
+                    pedestrian_mode: str = "pacing", n_pedestrians: int | None = None
+                    ) -> SequenceData:  # fmt: skip
     """Render (or reuse from ``data_dir``) a sequence file."""
-    path = sequence_path(data_dir, seed, episodes, worlds)
+    path = sequence_path(data_dir, seed, episodes, worlds, pedestrian_mode, n_pedestrians)
     if path.is_file():
         logger.info("reusing %s", path)
         return SequenceData.load(path)
-    data = render_sequences(seed, episodes, worlds)
+    data = render_sequences(seed, episodes, worlds, pedestrian_mode=pedestrian_mode,
+                            n_pedestrians=n_pedestrians)
     data.save(path)
     logger.info("wrote %s (%d frames, %d targets)", path, len(data.rgb), len(data.target_row))
     return data
@@ -199,12 +224,16 @@ class PredictRecipe:
     is generated from these fields."""
 
     episodes: int = 900
-    """Training driving episodes (seed ``TRAIN_SEED``): 900 give 20,373 targets, rendered in
+    """Training driving episodes (split evenly over ``crowds``, scene k from seed
+    ``TRAIN_SEED + k``): 900 give 20,373 targets, rendered in
     10 min on one core beside a training run; training on them takes about 10 min with 2
     threads, and the command peaks at 6.8 GB of memory (11.5 GB while every target's
     window was held at once; now they are gathered per batch, :func:`window_rows`). Twice the
     450 used until 2026-11-26, which scored 0.02 / 0.01 / 0.01 lower IoU in inspect / moon /
     maze on the validation episodes (benchmarks/RESULTS.md)."""
+    crowds: tuple[str, ...] = field(default=("pacing",), metadata={"parse": parse_crowds})
+    """Pedestrian scenes the training episodes are rendered among, comma-separated, as
+    ``active_vision.training.train --crowds`` (e.g. ``pacing,crowd:3,crowd:10``)."""
     epochs: int = 10
     """Passes over the training targets."""
     batch: int = 32
@@ -238,6 +267,12 @@ class PredictRun:
     split: str = field(default="heldout", metadata={"choices": tuple(sorted(SPLIT_SEEDS))})
     """Episodes to evaluate on: the reported held-out ones, or the validation ones to
     choose between predictors."""
+    pedestrian_mode: str = field(default="pacing",
+                                 metadata={"choices": PEDESTRIAN_MODES})
+    """How the evaluation episodes' pedestrians walk (a mode other than pacing, or
+    ``pedestrians``, renders and caches its own file)."""
+    pedestrians: int | None = None
+    """Pedestrians per world in the evaluation episodes (default: the world's 3)."""
     json: bool = False
     """End with one JSON line of the figures."""
 
@@ -249,13 +284,27 @@ def _loss(logit: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return bce + 0.5 * dice
 
 
+def training_sequences(cfg: PredictRecipe, data_dir: Path = DEFAULT_DATA_DIR) -> SequenceData:
+    """The training episodes of recipe ``cfg``: ``cfg.episodes`` split evenly over
+    ``cfg.crowds``, scene k from seed ``TRAIN_SEED + k`` (a recipe of pacers alone reads the
+    file it always read)."""
+    n = len(cfg.crowds)
+    parts = []
+    for k, spec in enumerate(cfg.crowds):
+        mode, count = crowd_config(spec)
+        episodes = cfg.episodes // n + (1 if k < cfg.episodes % n else 0)
+        parts.append(build_sequences(data_dir, TRAIN_SEED + k, episodes,
+                                     pedestrian_mode=mode, n_pedestrians=count))
+    return parts[0] if n == 1 else SequenceData.concatenate(parts)
+
+
 def train_predictor(cfg: PredictRecipe, data_dir: Path = DEFAULT_DATA_DIR
                     ) -> tuple[PredictNet, dict[str, float]]:  # fmt: skip
     """Train a :class:`PredictNet` by recipe ``cfg`` on the training episodes (rendered
     into, or reused from, ``data_dir``)."""
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
-    data = build_sequences(data_dir, TRAIN_SEED, cfg.episodes)
+    data = training_sequences(cfg, data_dir)
     # windows are gathered per batch: all of them at once took 5.6 GB for 900 episodes
     fused = torch.from_numpy(fused_frames(data, cfg.weights, cfg.threads))
     rows = torch.from_numpy(window_rows(data))
@@ -375,12 +424,15 @@ def figure_rows(m: dict[str, object]) -> list[str]:
 
 def evaluate_heldout(predict_weights: Path | None = None, weights: Path | None = None,
                      data_dir: Path = DEFAULT_DATA_DIR, episodes: int = HELDOUT_EPISODES,
-                     threads: int = 2, split: str = "heldout") -> dict[str, object]:
+                     threads: int = 2, split: str = "heldout", pedestrian_mode: str = "pacing",
+                     n_pedestrians: int | None = None) -> dict[str, object]:
     """The three figures on the held-out (or ``split="validation"``) driving episodes
-    (rendered on first use)."""
+    (rendered on first use) among pedestrians walking by ``pedestrian_mode``,
+    ``n_pedestrians`` of them (None: the world's 3)."""
     if split not in SPLIT_SEEDS:
         raise ValueError(f"split must be one of {sorted(SPLIT_SEEDS)}, got {split!r}")
-    data = build_sequences(data_dir, SPLIT_SEEDS[split], episodes)
+    data = build_sequences(data_dir, SPLIT_SEEDS[split], episodes,
+                           pedestrian_mode=pedestrian_mode, n_pedestrians=n_pedestrians)
     win = windows(data, weights, threads)
     return evaluate_predictor(Predictor(weights=predict_weights), data, win)
 
@@ -407,8 +459,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         save_predictor(model, run.out, {**facts, RECIPE_KEY: recipe_dict(cfg)})
         print(f"wrote {run.out} after {facts['epochs']:.0f} epochs in {facts['seconds']:.0f} s")
     m = evaluate_heldout(run.out, cfg.weights, run.data_dir, threads=cfg.threads,
-                         split=run.split)  # fmt: skip
-    print(f"{run.split} episodes ({SPLIT_SEEDS[run.split]}):")
+                         split=run.split, pedestrian_mode=run.pedestrian_mode,
+                         n_pedestrians=run.pedestrians)
+    among = "" if run.pedestrian_mode == "pacing" and run.pedestrians is None else (
+        f", {run.pedestrian_mode} of {run.pedestrians or 'the world'}")
+    print(f"{run.split} episodes ({SPLIT_SEEDS[run.split]}{among}):")
     print("\n".join(figure_rows(m)))
     if run.json:
         print(json.dumps(m))

@@ -78,10 +78,10 @@ from active_vision.training.dataset import (
     Dataset,
     DatasetConfig,
     build,
+    crowd_config,
+    parse_crowds,
 )
 from fused_image import DEPTH_MAX_M
-from rover_env.crowd import MAX_PEDESTRIANS
-from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_train.cli import parse_recipe_command, recipe_dict, recipe_from_dict
 
 logger = logging.getLogger(__name__)
@@ -135,35 +135,6 @@ def parse_worlds(text: str) -> tuple[str, ...]:
     if not worlds:
         raise argparse.ArgumentTypeError(f"{text!r}: give world names, e.g. inspect,moon,maze")
     return worlds
-
-
-def parse_crowds(text: str) -> tuple[str, ...]:
-    """Pedestrian scenes from ``"pacing,crowd:3,crowd:10"`` (an argparse ``type``): a
-    ``RoverSim`` pedestrian mode, optionally ``:N`` pedestrians per world."""
-    crowds = tuple(c.strip() for c in text.split(",") if c.strip())
-    if not crowds:
-        raise argparse.ArgumentTypeError(f"{text!r}: give pedestrian scenes, e.g. "
-                                         "pacing,crowd:3,crowd:10")
-    for c in crowds:
-        try:
-            crowd_config(c)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-    return crowds
-
-
-def crowd_config(spec: str) -> tuple[str, int | None]:
-    """``(pedestrian_mode, n_pedestrians)`` of one ``--crowds`` entry (``"crowd:10"``)."""
-    mode, _, count = spec.partition(":")
-    if mode not in PEDESTRIAN_MODES:
-        raise ValueError(f"{spec!r}: unknown pedestrian mode {mode!r}; give one of "
-                         f"{', '.join(PEDESTRIAN_MODES)}, optionally with :N pedestrians")
-    if not count:
-        return mode, None
-    if not count.isdigit() or not 0 < int(count) <= MAX_PEDESTRIANS:
-        raise ValueError(f"{spec!r}: give the pedestrians as an integer in 1..{MAX_PEDESTRIANS}, "
-                         "e.g. crowd:10")
-    return mode, int(count)
 
 
 def training_split(cfg: AVNetRecipe, data_dir: Path) -> Dataset:
