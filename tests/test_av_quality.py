@@ -449,6 +449,31 @@ def test_calibration_picks_the_best_worst_world_recall_within_the_budgets() -> N
     assert choose_threshold(nothing) == THRESHOLD  # none qualifies: left as it is
 
 
+def test_calibration_among_several_scenes_holds_the_budgets_in_each(monkeypatch) -> None:
+    import active_vision.training.calibrate as cal
+
+    def split(frames: int) -> ds.Dataset:  # a validation split's stand-in, told by its size
+        return ds.Dataset(np.zeros((frames, 2, 2, 3), np.uint8), np.zeros((frames, 2, 2)),
+                          np.zeros((frames, 2, 2), bool), np.zeros(frames, np.int64),
+                          ("inspect",), np.zeros(frames, np.int64), 0)
+
+    quiet, busy = split(3), split(4)
+    sweeps = {  # at 0.3 the busy scene's inspect frames go over the false-positive budget
+        3: {0.3: {"inspect": _sweep_row(0.8, 0.99, 0.0)},
+            0.4: {"inspect": _sweep_row(0.8, 0.97, 0.0)}},
+        4: {0.3: {"inspect": _sweep_row(0.8, 0.99, cal.FP_BUDGET + 0.001)},
+            0.4: {"inspect": _sweep_row(0.8, 0.96, 0.0)}},
+    }
+    monkeypatch.setattr(cal, "threshold_sweep",
+                        lambda model, data, thresholds, **kw: sweeps[len(data)])
+    model = AVNet(AVNetConfig(widths=(4, 8, 8, 8)))
+    t, shift, table = cal.calibrate(model, {"pacing": quiet}, thresholds=(0.3, 0.4))
+    assert t == 0.3  # the quiet scene alone allows the lower threshold
+    t, shift, table = cal.calibrate(model, {"pacing": quiet, "crowd:10": busy},
+                                    thresholds=(0.3, 0.4))
+    assert t == 0.4 and "inspect crowd:10" in table and "inspect pacing" in table
+
+
 def test_train_cli_calibrates_on_validation_then_reports_on_heldout(
         tmp_path, heldout: ds.Dataset, monkeypatch, capsys) -> None:
     import active_vision.training.calibrate as cal
@@ -459,11 +484,12 @@ def test_train_cli_calibrates_on_validation_then_reports_on_heldout(
     data = heldout.save(tmp_path / "tiny.npz")
     splits: list[str] = []
 
-    def tiny_split(data_dir, frames=0, worlds=(), split="heldout"):  # noqa: ANN001, ANN202
+    def tiny_split(data_dir, frames=0, worlds=(), split="heldout", **crowd):  # noqa: ANN001, ANN202
         splits.append(split)
         return heldout
 
     monkeypatch.setattr(ev, "heldout", tiny_split)
+    monkeypatch.setattr(cal, "heldout", tiny_split)
     monkeypatch.setattr(cal, "choose_threshold", lambda sweep: 0.3)
     # the int8 model is made after every figure (tests/test_av_quantize.py covers it)
     import active_vision.training.quantize as quant

@@ -37,15 +37,15 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 
 from active_vision.models import HEAD_HEATMAP, AVNet, load_model
-from active_vision.training.dataset import DEFAULT_DATA_DIR, Dataset
+from active_vision.training.dataset import DEFAULT_DATA_DIR, Dataset, crowd_config, parse_crowds
 from active_vision.training.evaluate import (
     TARGETS,
     THRESHOLD,
@@ -99,15 +99,38 @@ def fold_threshold(model: AVNet, threshold: float) -> float:
     return shift
 
 
-def calibrate(model: AVNet, data: Dataset, *, thresholds: Sequence[float] = CALIBRATION_THRESHOLDS,
+def validation_splits(data_dir: Path, crowds: Sequence[str] = ("pacing",)
+                      ) -> dict[str, Dataset]:  # fmt: skip
+    """The validation split among each pedestrian scene of ``crowds`` (``train --crowds``
+    entries), rendered on first use: what a network trained among those scenes is
+    calibrated on."""
+    out = {}
+    for spec in crowds:
+        mode, count = crowd_config(spec)
+        out[spec] = heldout(data_dir, split="validation", pedestrian_mode=mode,
+                            n_pedestrians=count)
+    return out
+
+
+def calibrate(model: AVNet, data: Dataset | Mapping[str, Dataset], *,
+              thresholds: Sequence[float] = CALIBRATION_THRESHOLDS,
               threads: int | None = None) -> tuple[float, float, str]:
-    """Choose a threshold on ``data`` (the validation split) and fold it into ``model`` (an
-    unfused network, in place). Returns (threshold, logit shift, the sweep's table)."""
-    sweep = threshold_sweep(model, data, thresholds, threads=threads)
+    """Choose a threshold on ``data`` (the validation split, or the validation splits of
+    several pedestrian scenes by name: :func:`validation_splits`) and fold it into ``model``
+    (an unfused network, in place). With several scenes each world of each scene counts as
+    a world of its own, so the chosen threshold keeps false-positive frames within budget
+    and IoU over target in every one. Returns (threshold, logit shift, the sweep's table)."""
+    splits = {"": data} if isinstance(data, Dataset) else dict(data)
+    sweep: dict[float, dict[str, dict[str, float]]] = {t: {} for t in thresholds}
+    for scene, split in splits.items():
+        for t, per_world in threshold_sweep(model, split, thresholds, threads=threads).items():
+            for world, figures in per_world.items():
+                sweep[t][f"{world} {scene}".strip()] = figures
     t = choose_threshold(sweep)
     shift = fold_threshold(model, t) if t != THRESHOLD else 0.0
-    logger.info("heatmap calibrated on %d validation frames: threshold %.2f (logit shift %+.3f)",
-                len(data), t, shift)
+    logger.info("heatmap calibrated on %d validation frames (%s): threshold %.2f (logit shift "
+                "%+.3f)", sum(len(d) for d in splits.values()),
+                ", ".join(splits) or "one split", t, shift)
     return t, shift, format_sweep(sweep)
 
 
@@ -135,8 +158,11 @@ class CalibrateRun:
     data_dir: Path = DEFAULT_DATA_DIR
     """Where the validation split is rendered on first use."""
     data: Path | None = None
-    """A dataset ``.npz`` to choose on (default: the validation split; never the held-out
+    """A dataset ``.npz`` to choose on (default: the validation splits; never the held-out
     split, which reports)."""
+    crowds: tuple[str, ...] | None = field(default=None, metadata={"parse": parse_crowds})
+    """Pedestrian scenes whose validation splits to choose on, as ``train --crowds``
+    (default: those the weights' recipe was trained among; the pacers without one)."""
     export: bool = True
     """Write the ONNX export beside the result."""
     threads: int = 2
@@ -165,7 +191,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.set_num_threads(a.threads)
     model = load_model(a.weights, fuse=False)
     meta = weights_meta(a.weights)
-    data = Dataset.load(a.data) if a.data else heldout(a.data_dir, split="validation")
+    crowds = a.crowds or tuple(meta.get("recipe", {}).get("crowds", ("pacing",)))
+    data = Dataset.load(a.data) if a.data else validation_splits(a.data_dir, crowds)
     t, shift, table = calibrate(model, data, threads=a.threads)
     print(table)
     print(f"chosen threshold {t:.2f}: logit shift {shift:+.4f}")

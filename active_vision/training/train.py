@@ -216,9 +216,9 @@ class AVNetRecipe:
     init: Path | None = None
     """Start from these AVNet weights (same widths) instead of random ones: a fine-tune."""
     calibrate: bool = False
-    """Fold the heatmap threshold chosen on the validation split into the head
-    (:mod:`active_vision.training.calibrate`) before the held-out evaluation (it changes
-    channel 1 for whatever reads it)."""
+    """Fold the heatmap threshold chosen on the validation splits of ``crowds`` into the
+    head (:mod:`active_vision.training.calibrate`) before the held-out evaluation (it
+    changes channel 1 for whatever reads it)."""
 
     def problem(self) -> str | None:
         """What is wrong with this recipe (named by its option), or None."""
@@ -510,9 +510,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     from active_vision.training.evaluate import evaluate, format_metrics, heldout
 
     if cfg.calibrate:
-        from active_vision.training.calibrate import calibrate, calibrated_meta
+        from active_vision.training.calibrate import (
+            calibrate,
+            calibrated_meta,
+            validation_splits,
+        )
 
-        t, shift, table = calibrate(model, heldout(run.data_dir, split="validation"),
+        t, shift, table = calibrate(model, validation_splits(run.data_dir, cfg.crowds),
                                     threads=cfg.threads)
         print(table)
         meta = calibrated_meta(meta, t, shift)
