@@ -53,7 +53,7 @@ def test_evaluate_renders_and_reports_a_crowd_split(tmp_path: Path,
 
 
 def test_training_crowds_are_parsed_and_bad_ones_refused_with_the_fix() -> None:
-    from active_vision.training.train import crowd_config, parse_crowds
+    from active_vision.training.dataset import crowd_config, parse_crowds
 
     assert parse_crowds("pacing, crowd:3,crowd:10") == ("pacing", "crowd:3", "crowd:10")
     assert crowd_config("groups:8") == ("groups", 8)

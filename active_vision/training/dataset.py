@@ -241,6 +241,14 @@ def crowd_config(spec: str) -> tuple[str, int | None]:
     return mode, int(count)
 
 
+def crowd_shares(total: int, crowds: Sequence[str]) -> list[tuple[int, str, int | None, int]]:
+    """``(seed, pedestrian_mode, n_pedestrians, share)`` of each ``--crowds`` scene: ``total``
+    (frames or episodes) split evenly, scene k from seed ``TRAIN_SEED + k``."""
+    n = len(crowds)
+    return [(TRAIN_SEED + k, *crowd_config(spec), total // n + (1 if k < total % n else 0))
+            for k, spec in enumerate(crowds)]
+
+
 def crowd_tag(pedestrian_mode: str, n_pedestrians: int | None) -> str:
     """The part of a cache file's name that names its pedestrians (none for the pacers' 3,
     so their files keep the names they always had)."""

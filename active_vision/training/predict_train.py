@@ -53,11 +53,10 @@ from active_vision.predict import (
 from active_vision.training.dataset import (
     DEFAULT_DATA_DIR,
     SPLIT_SEEDS,
-    TRAIN_SEED,
     WORLDS,
     DatasetConfig,
     FrameRenderer,
-    crowd_config,
+    crowd_shares,
     crowd_tag,
     parse_crowds,
 )
@@ -288,14 +287,9 @@ def training_sequences(cfg: PredictRecipe, data_dir: Path = DEFAULT_DATA_DIR) ->
     """The training episodes of recipe ``cfg``: ``cfg.episodes`` split evenly over
     ``cfg.crowds``, scene k from seed ``TRAIN_SEED + k`` (a recipe of pacers alone reads the
     file it always read)."""
-    n = len(cfg.crowds)
-    parts = []
-    for k, spec in enumerate(cfg.crowds):
-        mode, count = crowd_config(spec)
-        episodes = cfg.episodes // n + (1 if k < cfg.episodes % n else 0)
-        parts.append(build_sequences(data_dir, TRAIN_SEED + k, episodes,
-                                     pedestrian_mode=mode, n_pedestrians=count))
-    return parts[0] if n == 1 else SequenceData.concatenate(parts)
+    parts = [build_sequences(data_dir, seed, episodes, pedestrian_mode=mode, n_pedestrians=count)
+             for seed, mode, count, episodes in crowd_shares(cfg.episodes, cfg.crowds)]
+    return parts[0] if len(parts) == 1 else SequenceData.concatenate(parts)
 
 
 def train_predictor(cfg: PredictRecipe, data_dir: Path = DEFAULT_DATA_DIR

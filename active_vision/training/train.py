@@ -74,11 +74,10 @@ from active_vision.models import (
 from active_vision.models import save_weights as _save
 from active_vision.training.dataset import (
     DEFAULT_DATA_DIR,
-    TRAIN_SEED,
     Dataset,
     DatasetConfig,
     build,
-    crowd_config,
+    crowd_shares,
     parse_crowds,
 )
 from fused_image import DEPTH_MAX_M
@@ -141,15 +140,10 @@ def training_split(cfg: AVNetRecipe, data_dir: Path) -> Dataset:
     """The training frames of recipe ``cfg``: ``cfg.frames`` split evenly over ``cfg.crowds``,
     scene k rendered (and cached in ``data_dir``) from seed ``TRAIN_SEED + k``, so a recipe with
     only ``pacing`` reads the same file as before crowds were a recipe field."""
-    n = len(cfg.crowds)
-    parts = []
-    for k, spec in enumerate(cfg.crowds):
-        mode, count = crowd_config(spec)
-        frames = cfg.frames // n + (1 if k < cfg.frames % n else 0)
-        parts.append(Dataset.load(build(data_dir, DatasetConfig(
-            frames=frames, seed=TRAIN_SEED + k, worlds=cfg.worlds, pedestrian_mode=mode,
-            n_pedestrians=count))))
-    return parts[0] if n == 1 else Dataset.concatenate(parts)
+    parts = [Dataset.load(build(data_dir, DatasetConfig(
+        frames=frames, seed=seed, worlds=cfg.worlds, pedestrian_mode=mode, n_pedestrians=count)))
+        for seed, mode, count, frames in crowd_shares(cfg.frames, cfg.crowds)]
+    return parts[0] if len(parts) == 1 else Dataset.concatenate(parts)
 
 
 def parse_world_weights(text: str) -> dict[str, float]:
