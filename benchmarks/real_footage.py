@@ -1,7 +1,7 @@
 """The shipped perception on real pedestrian footage: people found, box cover and false heat.
 
     PYTHONPATH=. .venv/bin/python benchmarks/real_footage.py [--precision fp32,int8]
-        [--stride 8] [--video PATH] [--picture docs/real_footage.png]
+        [--weights FILE] [--stride 8] [--video PATH] [--picture docs/real_footage.png]
         [--write-test-data tests/data/real_footage]
 
 The network (AVNet) was trained on MuJoCo renders only. This runs it, through the daemon's own
@@ -568,10 +568,12 @@ def build_footage(
 # --- running the network -----------------------------------------------------------------
 
 
-def perception(precision: str, batch: int = 32) -> Perception:
-    """The daemon's perception on the shipped weights: ONNX Runtime, one thread."""
+def perception(precision: str, batch: int = 32, weights: Path | None = None) -> Perception:
+    """The daemon's perception on ``weights`` (None: the shipped ones): ONNX Runtime, one
+    thread."""
     return Perception(
-        PerceptionConfig(threads=1, max_batch=batch, backend="onnx", precision=precision)
+        PerceptionConfig(threads=1, max_batch=batch, backend="onnx", precision=precision,
+                         weights=weights)
     )
 
 
@@ -742,6 +744,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "with opencv-python-headless 4.x installed into runs/footage/opencv4)",
     )
     p.add_argument(
+        "--weights",
+        type=Path,
+        default=None,
+        help="AVNet weights with their ONNX exports beside them, as training writes them "
+        "(default: the shipped active_vision/weights/avnet.pt)",
+    )
+    p.add_argument(
         "--picture",
         type=Path,
         default=None,
@@ -763,6 +772,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"--precision: give some of {', '.join(PRECISIONS)}, got {a.precision!r}")
     if a.stride < 1:
         p.error("--stride must be >= 1")
+    if a.weights is not None and not a.weights.is_file():
+        p.error(f"--weights {a.weights}: no such weights file")
     cfg = FootageConfig(stride=a.stride)
     try:
         video = find_video(a.video)
@@ -775,7 +786,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     rows: dict[str, dict[str, Figures]] = {}
     names = []
     for prec in precisions:
-        net = perception(prec)
+        net = perception(prec, weights=a.weights)
         label = prec if net.precision == prec else f"{prec} (ran {net.precision})"
         rows[label] = measure(net, fp)
         names.append(f"{label}: {network_name(net)}")

@@ -115,3 +115,11 @@ def test_the_bounds_fail_an_all_hot_and_an_all_cold_heatmap(crops: Crops) -> Non
     for i, (x, y, w, h) in enumerate(crops.boxes):
         exact[i, y : y + h, x : x + w] = 1.0
     assert problems(exact, crops.boxes, cold) == []
+
+
+def test_the_benchmark_names_a_missing_weights_file(capsys) -> None:
+    from benchmarks.real_footage import main
+
+    with pytest.raises(SystemExit):
+        main(["--weights", "/nonexistent/avnet.pt"])
+    assert "--weights /nonexistent/avnet.pt: no such weights file" in capsys.readouterr().err
