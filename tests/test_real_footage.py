@@ -28,15 +28,15 @@ FOUND_MIN = 0.9
 """Share of the person crops' people found: the issue's target (95 %) with one crop of slack
 (15 of 16 passes). Today's network finds 16/16 here (283/283 in the benchmark)."""
 COVER_MIN = 0.25
-"""Mean box cover, a regression bound: today 0.347 (fp32) / 0.354 (int8) on these crops. The
-issue's target is 0.4: raise this to it once the retrained perception reaches it."""
-FREE_MEDIAN_MAX = 0.06
-FREE_GT10_MAX = 0.125
+"""Mean box cover, a regression bound: today 0.325 (fp32 and int8) on these crops. The
+issue's target is 0.4: raise this to it once a retrained perception reaches it."""
+FREE_MEDIAN_MAX = 0.045
+FREE_GT10_MAX = 0.1875
 """False heat on the people-free crops, regression bounds just above today's level: median hot
-area 4.25 % (fp32) / 4.8 % (int8), no crop over 10 % hot (at most 2 of 16 allowed); every crop
-is over 2 % hot today. To be tightened to the issue's target, median hot area <= 0.5 % and at
-most 10 % of crops over 2 % hot, once the perception is retrained with "not a person" data."""
-
+area 3.15 % (fp32) / 2.96 % (int8); 1 (fp32) and 2 (int8) of the 16 crops over 10 % hot, at
+most 3 allowed; 14 of 16 are over 2 % hot. To be tightened to the issue's target, median hot
+area <= 0.5 % and at most 10 % of crops over 2 % hot, once the perception is retrained with
+"not a person" data."""
 needs_int8_cpu = pytest.mark.skipif(
     not cpu_int8_support()[0], reason=f"this CPU: {cpu_int8_support()[1]}"
 )
