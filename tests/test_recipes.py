@@ -3,6 +3,7 @@ generated from that recipe, starts from it with ``--recipe FILE``."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -20,8 +21,8 @@ WEIGHTS_DIR = DEFAULT_WEIGHTS.parent
 
 
 SHIPPED_CROWDS = ("pacing", "crowd:3", "crowd:10", "groups:8", "crossing:6", "oblivious:6")
-SHIPPED_AVNET = {"crowds": SHIPPED_CROWDS, "depth_world_weights": {"moon": 4.0}, "threads": 2,
-                 "calibrate": True, "max_minutes": 240.0}
+SHIPPED_AVNET = train.AVNetRecipe(crowds=SHIPPED_CROWDS, depth_world_weights={"moon": 4.0},
+                                  threads=2, calibrate=True, max_minutes=240.0)
 """The options of the command that made the shipped network (everything else at its
 default): ``--crowds ... --depth-world-weights moon=4 --threads 2 --calibrate
 --max-minutes 240``."""
@@ -29,7 +30,7 @@ default): ``--crowds ... --depth-world-weights moon=4 --threads 2 --calibrate
 
 def test_the_shipped_perception_files_carry_their_recipes() -> None:
     avnet = train.read_recipe(DEFAULT_WEIGHTS)
-    assert avnet == train.AVNetRecipe(**SHIPPED_AVNET)  # type: ignore[arg-type]
+    assert avnet == SHIPPED_AVNET
     assert predict_train.read_recipe(WEIGHTS_DIR / "predict.pt") == predict_train.PredictRecipe()
     assert quantize.read_recipe(WEIGHTS_DIR / int8_file_name(DEFAULT_WEIGHTS, 96)) == (
         quantize.QuantizeRecipe())
@@ -40,7 +41,7 @@ def test_the_shipped_perception_files_carry_their_recipes() -> None:
 def test_recipe_option_starts_the_command_line_from_the_file(tmp_path: Path) -> None:
     recipe, run = train._parse(["--recipe", str(DEFAULT_WEIGHTS), "--epochs", "2",
                                    "--out", str(tmp_path / "x.pt")])  # fmt: skip
-    assert recipe == train.AVNetRecipe(**{**SHIPPED_AVNET, "epochs": 2})  # type: ignore[arg-type]
+    assert recipe == dataclasses.replace(SHIPPED_AVNET, epochs=2)
     assert run.out == tmp_path / "x.pt"
 
 
