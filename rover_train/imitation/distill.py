@@ -205,26 +205,26 @@ def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
     return DAggerRecipe(entry=entry, synthetic_goals=150, **teacher, **{**crowd, **kw})
 
 
-_PACERS = {"pedestrian_mode": "pacing"}  # the fused entries were made among the pacers
-_CROWD = {"pedestrian_mode": "crowd", "fit_threads": 1}  # the LIDAR entries among the crowd
+_CROWD = {"pedestrian_mode": "crowd", "fit_threads": 1}  # the default scenario's people
 
 RECIPES: dict[str, DAggerRecipe] = {
     "lidar-inspect": _recipe("lidar-inspect", members=2, **_CROWD),
     "lidar-maze": _recipe("lidar-maze", members=2, unmapped_scan=True, **_CROWD),
-    "fused-inspect": _recipe("fused-inspect", **_PACERS),
-    "fused-maze": _recipe("fused-maze", members=3, **_PACERS),
+    "fused-inspect": _recipe("fused-inspect", **_CROWD),
+    "fused-maze": _recipe("fused-maze", members=3, **_CROWD),
     "fused-moon": _recipe("fused-moon"),
     "fused-gaze-moon": _recipe("fused-gaze-moon"),
     "fused-inspect-10": _recipe("fused-inspect-10"),
     "fused-gaze-inspect-10": _recipe("fused-gaze-inspect-10"),
 }
-"""The recipe each zoo entry is made with. Ensembles (members) were chosen on the
-diagnostic seeds (among the crowd two LIDAR members meet every target at 3 and 10 people);
-lidar-maze's students see the unmapped scan (34 collided diagnostic episodes of 200 against
-40 without; docs/journal.md). fused-moon and fused-gaze-moon (moon crossings), and
-fused-inspect-10 and fused-gaze-inspect-10 (inspect among a crowd of 10, where looking
-changes what the teacher hits), are pairs of one recipe: the camera fixed ahead, or turned
-by the student as the gaze teacher turns it (issue 37's comparison)."""
+"""The recipe each zoo entry is made with. The four main entries are made among the crowd of 3
+(the default). Ensembles (members) were chosen on the diagnostic seeds (among the crowd two
+LIDAR members meet every target at 3 and 10 people; fused-maze's three were chosen among the
+pacers and kept); lidar-maze's students see the unmapped scan (34 collided diagnostic
+episodes of 200 against 40 without; docs/journal.md). fused-moon and fused-gaze-moon (moon
+crossings), and fused-inspect-10 and fused-gaze-inspect-10 (inspect among a crowd of 10,
+where looking changes what the teacher hits), are pairs of one recipe: the camera fixed
+ahead, or turned by the student as the gaze teacher turns it (issue 37's comparison)."""
 
 
 @dataclass(frozen=True)
