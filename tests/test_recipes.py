@@ -27,11 +27,14 @@ SHIPPED_AVNET = train.AVNetRecipe(crowds=SHIPPED_CROWDS, depth_world_weights={"m
 default): ``--crowds ... --depth-world-weights moon=4 --threads 2 --calibrate
 --max-minutes 240``."""
 
+SHIPPED_PREDICT = predict_train.PredictRecipe(crowds=("pacing", "crowd:3", "crowd:10"))
+"""The shipped predictor's command: ``predict_train --crowds pacing,crowd:3,crowd:10``."""
+
 
 def test_the_shipped_perception_files_carry_their_recipes() -> None:
     avnet = train.read_recipe(DEFAULT_WEIGHTS)
     assert avnet == SHIPPED_AVNET
-    assert predict_train.read_recipe(WEIGHTS_DIR / "predict.pt") == predict_train.PredictRecipe()
+    assert predict_train.read_recipe(WEIGHTS_DIR / "predict.pt") == SHIPPED_PREDICT
     assert quantize.read_recipe(WEIGHTS_DIR / int8_file_name(DEFAULT_WEIGHTS, 96)) == (
         quantize.QuantizeRecipe())
     # the exports are named for these exact weights (the recipe is part of the file)
