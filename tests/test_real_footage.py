@@ -37,6 +37,7 @@ area 3.15 % (fp32) / 2.96 % (int8); 1 (fp32) and 2 (int8) of the 16 crops over 1
 most 3 allowed; 14 of 16 are over 2 % hot. To be tightened to the issue's target, median hot
 area <= 0.5 % and at most 10 % of crops over 2 % hot, once the perception is retrained with
 "not a person" data."""
+
 needs_int8_cpu = pytest.mark.skipif(
     not cpu_int8_support()[0], reason=f"this CPU: {cpu_int8_support()[1]}"
 )

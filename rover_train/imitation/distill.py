@@ -205,7 +205,9 @@ def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
     return DAggerRecipe(entry=entry, synthetic_goals=150, **teacher, **{**crowd, **kw})
 
 
-_CROWD = {"pedestrian_mode": "crowd", "fit_threads": 1}  # the default scenario's people
+# made among the default scenario's people, fitted on one thread (the float order, so the
+# weights, depend on the thread count)
+_CROWD = {"pedestrian_mode": "crowd", "fit_threads": 1}
 
 RECIPES: dict[str, DAggerRecipe] = {
     "lidar-inspect": _recipe("lidar-inspect", members=2, **_CROWD),
