@@ -128,16 +128,23 @@ def test_the_gaze_teacher_labels_pan_targets_and_the_fixed_one_none() -> None:
         env.close()
 
 
-def test_a_gaze_recipe_needs_the_gaze_teacher_that_sees_through_its_camera() -> None:
-    recipe = RECIPES["fused-gaze-moon"]
+@pytest.mark.parametrize("gaze, fixed", [("fused-gaze-moon", "fused-moon"),
+                                         ("fused-gaze-inspect", "fused-inspect"),
+                                         ("fused-gaze-inspect-10", "fused-inspect-10")])
+def test_a_gaze_recipe_needs_the_gaze_teacher_that_sees_through_its_camera(
+    gaze: str, fixed: str
+) -> None:
+    recipe = RECIPES[gaze]
     assert recipe.teacher_gaze == "active" and recipe.teacher_sees == "camera"
     assert recipe.problem() is None
-    # the pair differs in the camera alone
-    assert replace(RECIPES["fused-moon"], entry=recipe.entry, teacher_gaze="active") == recipe
+    # the pair differs in the camera alone, and drives one scenario
+    assert replace(RECIPES[fixed], entry=recipe.entry, teacher_gaze="active") == recipe
+    assert zoo.ENTRIES[gaze].env_kwargs == zoo.ENTRIES[fixed].env_kwargs
+    assert zoo.ENTRIES[gaze].kind == "fused-gaze" and zoo.ENTRIES[fixed].kind == "fused"
     assert "--teacher-gaze active" in (replace(recipe, teacher_gaze="fixed").problem() or "")
     assert "--teacher-sees camera" in (replace(recipe, teacher_sees="all").problem() or "")
-    command = zoo.command("fused-gaze-moon")
-    assert command.startswith("rover-pair --name distill_fused_gaze_moon -- ")
+    command = zoo.command(gaze)
+    assert command.startswith(f"rover-pair --name distill_{gaze.replace('-', '_')} -- ")
 
 
 def test_a_gaze_entry_is_distilled_in_two_stages_and_drives_the_gaze_env(tmp_path) -> None:

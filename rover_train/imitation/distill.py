@@ -213,6 +213,7 @@ RECIPES: dict[str, DAggerRecipe] = {
     "lidar-inspect": _recipe("lidar-inspect", members=2, **_CROWD),
     "lidar-maze": _recipe("lidar-maze", members=2, unmapped_scan=True, **_CROWD),
     "fused-inspect": _recipe("fused-inspect", **_CROWD),
+    "fused-gaze-inspect": _recipe("fused-gaze-inspect", **_CROWD),
     "fused-maze": _recipe("fused-maze", members=3, **_CROWD),
     "fused-moon": _recipe("fused-moon"),
     "fused-gaze-moon": _recipe("fused-gaze-moon"),

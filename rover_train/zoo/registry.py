@@ -104,6 +104,9 @@ LOOKING_PAIRS = {
     "fused-gaze-inspect-10": (Scenario("inspect", "crowd", 10), "fused-gaze"),
 }
 """The looking pairs: one recipe and scenario each, the camera fixed or turned by the student."""
+ENTRIES["fused-gaze-inspect"] = EntrySpec(
+    "fused-gaze-inspect", "fused-gaze", "inspect", ENTRIES["fused-inspect"].env_kwargs
+)  # fused-inspect's looking twin: its recipe, the camera turned by the student
 ENTRIES.update(
     (name, EntrySpec(name, kind, scenario.world, scenario.env_kwargs()))
     for name, (scenario, kind) in LOOKING_PAIRS.items()
