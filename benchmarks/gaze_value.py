@@ -29,6 +29,16 @@ gaze student that looks: what its looking costs or gains it, apart from how it d
     PYTHONPATH=. .venv/bin/python benchmarks/gaze_value.py --episodes 250 \
         --scenarios moon-crossing-3 --student-fixed fused-moon --student-gaze fused-gaze-moon
 
+``--gif PATH`` (with both students) writes a clip of the first scenario: the episode in which
+the gaze student had the nearest pedestrian in view most more often than the fixed student,
+each student re-run with rendering (chase view with the view cone, grayscale, heatmap), the
+gaze student above the fixed one, from ``--gif-lead`` steps before the gaze student first saw
+the nearest pedestrian that the fixed one did not.
+
+    PYTHONPATH=. .venv/bin/python benchmarks/gaze_value.py --episodes 250 \
+        --scenarios moon-crossing-3 --student-fixed fused-moon --student-gaze fused-gaze-moon \
+        --gif docs/gaze_students.gif
+
 Each row runs RoverEnv with the fused envs' reward constants (``RewardConfig.fused()``, so
 episodes end as in RoverEnvFusedGaze) under :class:`~rover_train.imitation.gaze.WithPanHead`,
 which turns the sim's camera like the gaze env (180 deg/s servo): the teachers need no fused
@@ -146,10 +156,12 @@ def student_act(
     return agent.reset, act
 
 
-def make_env(scenario: Scenario, max_steps: int, fused_view: bool) -> Any:
+def make_env(scenario: Scenario, max_steps: int, fused_view: bool,
+             render_mode: str | None = None) -> Any:  # fmt: skip
     size = {"size": FUSED_SIZE} if fused_view else {}  # the students read the fused image
     env: Any = WithPanHead(RoverEnv(**scenario.env_kwargs(), length=max_steps,
-                                    reward_config=RewardConfig.fused(), **size))  # fmt: skip
+                                    reward_config=RewardConfig.fused(), render_mode=render_mode,
+                                    **size))  # fmt: skip
     if fused_view:
         from rover_train.imitation.dagger import WithFusedView
 
@@ -184,6 +196,60 @@ def run_row(
     print(f"  {scenario.name} / {label}: {episodes} episodes, {steps} steps in {wall:.0f} s",
           file=sys.stderr, flush=True)  # fmt: skip
     return out
+
+
+CLIP_PANEL = 128  # px: the height of each student's strip in the clip
+
+
+def clip_episode(results: dict[str, list[Episode]], students: dict[str, str]) -> int:
+    """The episode in which the gaze student had the nearest pedestrian in view most more
+    often than the fixed student, among those the gaze student finished at the goal."""
+    gaze, fixed = results[students["gaze student"]], results[students["fixed student"]]
+    gain = [g.in_view_steps / max(g.result.steps, 1) - f.in_view_steps / max(f.result.steps, 1)
+            if g.result.success else -math.inf for g, f in zip(gaze, fixed, strict=True)]
+    return int(np.argmax(gain))
+
+
+def write_clip(scenario: Scenario, students: dict[str, tuple[Path, bool]], seed: int,
+               max_steps: int, path: Path, lead: int, length: int) -> str:  # fmt: skip
+    """Re-run episode ``seed`` for each student with rendering and write the gaze student's
+    frames above the fixed one's (every other step: real time). Returns a line saying what."""
+    import cv2
+
+    from benchmarks.gaze_crossing import video_frame, write_gif
+
+    frames: dict[str, list[np.ndarray]] = {}
+    seen: dict[str, list[bool]] = {}
+    fps = 10.0
+    for label, (file, gaze) in students.items():
+        env = make_env(scenario, max_steps, fused_view=True, render_mode="rgb_array")
+        reset, act = student_act(file, gaze)
+        frames[label], seen[label] = [], []
+        try:
+            obs, _ = env.reset(seed=seed)
+            reset()
+            for _ in range(max_steps):
+                obs, _, terminated, truncated, info = env.step(act(obs))
+                frame = video_frame(env, obs, panel=CLIP_PANEL)
+                cv2.putText(frame, label, (6, CLIP_PANEL - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.45,
+                            (255, 255, 255), 1, cv2.LINE_AA)  # fmt: skip
+                frames[label].append(frame)
+                seen[label].append(bool(info["nearest_pedestrian_in_view"]))
+                if info["goals_reached"] > 0 or terminated or truncated:
+                    break
+            fps = 0.5 / env.unwrapped.control_dt
+        finally:
+            env.close()
+    g, f = seen["gaze student"], seen["fixed student"]
+    only = [i for i in range(len(g)) if g[i] and not (i < len(f) and f[i])]
+    lo = max(0, (only[0] if only else 0) - lead)
+    rows = []
+    for i in range(lo, lo + length, 2):
+        pair = [fr[min(i, len(fr) - 1)] for fr in (frames["gaze student"], frames["fixed student"])]
+        rows.append(np.concatenate(pair, axis=0))  # the last frame held once an episode ends
+    write_gif(rows, path, fps)
+    return (f"wrote {path}: {scenario.name}, seed {seed}, steps {lo}..{lo + length}, gaze "
+            f"student above, fixed below")
 
 
 # --- statistics -----------------------------------------------------------------------------
@@ -332,11 +398,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--hold-camera", action="store_true",
                    help="also the gaze student with its camera held ahead (pan head overruled)")
     p.add_argument("--json", type=Path, help="write the rows and differences here")
+    p.add_argument("--gif", type=Path, help="write a clip of both students (give both)")
+    p.add_argument("--gif-lead", type=int, default=20,
+                   help="clip steps before the gaze student first sees what the fixed one does not")
+    p.add_argument("--gif-steps", type=int, default=80, help="clip length in steps")
     args = p.parse_args(argv)
     if args.episodes < 2 or args.max_steps < 1:
         p.error("--episodes must be at least 2 and --max-steps at least 1")
     if args.hold_camera and args.student_gaze is None:
         p.error("--hold-camera overrules a gaze student's pan: give --student-gaze too")
+    if args.gif is not None and (args.student_gaze is None or args.student_fixed is None):
+        p.error("--gif shows both students: give --student-fixed and --student-gaze")
     try:
         scenarios = select_scenarios(args.scenarios)
     except ValueError as exc:
@@ -391,6 +463,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             "episodes": {k: [dataclasses.asdict(e.result) | {"in_view_steps": e.in_view_steps}
                              for e in v] for k, v in results.items()},
         }  # fmt: skip
+        if args.gif is not None and scenario is scenarios[0]:
+            k = clip_episode(results, students)
+            print(write_clip(scenario, {"gaze student": (args.student_gaze, True),
+                                        "fixed student": (args.student_fixed, False)},
+                             args.seed + k, args.max_steps, args.gif, args.gif_lead,
+                             args.gif_steps))  # fmt: skip
     print(f"\n{time.monotonic() - t0:.0f} s wall")
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)

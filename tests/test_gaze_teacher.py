@@ -252,3 +252,42 @@ def test_gaze_value_holds_a_gaze_students_camera_ahead_only_when_asked() -> None
     with pytest.raises(SystemExit) as exc:
         main(["--hold-camera", "--episodes", "2"])
     assert exc.value.code == 2
+
+
+def test_gaze_value_clips_both_students_where_the_gaze_one_sees_more(tmp_path: Path) -> None:
+    """--gif: the episode picked is the one the gaze student finished seeing the nearest
+    pedestrian most more often; the clip stacks both students' frames; without both students
+    it is refused."""
+    from PIL import Image
+
+    from benchmarks.gaze_value import Episode, clip_episode, main, student_path, write_clip
+    from rover_env.scenarios import select_scenarios
+    from rover_train.evaluate import EpisodeResult
+
+    def episode(success: bool, steps: int, seen: int) -> Episode:
+        result = EpisodeResult(success=success, collided=False, timeout=not success,
+                               termination="goal" if success else "timeout", path_length=1.0,
+                               start_distance=1.0, time_to_goal=1.0 if success else None,
+                               steps=steps, intrusion_steps=0, min_ped_distance=2.0,
+                               ret=0.0)  # fmt: skip
+        return Episode(result, seen)
+
+    students = {"gaze student": "g", "fixed student": "f"}
+    results = {
+        "g": [episode(True, 100, 30), episode(False, 100, 90), episode(True, 100, 60)],
+        "f": [episode(True, 100, 20), episode(True, 100, 10), episode(True, 100, 20)],
+    }
+    assert clip_episode(results, students) == 2  # episode 1 gains most, but did not finish
+
+    out = tmp_path / "clip.gif"
+    line = write_clip(select_scenarios("moon-crossing-3")[0],
+                      {"gaze student": (student_path("fused-gaze-moon"), True),
+                       "fixed student": (student_path("fused-moon"), False)},
+                      seed=0, max_steps=12, path=out, lead=2, length=8)  # fmt: skip
+    assert str(out) in line
+    with Image.open(out) as gif:
+        # 8 steps, every other one (Pillow may merge identical frames); two 128-px strips
+        assert 2 <= gif.n_frames <= 4 and gif.size[1] == 2 * 128
+    with pytest.raises(SystemExit) as exc:
+        main(["--gif", str(out), "--student-gaze", "fused-gaze-moon", "--episodes", "2"])
+    assert exc.value.code == 2
