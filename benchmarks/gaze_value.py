@@ -35,9 +35,9 @@ each student re-run with rendering (chase view with the view cone, grayscale, he
 gaze student above the fixed one, from ``--gif-lead`` steps before the gaze student first saw
 the nearest pedestrian that the fixed one did not.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/gaze_value.py --episodes 250 \
+    PYTHONPATH=. .venv/bin/python benchmarks/gaze_value.py --episodes 60 \
         --scenarios moon-crossing-3 --student-fixed fused-moon --student-gaze fused-gaze-moon \
-        --gif docs/gaze_students.gif
+        --gif docs/gaze_students.gif   # the README's clip
 
 Each row runs RoverEnv with the fused envs' reward constants (``RewardConfig.fused()``, so
 episodes end as in RoverEnvFusedGaze) under :class:`~rover_train.imitation.gaze.WithPanHead`,
