@@ -80,11 +80,13 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.machine import cpu_name  # noqa: E402
 from fused_image import FUSED_SIZE  # noqa: E402
 from rover_env import RoverEnv  # noqa: E402
+from rover_env.gaze_discrete_env import N_PAN_MOVES  # noqa: E402
 from rover_env.reward import RewardConfig  # noqa: E402
 from rover_env.scenarios import Scenario, select_scenarios  # noqa: E402
 from rover_train.evaluate import EpisodeResult, run_episode  # noqa: E402
 from rover_train.imitation.expert import MANNERS, ExpertConfig, PlannerExpert  # noqa: E402
 from rover_train.imitation.gaze import WithPanHead  # noqa: E402
+from rover_train.imitation.seed_table import WithSeedTable  # noqa: E402
 from rover_train.suite import wilson_interval  # noqa: E402
 from rover_train.zoo import EVAL_MAX_STEPS, EVAL_SEED_BASE  # noqa: E402
 
@@ -132,16 +134,34 @@ def student_path(value: str) -> Path:
 
 
 def student_act(
-    path: Path, gaze: bool, hold_camera: bool = False
+    path: Path, gaze: bool, hold_camera: bool = False, table: bool = False
 ) -> tuple[Callable[[], None], Callable[[Any], Any]]:
     """(reset, act) of a zoo student file; a fixed student's camera stays ahead, and so does
-    a gaze student's with ``hold_camera`` (its pan target overruled by 0)."""
+    a gaze student's with ``hold_camera`` (its pan target overruled by 0). With ``table`` the
+    env takes the seed's ``Discrete(180)`` and the student must be a discrete one (a fixed
+    one's ``Discrete(60)`` action is taken with no pan move)."""
     from rover_train.zoo import StudentAgent
 
     if not path.is_file():
         raise SystemExit(f"{path}: no such student file (give a zoo entry's name or a file "
                          "made by rover_train.imitation.distill)")  # fmt: skip
     agent = StudentAgent.load(path)
+    if agent.spec.table != table:
+        raise SystemExit(f"{path}: a discrete student drives the seed's table: give --table"
+                         if agent.spec.table else
+                         f"{path}: --table drives the seed's table, and this student takes "
+                         "continuous actions: give a discrete one or drop --table")  # fmt: skip
+    if table:
+        if gaze != agent.spec.gaze:
+            raise SystemExit(f"{path}: {'not ' if gaze else ''}a Discrete(180) gaze student")
+
+        def act_table(obs: Any) -> int:
+            a = int(agent.act(obs))
+            if not gaze:
+                return a * N_PAN_MOVES  # Discrete(60) -> the same cell, no pan move
+            return a - a % N_PAN_MOVES if hold_camera else a
+
+        return agent.reset, act_table
 
     def act(obs: Any) -> np.ndarray:
         a = np.asarray(agent.act(obs), dtype=np.float32).reshape(-1)
@@ -157,11 +177,13 @@ def student_act(
 
 
 def make_env(scenario: Scenario, max_steps: int, fused_view: bool,
-             render_mode: str | None = None) -> Any:  # fmt: skip
+             render_mode: str | None = None, table: bool = False) -> Any:  # fmt: skip
     size = {"size": FUSED_SIZE} if fused_view else {}  # the students read the fused image
     env: Any = WithPanHead(RoverEnv(**scenario.env_kwargs(), length=max_steps,
                                     reward_config=RewardConfig.fused(), render_mode=render_mode,
                                     **size))  # fmt: skip
+    if table:
+        env = WithSeedTable(env)
     if fused_view:
         from rover_train.imitation.dagger import WithFusedView
 
@@ -177,10 +199,13 @@ def run_row(
     seed: int,
     max_steps: int,
     fused_view: bool = False,
+    table: bool = False,
 ) -> list[Episode]:
     """``episodes`` episodes of one row; ``agent(env)`` gives its (reset, act)."""
-    env = make_env(scenario, max_steps, fused_view)
-    head = env if isinstance(env, WithPanHead) else env.env
+    env = make_env(scenario, max_steps, fused_view, table=table)
+    head = env
+    while not isinstance(head, WithPanHead):
+        head = head.env
     reset, act = agent(env)
     out = []
     t0 = time.monotonic()
@@ -398,6 +423,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--hold-camera", action="store_true",
                    help="also the gaze student with its camera held ahead (pan head overruled)")
     p.add_argument("--json", type=Path, help="write the rows and differences here")
+    p.add_argument("--table", action="store_true",
+                   help="every row through the seed's Discrete(180) table (the teachers "
+                        "labelling its nearest action); students must be discrete ones")
     p.add_argument("--gif", type=Path, help="write a clip of both students (give both)")
     p.add_argument("--gif-lead", type=int, default=20,
                    help="clip steps before the gaze student first sees what the fixed one does not")
@@ -409,13 +437,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error("--hold-camera overrules a gaze student's pan: give --student-gaze too")
     if args.gif is not None and (args.student_gaze is None or args.student_fixed is None):
         p.error("--gif shows both students: give --student-fixed and --student-gaze")
+    if args.gif is not None and args.table:
+        p.error("--gif shows the continuous students: drop --table")
     try:
         scenarios = select_scenarios(args.scenarios)
     except ValueError as exc:
         p.error(f"--scenarios: {exc}")
     last = args.seed + args.episodes - 1
+    table = ", through the seed's Discrete(180) table" if args.table else ""
     print(f"gaze_value: {args.episodes} episodes a row (seeds {args.seed}..{last}, at most "
-          f"{args.max_steps} steps), {args.manners} teachers; CPU {cpu_name()}")  # fmt: skip
+          f"{args.max_steps} steps), {args.manners} teachers{table}; CPU {cpu_name()}")  # fmt: skip
     report: dict[str, Any] = {"args": {k: str(v) for k, v in vars(args).items()}, "scenarios": {}}
     t0 = time.monotonic()
     for scenario in scenarios:
@@ -428,7 +459,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 return teacher_act(env, world, config)
 
             results[label] = run_row(scenario, label, teacher, args.episodes, args.seed,
-                                     args.max_steps)  # fmt: skip
+                                     args.max_steps, table=args.table)  # fmt: skip
         students = {}
         for label, path, gaze, hold in (
             ("fixed student", args.student_fixed, False, False),
@@ -439,8 +470,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                 students[label] = f"{label} ({path.name})"
                 results[students[label]] = run_row(
                     scenario, label,
-                    lambda _env, path=path, gaze=gaze, hold=hold: student_act(path, gaze, hold),
-                    args.episodes, args.seed, args.max_steps, fused_view=True,
+                    lambda _env, path=path, gaze=gaze, hold=hold: student_act(
+                        path, gaze, hold, args.table),
+                    args.episodes, args.seed, args.max_steps, fused_view=True, table=args.table,
                 )  # fmt: skip
         rows = [(label, summarise(eps)) for label, eps in results.items()]
         diff = paired_difference(results["gaze teacher"], results["fixed teacher"])

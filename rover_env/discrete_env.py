@@ -70,6 +70,16 @@ def encode_action(speed_idx: int, direction_idx: int) -> int:
     return speed_idx * N_DIRECTIONS + direction_idx
 
 
+def nearest_action(speed: float, heading: float) -> int:
+    """The table action (``0..59``) nearest a continuous command: the speed level nearest
+    ``speed`` (m/s) and the direction nearest ``heading`` (rad, any turn; absolute in the
+    fused env, relative to the yaw in RoverEnvDiscrete). A planner's or a person's command
+    labelled for a discrete student."""
+    speed_idx = int(np.argmin(np.abs(SPEED_LEVELS - speed)))
+    direction_idx = int(np.rint((heading + np.pi) / (2 * np.pi / N_DIRECTIONS))) % N_DIRECTIONS
+    return encode_action(speed_idx, direction_idx)
+
+
 class SeedActionTable:
     """The seed's table as env attributes (``n_speeds``, ``n_directions``,
     ``speed_levels``, ``direction_angles``), mixed into both discrete envs."""

@@ -6,6 +6,7 @@ import logging
 import math
 from typing import Any
 
+import numpy as np
 from gymnasium import spaces
 
 from rover_env import constants as c
@@ -15,6 +16,7 @@ from rover_env.discrete_env import (
     action_index,
     decode_action,
     encode_action,
+    nearest_action,
 )
 from rover_env.gaze_env import RoverEnvFusedGaze
 
@@ -46,6 +48,28 @@ def encode_gaze_action(speed_idx: int, direction_idx: int, pan_move: int) -> int
     if pan_move not in (PAN_NONE, PAN_LEFT, PAN_RIGHT):
         raise ValueError(f"pan_move must be 0 (none), 1 (left) or 2 (right), got {pan_move}")
     return seed_action * N_PAN_MOVES + pan_move
+
+
+def moved_window(window: int, pan_move: int) -> int:
+    """The pan window (index into :data:`PAN_WINDOWS`) after ``pan_move`` from ``window``: one
+    step left (+30 deg) or right, clamped at the end windows; ``PAN_NONE`` stays."""
+    if pan_move == PAN_NONE:
+        return window
+    step = 1 if pan_move == PAN_LEFT else -1
+    return min(max(window + step, 0), len(PAN_WINDOWS) - 1)
+
+
+def nearest_gaze_action(speed: float, heading: float, pan_target: float, window: int) -> int:
+    """The table action (``0..179``) nearest a continuous gaze command, with the camera's
+    window at ``window``: the drive cell nearest (``speed`` m/s, absolute ``heading`` rad;
+    :func:`~rover_env.discrete_env.nearest_action`) and the pan move one window towards the
+    window nearest ``pan_target`` (rad from the heading), none when ``window`` is that one.
+    The planner expert's gaze labelled for a Discrete(180) student."""
+    if not 0 <= window < len(PAN_WINDOWS):
+        raise ValueError(f"window must be in 0..{len(PAN_WINDOWS) - 1}, got {window}")
+    want = int(np.argmin(np.abs(np.asarray(PAN_WINDOWS) - pan_target)))
+    move = PAN_NONE if want == window else PAN_LEFT if want > window else PAN_RIGHT
+    return nearest_action(speed, heading) * N_PAN_MOVES + move
 
 
 class DiscreteRoverEnvFusedGaze(SeedActionTable, RoverEnvFusedGaze):
@@ -109,8 +133,7 @@ class DiscreteRoverEnvFusedGaze(SeedActionTable, RoverEnvFusedGaze):
         )  # fmt: skip
         self._pan_cost_units = 0
         if pan_move != PAN_NONE:
-            step = 1 if pan_move == PAN_LEFT else -1
-            self.pan_window = min(max(self.pan_window + step, 0), len(self.pan_windows) - 1)
+            self.pan_window = moved_window(self.pan_window, pan_move)
             self.pan_moves += 1
             self._pan_cost_units = 1
         self.pan_target = self.pan_windows[self.pan_window]

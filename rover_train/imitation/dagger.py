@@ -26,7 +26,9 @@ import torch
 from torch import nn
 
 from fused_image import FUSED_SIZE
-from rover_env.constants import PAN_LIMIT
+from rover_env.constants import DISCRETE_SPEED_LEVELS, PAN_LIMIT
+from rover_env.discrete_env import nearest_action
+from rover_env.gaze_discrete_env import CENTRE_WINDOW, PAN_WINDOWS, nearest_gaze_action
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert
 from rover_train.progress import StatusLine
 from rover_train.threads import available_cores
@@ -217,12 +219,16 @@ def feature_spec(kind: str, env: Any, history: bool = True, depth_scan: int = 0,
                  unmapped_scan: bool = False) -> FeatureSpec:
     """The feature spec of a student for ``kind`` (lidar, fused, or state) in ``env``'s world,
     with ``depth_scan`` bands of scan (fused students) and ``unmapped_scan`` (LIDAR
-    students)."""
+    students); a discrete ``env`` (the seed's table) makes a discrete student."""
     base = env.unwrapped
     rect = base.world.goal
     centre = ((rect.x[0] + rect.x[1]) / 2, (rect.y[0] + rect.y[1]) / 2)
     scale = max(rect.x[1] - rect.x[0], rect.y[1] - rect.y[0]) / 2
-    low, high = env.action_space.low, env.action_space.high
+    table = isinstance(env.action_space, gym.spaces.Discrete)
+    if table:
+        low, high = DISCRETE_SPEED_LEVELS[:1], DISCRETE_SPEED_LEVELS[-1:]
+    else:
+        low, high = env.action_space.low, env.action_space.high
     return FeatureSpec(
         centre=centre,
         scale=scale,
@@ -234,6 +240,7 @@ def feature_spec(kind: str, env: Any, history: bool = True, depth_scan: int = 0,
         depth_scan=depth_scan,
         unmapped_scan=unmapped_scan and kind == "lidar",
         world=base.world.name,
+        table=table,
     )
 
 
@@ -333,12 +340,22 @@ def synthetic_samples(
                 peds = sim.pedestrian_positions
             expert.reset()
             pan = 0.0
-            if spec.gaze:  # the camera anywhere in its range half of the time
-                pan = float(rng.uniform(-PAN_LIMIT, PAN_LIMIT)) if rng.random() < 0.5 else 0.0
+            if spec.gaze:
+                if spec.table:  # half of the time at rest in another of the table's windows
+                    window = (int(rng.integers(len(PAN_WINDOWS))) if rng.random() < 0.5
+                              else CENTRE_WINDOW)  # fmt: skip
+                    pan = PAN_WINDOWS[window]
+                else:  # the camera anywhere in its range half of the time
+                    pan = float(rng.uniform(-PAN_LIMIT, PAN_LIMIT)) if rng.random() < 0.5 else 0.0
                 sim.set_camera_pan(pan)
                 label = expert.act_gaze((x, y), yaw, goal, peds, None, pan)
+                if spec.table:
+                    label = nearest_gaze_action(float(label[0]), yaw + float(label[1]),
+                                                float(label[2]), window)  # fmt: skip
             else:
                 label = expert.act((x, y), yaw, goal, peds, None)
+                if spec.table:
+                    label = nearest_action(float(label[0]), yaw + float(label[1]))
             dist = float(np.hypot(goal[0] - x, goal[1] - y))
             bearing = float(np.angle(np.exp(1j * (np.arctan2(goal[1] - y, goal[0] - x) - yaw))))
             obs = {
@@ -373,8 +390,8 @@ def fit(net: StudentNet | EnsembleNet, data: Dataset, cfg: DAggerConfig,
     if isinstance(net, EnsembleNet):
         return float(np.mean([fit(m, data, cfg, gen) for m in net.members]))
     states, images, encoded, weights = data.tensors()
-    targets = action_classes(encoded)
-    pans = pan_classes(encoded) if net.spec.gaze else None
+    targets = action_classes(encoded, net.spec)
+    pans = pan_classes(encoded, net.spec) if net.spec.n_pan else None
     n_drive = net.spec.n_drive
     loss_fn = nn.CrossEntropyLoss(reduction="none")
     if cfg.image_only and net.spec.image:

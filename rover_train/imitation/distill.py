@@ -58,8 +58,15 @@ from rover_train.imitation.dagger import (
 )
 from rover_train.imitation.expert import GAZES, MANNERS, SEES
 from rover_train.imitation.gaze import WithPanHead
+from rover_train.imitation.seed_table import WithSeedTable
 from rover_train.zoo.agent import StudentAgent, StudentNet
-from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE, ENTRIES, STUDENT_FUSED_KINDS
+from rover_train.zoo.registry import (
+    DIAGNOSTIC_SEED_BASE,
+    ENTRIES,
+    GAZE_KINDS,
+    STUDENT_FUSED_KINDS,
+    TABLE_KINDS,
+)
 
 log = logging.getLogger(__name__)
 
@@ -176,10 +183,10 @@ class DAggerRecipe:
             )
         if self.stage1_only and self.kind not in STUDENT_FUSED_KINDS:
             return f"--stage1-only is for fused entries; {self.entry} is made in one stage"
-        if self.kind == "fused-gaze" and self.teacher_gaze != "active":
+        if self.kind in GAZE_KINDS and self.teacher_gaze != "active":
             return (f"{self.entry} learns where to look from the gaze teacher: "
                     f"--teacher-gaze active (got {self.teacher_gaze})")
-        if self.kind == "fused-gaze" and self.teacher_sees != "camera":
+        if self.kind in GAZE_KINDS and self.teacher_sees != "camera":
             return (f"{self.entry}'s teacher must react to what its camera shows for looking "
                     f"to matter: --teacher-sees camera (got {self.teacher_sees})")
         if self.init is not None and not self.init.is_file():
@@ -197,7 +204,7 @@ def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
     teacher = ({"teacher_sees": "camera", "teacher_manners": "polite"}
                if kind in STUDENT_FUSED_KINDS
                else {"teacher_sees": "all", "teacher_manners": "firm"})  # fmt: skip
-    if kind == "fused-gaze":
+    if kind in GAZE_KINDS:
         teacher["teacher_gaze"] = "active"  # the gaze teacher turns the camera
     # an entry made for a scenario (ENTRIES' env keywords) is trained among its pedestrians
     crowd = {k: v for k, v in ENTRIES[entry].env_kwargs.items()
@@ -214,6 +221,8 @@ RECIPES: dict[str, DAggerRecipe] = {
     "lidar-maze": _recipe("lidar-maze", members=2, unmapped_scan=True, **_CROWD),
     "fused-inspect": _recipe("fused-inspect", **_CROWD),
     "fused-gaze-inspect": _recipe("fused-gaze-inspect", **_CROWD),
+    "discrete-inspect": _recipe("discrete-inspect", **_CROWD),
+    "fused-gaze-discrete-inspect": _recipe("fused-gaze-discrete-inspect", **_CROWD),
     "fused-maze": _recipe("fused-maze", members=3, **_CROWD),
     "fused-moon": _recipe("fused-moon"),
     "fused-gaze-moon": _recipe("fused-gaze-moon"),
@@ -303,7 +312,8 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
     cfg = recipe.dagger(seed)
     torch.manual_seed(seed)
     init = recipe.init
-    gaze = recipe.kind == "fused-gaze"
+    gaze = recipe.kind in GAZE_KINDS
+    table = recipe.kind in TABLE_KINDS
     stage1_file = (
         run.member_dir / f"{name}-seed{seed}.stage1.pt"
         if recipe.kind in STUDENT_FUSED_KINDS and init is None
@@ -330,10 +340,13 @@ def _distill_one(recipe: DAggerRecipe, seed: int, run: DistillRun) -> StudentAge
     else:
         # stage 1: the state network in RoverEnv (fast, no daemon), the depth scan read off
         # the fused image computed in this process
-        # (a gaze student's under the gaze env's pan head, the depth scan off the turned camera)
+        # (a gaze student's under the gaze env's pan head, the depth scan off the turned camera;
+        # a discrete student's through the seed's table, as its env takes it)
         env = make_training_env("lidar", world, size=FUSED_SIZE, **crowd)
         if gaze:
             env = WithPanHead(env)
+        if table:
+            env = WithSeedTable(env)
         if recipe.depth_scan:
             env = WithFusedView(env)
         try:

@@ -72,6 +72,7 @@ from rover_train.zoo.registry import (
     DIAGNOSTIC_SEED_BASE,
     ENTRIES,
     STUDENT_FUSED_KINDS,
+    TABLE_KINDS,
     shown_path,
 )
 
@@ -85,8 +86,10 @@ REWARD_SCALE = 0.05
 """The critic learns returns in this unit (the nav task's goal pays 100)."""
 CRITIC_LR = 3e-4
 MAX_GRAD_NORM = 0.5
-STARTS = tuple(sorted(name for name, e in ENTRIES.items() if e.trainer == DAGGER))
-"""The zoo entries a fine-tune can start from: the distilled students."""
+STARTS = tuple(sorted(name for name, e in ENTRIES.items()
+                     if e.trainer == DAGGER and e.kind not in TABLE_KINDS))  # fmt: skip
+"""The zoo entries a fine-tune can start from: the distilled students of continuous actions
+(its policy heads are the continuous students')."""
 IMAGE_VALUES = 3 * (FUSED_SIZE[0] // POOL) * (FUSED_SIZE[1] // POOL)
 """Values of a fused student's pooled image in its flat observation (after the state)."""
 

@@ -60,7 +60,9 @@ from torch import nn
 
 from fused_image import CHANNEL_DEPTH, DEPTH_MAX_M
 from rover_env import FORWARD_CAMERA, LIDAR_SCAN_LAG, lidar_ray_angles, obstacle_map
-from rover_env.constants import PAN_LIMIT
+from rover_env.constants import CONTROL_DT, PAN_LIMIT, PAN_RATE
+from rover_env.discrete_env import N_SEED_ACTIONS
+from rover_env.gaze_discrete_env import N_PAN_MOVES
 
 LIDAR_CLIP = 4.0  # m
 FREQUENCIES = (0.5, 1.0, 2.0)  # cycles per world half-size, for position features
@@ -78,6 +80,7 @@ SCAN_BOTTOM = 0.12  # m above the ground: lower points are ground (or depth erro
 SCAN_TOP = 1.2  # m above the ground: higher points cannot touch the rover
 UNMAPPED_MARGIN = 0.15  # m: a return this much nearer than the map's is not the scenery
 UNMAPPED_YAW_SPREAD = 0.03  # rad: the map is cast this far either side of the heading too
+_PAN_STEP = PAN_RATE * CONTROL_DT  # rad: the most the camera turns in a control step
 
 
 @dataclass(frozen=True)
@@ -107,6 +110,13 @@ class FeatureSpec:
     gaze: bool = False
     """A gaze student: sees where the camera looks (the ``gaze`` key) and chooses the pan
     target (a second head of ``PAN_BINS`` classes): it drives RoverEnvFusedGaze."""
+    table: bool = False
+    """A discrete student: its action is the seed's table's integer. Its driving head is
+    over the table's 60 cells (5 speeds x 12 compass headings: ``Discrete(60)``,
+    RoverEnvFusedDiscrete); with ``gaze`` a pan head over the 3 pan moves makes the
+    ``Discrete(180)`` action ``cell * 3 + move`` (RoverEnvFusedGazeDiscrete), and with
+    ``history`` it also sees how fast the camera turns, which tells whether a move is under
+    way."""
 
     def __post_init__(self) -> None:
         if self.unmapped_scan and not (self.lidar_points and self.world):
@@ -126,22 +136,41 @@ class FeatureSpec:
 
     @property
     def n_drive(self) -> int:
-        """Classes of the driving head (speed level x heading bin)."""
+        """Classes of the driving head: speed level x heading bin, or a discrete student's
+        table cells (60)."""
+        if self.table:
+            return N_SEED_ACTIONS
         return len(SPEED_LEVELS) * HEADING_BINS
 
     @property
+    def n_pan(self) -> int:
+        """Classes of a gaze student's pan head: ``PAN_BINS`` pan targets, a discrete one's
+        ``N_PAN_MOVES`` moves (0 without ``gaze``)."""
+        if not self.gaze:
+            return 0
+        return N_PAN_MOVES if self.table else PAN_BINS
+
+    @property
     def n_outputs(self) -> int:
-        return self.n_drive + (PAN_BINS if self.gaze else 0)
+        return self.n_drive + self.n_pan
 
     @property
     def action_size(self) -> int:
-        """Values of an action: ``[speed, heading]``, with ``gaze`` the pan target too."""
-        return 3 if self.gaze else 2
+        """Values of an action: ``[speed, heading]``, with ``gaze`` the pan target too; a
+        discrete student's one integer."""
+        return 1 if self.table else 3 if self.gaze else 2
+
+    @property
+    def history_dim(self) -> int:
+        """Features of :class:`ObsHistory` (0 without ``history``)."""
+        if not self.history:
+            return 0
+        return 3 + self.range_points + (self.gaze and self.table)
 
     @property
     def state_dim(self) -> int:
         base = 4 + 4 * 2 * len(FREQUENCIES) + 2 + 2 + 3 + 2 + self.range_points + self.gaze
-        return base + (3 + self.range_points if self.history else 0)
+        return base + self.history_dim
 
 
 @functools.cache
@@ -258,10 +287,11 @@ class ObsHistory:
         self._goal: tuple[float, float] | None = None
         self._track: deque[tuple[float, float, float]] = deque(maxlen=HISTORY_STEPS + 1)
         self._past_ranges: deque[np.ndarray] = deque(maxlen=LIDAR_LAG + 1)
+        self._last_pan: float | None = None
 
     def absent(self) -> np.ndarray:
         """The features of a state without a past."""
-        return np.zeros(3 + self.spec.range_points, np.float32)
+        return np.zeros(self.spec.history_dim, np.float32)
 
     def features(self, obs: dict[str, np.ndarray],
                  ranges: np.ndarray | None = None) -> np.ndarray:
@@ -285,7 +315,12 @@ class ObsHistory:
                 ranges = range_features(obs, self.spec)
             self._past_ranges.append(ranges)
             if len(self._past_ranges) > LIDAR_LAG:
-                out[3:] = (ranges - self._past_ranges[0]) * 4.0
+                out[3 : 3 + len(ranges)] = (ranges - self._past_ranges[0]) * 4.0
+        if self.spec.gaze and self.spec.table:  # the camera's turn in the last step
+            pan = float(obs["gaze"][0])
+            if self._last_pan is not None:
+                out[-1] = np.clip((pan - self._last_pan) / _PAN_STEP, -1.0, 1.0)
+            self._last_pan = pan
         return out
 
 
@@ -343,6 +378,12 @@ def encode_action(action: np.ndarray, spec: FeatureSpec) -> np.ndarray:
     """``[speed, heading]`` -> the stored target ``(speed / max, cos, sin)`` (its class:
     :func:`action_classes`); a gaze student's ``[speed, heading, pan]`` -> ``(..., pan)``
     (its pan class: :func:`pan_classes`)."""
+    if spec.table:  # the table's action itself: its class
+        index = np.asarray(action).reshape(-1)
+        if index.size != 1 or not np.issubdtype(index.dtype, np.integer):
+            raise ValueError(f"a discrete student learns the table's action, an integer; got "
+                             f"{action!r}: label it with PlannerExpert.act_env on a discrete env")
+        return np.array([float(index[0])], np.float32)
     speed, heading = float(action[0]), float(action[1])
     target = [speed / spec.max_speed, math.cos(heading), math.sin(heading)]
     if spec.gaze:
@@ -360,9 +401,13 @@ PAN_ANGLES = np.linspace(-PAN_LIMIT, PAN_LIMIT, PAN_BINS)
 """The pan target of each class of a gaze student's pan head (rad)."""
 
 
-def action_classes(targets: torch.Tensor) -> torch.Tensor:
-    """The ``bins`` head's class (speed level * HEADING_BINS + heading bin) of encoded
-    targets ``(N, 3)`` = (speed / max, cos, sin)."""
+def action_classes(targets: torch.Tensor, spec: FeatureSpec | None = None) -> torch.Tensor:
+    """The driving head's class of encoded targets: (speed level * HEADING_BINS + heading bin)
+    of ``(N, 3)`` = (speed / max, cos, sin), or a discrete student's (``spec.table``) table
+    cell of its table actions ``(N, 1)``."""
+    if spec is not None and spec.table:
+        action = targets[:, 0].round().long()
+        return action // N_PAN_MOVES if spec.gaze else action
     levels = torch.as_tensor(_LEVELS, dtype=targets.dtype)
     level = (targets[:, :1] - levels[None]).abs().argmin(dim=1)
     heading = torch.atan2(targets[:, 2], targets[:, 1])
@@ -370,9 +415,12 @@ def action_classes(targets: torch.Tensor) -> torch.Tensor:
     return level * HEADING_BINS + hbin.clamp(0, HEADING_BINS - 1)
 
 
-def pan_classes(targets: torch.Tensor) -> torch.Tensor:
+def pan_classes(targets: torch.Tensor, spec: FeatureSpec | None = None) -> torch.Tensor:
     """A gaze student's pan class (the nearest of :data:`PAN_ANGLES`) of encoded targets
-    ``(N, 4)`` (the pan target last)."""
+    ``(N, 4)`` (the pan target last); a discrete gaze student's pan move of its table actions
+    ``(N, 1)``."""
+    if spec is not None and spec.table:
+        return targets[:, 0].round().long() % N_PAN_MOVES
     angles = torch.as_tensor(PAN_ANGLES, dtype=targets.dtype)
     return (targets[:, 3:4] - angles[None]).abs().argmin(dim=1)
 
@@ -381,7 +429,7 @@ def head_log_probs(out: torch.Tensor, spec: FeatureSpec) -> torch.Tensor:
     """The network's logits ``(N, n_outputs)`` as log-probabilities, each head normalised on
     its own (the driving head, and a gaze student's pan head)."""
     drive = out[:, : spec.n_drive].log_softmax(dim=-1)
-    if not spec.gaze:
+    if not spec.n_pan:
         return drive
     return torch.cat([drive, out[:, spec.n_drive :].log_softmax(dim=-1)], dim=-1)
 
@@ -389,8 +437,14 @@ def head_log_probs(out: torch.Tensor, spec: FeatureSpec) -> torch.Tensor:
 def decode_action(out: np.ndarray, spec: FeatureSpec) -> np.ndarray:
     """The network's output (one row of class logits) -> ``[speed, relative heading]``, for a
     gaze student ``[speed, relative heading, pan target]`` (the pan head's most likely class
-    refined by its neighbours' probabilities)."""
+    refined by its neighbours' probabilities); for a discrete student the most likely table
+    action (a 0-d integer array)."""
     out = np.asarray(out, dtype=np.float64)
+    if spec.table:  # the likeliest cell, with a pan head the likeliest move
+        action = int(np.argmax(out[: spec.n_drive]))
+        if spec.gaze:
+            action = action * N_PAN_MOVES + int(np.argmax(out[spec.n_drive :]))
+        return np.asarray(action, dtype=np.int64)
     drive = _decode_drive(out[: spec.n_drive], spec)
     if not spec.gaze:
         return drive

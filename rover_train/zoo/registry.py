@@ -25,8 +25,12 @@ def shown_path(path: Path) -> str:
     return str(path) if rel.startswith("..") else rel
 
 
-STUDENT_FUSED_KINDS = ("fused", "fused-gaze")
+STUDENT_FUSED_KINDS = ("fused", "fused-gaze", "discrete", "fused-gaze-discrete")
 """Kinds of student that see the fused image (their env needs the daemon)."""
+GAZE_KINDS = ("fused-gaze", "fused-gaze-discrete")
+"""Kinds of student that turn the camera."""
+TABLE_KINDS = ("discrete", "fused-gaze-discrete")
+"""Kinds of student that drive the seed's discrete table (``Discrete(60)``, ``(180)``)."""
 DAGGER = "dagger"
 RL = "rl"
 FINETUNE = "finetune"
@@ -111,6 +115,11 @@ ENTRIES.update(
     (name, EntrySpec(name, kind, scenario.world, scenario.env_kwargs()))
     for name, (scenario, kind) in LOOKING_PAIRS.items()
 )
+ENTRIES.update(
+    (f"{kind}-inspect", EntrySpec(f"{kind}-inspect", kind, "inspect",
+                                  ENTRIES["fused-inspect"].env_kwargs))
+    for kind in TABLE_KINDS
+)  # fmt: skip  # the pair on the seed's tables: fused-inspect's recipe, Discrete(60) / (180)
 ENTRIES.update(
     (f"{start}-rl", EntrySpec(f"{start}-rl", ENTRIES[start].kind, ENTRIES[start].world,
                               ENTRIES[start].env_kwargs, trainer=FINETUNE, start=start))
