@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import math
-import uuid
 from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
-from helpers.daemon import Daemon
+from helpers.observations import gaze_obs
+from helpers.tiny_distill import tiny_entry
 
 from fused_image import FUSED_SIZE
 from rover_env.constants import PAN_LIMIT
@@ -23,7 +23,7 @@ from rover_train.imitation.dagger import (
     make_training_env,
     teacher_config,
 )
-from rover_train.imitation.distill import RECIPES, DistillRun, distill_entry, read_recipe
+from rover_train.imitation.distill import RECIPES
 from rover_train.imitation.expert import PlannerExpert
 from rover_train.imitation.gaze import WithPanHead
 from rover_train.zoo.agent import (
@@ -39,16 +39,6 @@ from rover_train.zoo.agent import (
 )
 
 GAZE = FeatureSpec(centre=(0.0, 0.0), scale=5.0, gaze=True)
-
-
-def _obs(pan: float) -> dict[str, np.ndarray]:
-    return {
-        "pose": np.array([1.0, 2.0, 0.1], np.float32),
-        "imu": np.array([0.0, 0.0, 0.3], np.float32),
-        "target": np.array([4.0, 0.5], np.float32),
-        "velocities": np.array([0.5, 0.1], np.float32),
-        "gaze": np.array([pan], np.float32),
-    }
 
 
 @pytest.mark.parametrize("pan", [-PAN_LIMIT, -0.4, 0.0, 0.13, PAN_LIMIT])
@@ -70,10 +60,10 @@ def test_a_gaze_student_sees_the_pan_and_refuses_labels_without_one() -> None:
     assert GAZE.state_dim == fixed.state_dim + 1
     assert GAZE.n_outputs == fixed.n_outputs + PAN_BINS
     assert GAZE.action_size == 3 and fixed.action_size == 2
-    left, right = state_features(_obs(0.5), GAZE), state_features(_obs(-0.5), GAZE)
+    left, right = state_features(gaze_obs(0.5), GAZE), state_features(gaze_obs(-0.5), GAZE)
     assert not np.array_equal(left, right)
-    np.testing.assert_array_equal(state_features(_obs(0.5), fixed),
-                                  state_features(_obs(-0.5), fixed))  # fmt: skip
+    np.testing.assert_array_equal(state_features(gaze_obs(0.5), fixed),
+                                  state_features(gaze_obs(-0.5), fixed))  # fmt: skip
     with pytest.raises(ValueError, match="no pan target"):
         encode_action(np.array([0.5, 0.0]), GAZE)
 
@@ -100,11 +90,11 @@ def test_fit_teaches_the_pan_head_where_to_look() -> None:
     data = Dataset.empty(GAZE)
     for pan, look in ((0.5, -0.8), (-0.5, 0.8)):
         for _ in range(20):
-            data.add(state_features(_obs(pan), GAZE), encode_action(np.array([0.7, 0.0, look]),
+            data.add(state_features(gaze_obs(pan), GAZE), encode_action(np.array([0.7, 0.0, look]),
                      GAZE), 1.0)  # fmt: skip
     fit(net, data, DAggerConfig(epochs=80, batch=8), torch.Generator().manual_seed(0))
     for pan, look in ((0.5, -0.8), (-0.5, 0.8)):
-        out = net(torch.from_numpy(state_features(_obs(pan), GAZE))[None])[0].detach().numpy()
+        out = net(torch.from_numpy(state_features(gaze_obs(pan), GAZE))[None])[0].detach().numpy()
         assert abs(decode_action(out, GAZE)[2] - look) < 0.1
 
 
@@ -150,17 +140,9 @@ def test_a_gaze_recipe_needs_the_gaze_teacher_that_sees_through_its_camera(
 def test_a_gaze_entry_is_distilled_in_two_stages_and_drives_the_gaze_env(tmp_path) -> None:
     """A tiny run of fused-gaze-moon's recipe, stage 2 with a real daemon: the student file
     turns the camera of the entry's env, which is the moon crossing scenario."""
-    recipe = replace(RECIPES["fused-gaze-moon"], iterations=1, steps=60, epochs=1,
-                     synthetic_goals=1, synthetic_per_goal=5, fused_iterations=1,
-                     fused_steps=30)  # fmt: skip
-    d = Daemon(f"test_gz_{uuid.uuid4().hex[:8]}").start()
-    try:
-        out = tmp_path / "gaze.pt"
-        distill_entry(recipe, DistillRun(out=out, member_dir=tmp_path, name=d.name))
-        assert read_recipe(out) == recipe
-        agent = zoo.load("fused-gaze-moon", out)
-        assert isinstance(agent, StudentAgent) and agent.spec.gaze and agent.spec.image
-        env = zoo.make_env("fused-gaze-moon", rl_obs_name=d.name, slot=0)
+    with tiny_entry("fused-gaze-moon", tmp_path) as (agent, daemon):
+        assert agent.spec.gaze and agent.spec.image
+        env = zoo.make_env("fused-gaze-moon", rl_obs_name=daemon, slot=0)
         try:
             base = env.unwrapped
             assert base.world_name == "moon" and len(base.sim.pedestrian_positions) == 3
@@ -174,7 +156,4 @@ def test_a_gaze_entry_is_distilled_in_two_stages_and_drives_the_gaze_env(tmp_pat
             assert "gaze" in obs
         finally:
             env.close()
-    finally:
-        d.stop()
-        d.remove_leftovers()
     assert math.isfinite(float(agent.act(obs)[2]))

@@ -4,13 +4,13 @@ and the gaze env's Discrete(180), learnt from the planner expert's nearest table
 from __future__ import annotations
 
 import math
-import uuid
 from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
-from helpers.daemon import Daemon
+from helpers.observations import gaze_obs
+from helpers.tiny_distill import tiny_entry
 
 from rover_env import RoverEnv
 from rover_env.controller import wrap_angle
@@ -28,7 +28,7 @@ from rover_env.gaze_discrete_env import (
 )
 from rover_train import zoo
 from rover_train.imitation.dagger import DAggerConfig, Dataset, feature_spec, fit
-from rover_train.imitation.distill import RECIPES, DistillRun, distill_entry, read_recipe
+from rover_train.imitation.distill import RECIPES
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert
 from rover_train.imitation.finetune import STARTS
 from rover_train.imitation.gaze import WithPanHead
@@ -46,16 +46,6 @@ from rover_train.zoo.agent import (
 )
 
 TABLE = FeatureSpec(centre=(0.0, 0.0), scale=5.0, gaze=True, table=True, history=True)
-
-
-def _obs(pan: float) -> dict[str, np.ndarray]:
-    return {
-        "pose": np.array([1.0, 2.0, 0.1], np.float32),
-        "imu": np.array([0.0, 0.0, 0.3], np.float32),
-        "target": np.array([4.0, 0.5], np.float32),
-        "velocities": np.array([0.5, 0.1], np.float32),
-        "gaze": np.array([pan], np.float32),
-    }
 
 
 def test_every_table_cell_is_the_nearest_action_to_its_own_command() -> None:
@@ -158,12 +148,12 @@ def test_a_table_student_heads_are_the_cells_and_the_moves_and_it_acts_with_an_i
 
 def test_the_pan_turn_feature_follows_the_camera() -> None:
     history = ObsHistory(TABLE)
-    turns = [float(history.features(_obs(pan))[-1]) for pan in (0.0, 0.0, 0.1, 0.2, 0.1)]
+    turns = [float(history.features(gaze_obs(pan))[-1]) for pan in (0.0, 0.0, 0.1, 0.2, 0.1)]
     step = math.radians(180.0) * 0.05
     assert turns[:2] == [0.0, 0.0]
     assert turns[2:] == pytest.approx([0.1 / step, 0.1 / step, -0.1 / step], abs=1e-5)
     history.reset()
-    assert float(history.features(_obs(0.5))[-1]) == 0.0
+    assert float(history.features(gaze_obs(0.5))[-1]) == 0.0
 
 
 def test_fit_teaches_a_table_student_the_labelled_action() -> None:
@@ -171,11 +161,11 @@ def test_fit_teaches_a_table_student_the_labelled_action() -> None:
     data = Dataset.empty(TABLE)
     for pan, a in ((0.5, 85), (-0.5, 12)):
         for _ in range(20):
-            data.add(state_features(_obs(pan), TABLE, ObsHistory(TABLE)),
+            data.add(state_features(gaze_obs(pan), TABLE, ObsHistory(TABLE)),
                      encode_action(a, TABLE), 1.0)  # fmt: skip
     fit(net, data, DAggerConfig(epochs=60, batch=8), torch.Generator().manual_seed(0))
     for pan, a in ((0.5, 85), (-0.5, 12)):
-        state = state_features(_obs(pan), TABLE, ObsHistory(TABLE))
+        state = state_features(gaze_obs(pan), TABLE, ObsHistory(TABLE))
         out = net(torch.from_numpy(state)[None])[0].detach().numpy()
         assert int(student.decode_action(out, TABLE)) == a
 
@@ -204,17 +194,9 @@ def test_a_table_gaze_entry_is_distilled_in_two_stages_and_drives_the_discrete_e
 ) -> None:
     """A tiny run of the Discrete(180) entry's recipe, stage 2 with a real daemon: the
     student's integer actions drive the entry's env, RoverEnvFusedGazeDiscrete."""
-    recipe = replace(RECIPES["fused-gaze-discrete-inspect"], iterations=1, steps=60, epochs=1,
-                     synthetic_goals=1, synthetic_per_goal=5, fused_iterations=1,
-                     fused_steps=30)  # fmt: skip
-    d = Daemon(f"test_tb_{uuid.uuid4().hex[:8]}").start()
-    try:
-        out = tmp_path / "table.pt"
-        distill_entry(recipe, DistillRun(out=out, member_dir=tmp_path, name=d.name))
-        assert read_recipe(out) == recipe
-        agent = zoo.load("fused-gaze-discrete-inspect", out)
-        assert isinstance(agent, StudentAgent) and agent.spec.table and agent.spec.gaze
-        env = zoo.make_env("fused-gaze-discrete-inspect", rl_obs_name=d.name, slot=0)
+    with tiny_entry("fused-gaze-discrete-inspect", tmp_path) as (agent, daemon):
+        assert agent.spec.table and agent.spec.gaze
+        env = zoo.make_env("fused-gaze-discrete-inspect", rl_obs_name=daemon, slot=0)
         try:
             assert env.action_space.n == 180
             obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
@@ -225,9 +207,6 @@ def test_a_table_gaze_entry_is_distilled_in_two_stages_and_drives_the_discrete_e
                 obs, *_ = env.step(action)
         finally:
             env.close()
-    finally:
-        d.stop()
-        d.remove_leftovers()
 
 
 def test_gaze_value_drives_discrete_students_only_through_the_table(tmp_path) -> None:
@@ -242,9 +221,9 @@ def test_gaze_value_drives_discrete_students_only_through_the_table(tmp_path) ->
     with pytest.raises(SystemExit, match="not a Discrete\\(180\\) gaze student"):
         student_act(fixed, True, table=True)
     _, act = student_act(fixed, False, table=True)
-    a = act(_obs(0.0))
+    a = act(gaze_obs(0.0))
     assert a % 3 == PAN_NONE and 0 <= a < 180  # the Discrete(60) cell, the camera kept
     _, held = student_act(gaze, True, hold_camera=True, table=True)
-    assert held(_obs(0.0)) % 3 == PAN_NONE
+    assert held(gaze_obs(0.0)) % 3 == PAN_NONE
     _, act = student_act(gaze, True, table=True)
-    assert held(_obs(0.0)) // 3 == act(_obs(0.0)) // 3
+    assert held(gaze_obs(0.0)) // 3 == act(gaze_obs(0.0)) // 3
