@@ -45,6 +45,9 @@ import numpy as np
 from gymnasium import spaces
 
 from rover_env.controller import wrap_angle
+from rover_env.discrete_env import N_SEED_ACTIONS, nearest_action
+from rover_env.gaze_discrete_env import N_GAZE_ACTIONS, nearest_gaze_action
+from rover_env.lidar_discrete_env import RoverEnvDiscrete
 from rover_env.rover import CAMERA_FOVY
 from rover_env.worlds import WorldSpec, make_world
 from rover_train.imitation.gaze import GazeConfig, GazePolicy
@@ -361,13 +364,14 @@ class PlannerExpert:
                                       self.config.max_speed, float(heading))  # fmt: skip
         return np.array([speed, heading, target], dtype=np.float32)
 
-    def act_env(self, env: Any) -> Any:
+    def act_env(self, env: Any) -> np.ndarray:
         """The expert action for the current state of a roverav env (or a wrapper of one),
         in the layout of ``env.action_space``: :meth:`act_gaze`'s 3 values for the gaze env's
         ``Box`` of 3, :meth:`act`'s 2 for a ``Box`` of 2, and for the seed's discrete tables
-        the nearest table action (an int): ``Discrete(180)`` from :meth:`act_gaze` and the
-        env's ``pan_window``, ``Discrete(60)`` from :meth:`act` (absolute headings, relative
-        in RoverEnvDiscrete). The camera's pan is read from the env's sim."""
+        the nearest table action (a 0-d integer array, as a discrete student acts):
+        ``Discrete(180)`` from :meth:`act_gaze` and the env's ``pan_window``, ``Discrete(60)``
+        from :meth:`act` (absolute headings, relative in RoverEnvDiscrete). The camera's pan
+        is read from the env's sim."""
         base = getattr(env, "unwrapped", env)
         pos = base.position
         state = (
@@ -385,22 +389,21 @@ class PlannerExpert:
             return self._table_action(env, space, state)
         return self.act(*state)
 
-    def _table_action(self, env: Any, space: spaces.Discrete, state: tuple[Any, ...]) -> int:
-        from rover_env.discrete_env import N_SEED_ACTIONS, nearest_action
-        from rover_env.gaze_discrete_env import N_GAZE_ACTIONS, nearest_gaze_action
-        from rover_env.lidar_discrete_env import RoverEnvDiscrete
-
+    def _table_action(self, env: Any, space: spaces.Discrete, state: tuple[Any, ...]
+                      ) -> np.ndarray:  # fmt: skip
         yaw = state[1]
         if space.n == N_GAZE_ACTIONS:
             speed, heading, pan = self.act_gaze(*state)
             window = int(env.get_wrapper_attr("pan_window"))
-            return nearest_gaze_action(float(speed), yaw + float(heading), float(pan), window)
-        if space.n != N_SEED_ACTIONS:
+            action = nearest_gaze_action(float(speed), yaw + float(heading), float(pan), window)
+        elif space.n == N_SEED_ACTIONS:
+            speed, heading = self.act(*state)
+            relative = isinstance(getattr(env, "unwrapped", env), RoverEnvDiscrete)
+            action = nearest_action(float(speed), float(heading) + (0.0 if relative else yaw))
+        else:
             raise ValueError(f"the expert labels the seed's tables (Discrete({N_SEED_ACTIONS}) "
                              f"or Discrete({N_GAZE_ACTIONS})), not {space}")
-        speed, heading = self.act(*state)
-        relative = isinstance(getattr(env, "unwrapped", env), RoverEnvDiscrete)
-        return nearest_action(float(speed), float(heading) + (0.0 if relative else yaw))
+        return np.asarray(action, dtype=np.int64)
 
 
 def takes_pan(env: object) -> bool:
