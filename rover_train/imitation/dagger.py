@@ -27,9 +27,8 @@ from torch import nn
 
 from fused_image import FUSED_SIZE
 from rover_env.constants import DISCRETE_SPEED_LEVELS, PAN_LIMIT
-from rover_env.discrete_env import nearest_action
-from rover_env.gaze_discrete_env import CENTRE_WINDOW, PAN_WINDOWS, nearest_gaze_action
-from rover_train.imitation.expert import ExpertConfig, PlannerExpert
+from rover_env.gaze_discrete_env import CENTRE_WINDOW, PAN_WINDOWS
+from rover_train.imitation.expert import ExpertConfig, PlannerExpert, table_action
 from rover_train.progress import StatusLine
 from rover_train.threads import available_cores
 from rover_train.zoo.agent import (
@@ -350,12 +349,11 @@ def synthetic_samples(
                 sim.set_camera_pan(pan)
                 label = expert.act_gaze((x, y), yaw, goal, peds, None, pan)
                 if spec.table:
-                    label = nearest_gaze_action(float(label[0]), yaw + float(label[1]),
-                                                float(label[2]), window)  # fmt: skip
+                    label = table_action(label, yaw, window)
             else:
                 label = expert.act((x, y), yaw, goal, peds, None)
                 if spec.table:
-                    label = nearest_action(float(label[0]), yaw + float(label[1]))
+                    label = table_action(label, yaw)
             dist = float(np.hypot(goal[0] - x, goal[1] - y))
             bearing = float(np.angle(np.exp(1j * (np.arctan2(goal[1] - y, goal[0] - x) - yaw))))
             obs = {

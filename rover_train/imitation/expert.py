@@ -391,19 +391,26 @@ class PlannerExpert:
 
     def _table_action(self, env: Any, space: spaces.Discrete, state: tuple[Any, ...]
                       ) -> np.ndarray:  # fmt: skip
-        yaw = state[1]
         if space.n == N_GAZE_ACTIONS:
-            speed, heading, pan = self.act_gaze(*state)
             window = int(env.get_wrapper_attr("pan_window"))
-            action = nearest_gaze_action(float(speed), yaw + float(heading), float(pan), window)
-        elif space.n == N_SEED_ACTIONS:
-            speed, heading = self.act(*state)
+            return table_action(self.act_gaze(*state), state[1], window)
+        if space.n == N_SEED_ACTIONS:
             relative = isinstance(getattr(env, "unwrapped", env), RoverEnvDiscrete)
-            action = nearest_action(float(speed), float(heading) + (0.0 if relative else yaw))
-        else:
-            raise ValueError(f"the expert labels the seed's tables (Discrete({N_SEED_ACTIONS}) "
-                             f"or Discrete({N_GAZE_ACTIONS})), not {space}")
-        return np.asarray(action, dtype=np.int64)
+            return table_action(self.act(*state), 0.0 if relative else state[1])
+        raise ValueError(f"the expert labels the seed's tables (Discrete({N_SEED_ACTIONS}) "
+                         f"or Discrete({N_GAZE_ACTIONS})), not {space}")
+
+
+def table_action(action: np.ndarray, yaw: float, window: int | None = None) -> np.ndarray:
+    """The seed's table action nearest the expert's ``[speed, relative heading]`` (the
+    ``Discrete(60)`` cell, headings made absolute with ``yaw``) or, with the camera's
+    ``window``, ``[speed, relative heading, pan target]`` (the ``Discrete(180)`` action): a
+    0-d integer array, as a discrete student acts."""
+    speed, heading = float(action[0]), yaw + float(action[1])
+    if window is None:
+        return np.asarray(nearest_action(speed, heading), dtype=np.int64)
+    return np.asarray(nearest_gaze_action(speed, heading, float(action[2]), window),
+                      dtype=np.int64)  # fmt: skip
 
 
 def takes_pan(env: object) -> bool:
