@@ -2,6 +2,7 @@
 
     av-daemon [--name rl_observation] [--slots N] [--size 96] [--depth model|render]
               [--backend auto|onnx|torch] [--precision int8|fp32] [--threads 1]
+              [--workers 0]
               [--source camera|video:PATH|device:N] [--preview PATH]
               [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
               [--heatmap detect|predict] [--predict-weights FILE]
@@ -22,17 +23,24 @@ Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flu
    :mod:`active_vision.onnx_export`; ``--precision int8``, the default, runs the shipped
    int8 model where this CPU has int8 dot-product instructions, else the fp32 export with one
    log line, see :mod:`active_vision.backends`);
+   with several slots this runs in ``--workers`` threads (default: one per CPU core, at
+   most one per slot), each with its own network session, worker ``k`` serving the slots
+   ``i`` with ``i % workers == k``: an env's frame is computed while another env renders,
+   not after that env's frame (``--workers 1``, one loop over every slot, makes the envs
+   wait for each other's frames and keeps them in step: RESULTS.md, "RoverEnvFused and
+   fused training speed");
 3. publishes each fused frame into its slot's segment with ``source_seq`` = the camera
    frame's ``seq`` (the env waits on that with ``FrameReader.wait_for``);
 4. refreshes the fused segments' heartbeat while idle, and logs per-stage timings (input,
    network, publish) every ``--log-every`` frames.
 
-Every slot keeps its own history of its last ``K`` (5) fused detection frames
-(:class:`~active_vision.history.SlotHistory`), cleared when a camera frame carries the
-episode-start flag (``Frame.episode_start``, set by the env on each episode's first frame).
 ``--heatmap detect`` (default, seed 000) publishes channel 1 as this frame's detection;
 ``--heatmap predict`` (seed 001) replaces it with the predicted occupancy over the next
-1.5 s computed from the slot's history (:mod:`active_vision.predict`). A daemon started
+1.5 s computed from the slot's history (:mod:`active_vision.predict`): every slot then keeps
+its own history of its last ``K`` (5) fused detection frames
+(:class:`~active_vision.history.SlotHistory`), cleared when a camera frame carries the
+episode-start flag (``Frame.episode_start``, set by the env on each episode's first frame).
+A daemon started
 mid-episode has an empty history and fills it from the frames it sees; nothing of a slot's
 history ever reaches another slot or survives an episode start.
 
@@ -58,11 +66,13 @@ import os
 import signal
 import socket
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -79,6 +89,12 @@ from shm_protocol import (
     slot_name,
     validate_name,
 )
+
+if TYPE_CHECKING:
+    from active_vision.history import SlotHistory
+    from active_vision.perception import Perception
+    from active_vision.predict import Predictor
+    from active_vision.sources import FrameSource
 
 logger = logging.getLogger("active_vision.daemon")
 
@@ -105,6 +121,11 @@ class DaemonConfig:
     channel (the env sends RGB + depth)."""
     threads: int = 1
     """Threads of the perception network (torch threads / ONNX Runtime intra-op threads)."""
+    workers: int = 0
+    """Serving loops (threads), each with its own network session, worker ``k`` serving the
+    slots ``i`` with ``i % workers == k``; 0: one per CPU this process may run on, at most
+    one per slot (:func:`worker_count`). 1: one loop runs the new frames of every slot as one
+    batch (where batching pays, as on a GPU). A video or device source has one loop."""
     backend: str = "auto"
     """``auto`` (ONNX Runtime when installed, else torch), ``onnx`` or ``torch``."""
     precision: str = "int8"
@@ -127,6 +148,26 @@ class DaemonConfig:
     next 1.5 s from the slot's last K frames)."""
     predict_weights: Path | None = None
     """Predictor weights; default: the shipped ``active_vision/weights/predict.pt``."""
+
+
+def worker_count(config: DaemonConfig) -> int:
+    """Serving loops for ``config``: ``workers`` (0: the CPUs this process may run on), at
+    most one per slot; 1 for a video or device source (it feeds every slot at once)."""
+    if config.source != "camera":
+        return 1
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(config.workers or cpus or 1, config.slots))
+
+
+@dataclass
+class _Worker:
+    """One serving loop: some of the slots, their camera source, its own network session."""
+
+    index: int
+    slots: list[int]
+    source: FrameSource
+    perception: Perception
+    predictor: Predictor | None
 
 
 class DaemonError(RuntimeError):
@@ -171,12 +212,13 @@ class Daemon:
     def __init__(self, config: DaemonConfig) -> None:
         self.config = config
         self.fused: list[FrameWriter] = []
-        self.source: object | None = None
+        self.sources: list[FrameSource] = []
+        self.workers: list[_Worker] = []
+        self._halt = threading.Event()  # a worker failed, or the first one returned
         self.stop = _Stop()
         self._lock: socket.socket | None = None
         self.preview = None
-        self.predictor = None
-        self.history = None
+        self.history: SlotHistory | None = None  # --heatmap predict only
 
     # --- start-up -----------------------------------------------------------------------
 
@@ -209,21 +251,25 @@ class Daemon:
         from active_vision.onnx_export import OnnxExportError
         from active_vision.perception import Perception, PerceptionConfig
 
+        groups = [list(range(k, cfg.slots, n)) for n in [worker_count(cfg)] for k in range(n)]
         try:
-            self.perception = Perception(PerceptionConfig(
+            first = Perception(PerceptionConfig(
                 size=cfg.size, depth=cfg.depth, threads=cfg.threads, weights=cfg.weights,
-                max_batch=cfg.slots, backend=cfg.backend,
+                max_batch=len(groups[0]), backend=cfg.backend,
                 precision=cfg.precision))  # type: ignore[arg-type]
+            perceptions = [first] + [first.clone() for _ in groups[1:]]
+            predictors: list = [None] * len(groups)
             if cfg.heatmap == "predict":
                 from active_vision.predict import Predictor
 
-                self.predictor = Predictor(weights=cfg.predict_weights)
+                predictors = [Predictor(weights=cfg.predict_weights) for _ in groups]
         except (WeightsError, BackendError, OnnxExportError) as exc:
             raise DaemonError(str(exc)) from exc
-        from active_vision.history import SlotHistory
-        from active_vision.predict import K
+        if cfg.heatmap == "predict":
+            from active_vision.history import SlotHistory
+            from active_vision.predict import K
 
-        self.history = SlotHistory(cfg.slots, K, (cfg.size, cfg.size, 3))
+            self.history = SlotHistory(cfg.slots, K, (cfg.size, cfg.size, 3))
         from active_vision.sources import CameraSegmentSource, OpenCVSource, SourceError
 
         try:
@@ -235,37 +281,80 @@ class Daemon:
                     logger.info("took over segment %s left by a dead daemon", w.name)
             if cfg.source == "camera":
                 channels = 4 if cfg.depth == "render" else 3
-                self.source = CameraSegmentSource(cfg.name, cfg.slots, cfg.size, channels)
+                for group in groups:
+                    self.sources.append(CameraSegmentSource(cfg.name, cfg.slots, cfg.size,
+                                                            channels, slot_ids=group))
             else:
                 if cfg.depth == "render":
                     raise DaemonError(f"--depth render needs --source camera (frames with a "
                                       f"depth channel); {cfg.source} has RGB only")
-                self.source = OpenCVSource(cfg.source, cfg.slots, cfg.size)
+                self.sources.append(OpenCVSource(cfg.source, cfg.slots, cfg.size))
         except (ShmError, SourceError, OSError) as exc:
             self.shutdown()
             raise DaemonError(str(exc)) from exc
         except BaseException:
             self.shutdown()
             raise
+        self.workers = [_Worker(k, group, src, perc, pred) for k, (group, src, perc, pred)
+                        in enumerate(zip(groups, self.sources, perceptions, predictors,
+                                         strict=True))]
+        if len(self.workers) > 1:
+            logger.info("%d workers (threads), each with its own network session, serve "
+                        "%d slots", len(self.workers), cfg.slots)
         if cfg.preview is not None:
             from active_vision.preview import PreviewWriter
 
             self.preview = PreviewWriter(cfg.preview)
 
+    @property
+    def perception(self) -> Perception:
+        """The first worker's network (every worker runs the same one)."""
+        return self.workers[0].perception
+
     def segment_names(self) -> list[str]:
         names = [w.name for w in self.fused]
-        names += list(getattr(self.source, "names", []))
+        for source in self.sources:
+            names += list(getattr(source, "names", []))
         return names
 
     # --- serving ------------------------------------------------------------------------
 
     def serve(self) -> None:
-        """Serve until SIGINT/SIGTERM (or the end of a non-looping source)."""
+        """Serve until SIGINT/SIGTERM (or the end of a non-looping source). With several
+        workers, worker 0 runs in this thread and the others in their own; the first to
+        fail stops them all, and its exception is raised here."""
+        workers = self.workers
+        if len(workers) == 1:
+            self._serve(workers[0])
+            return
+        errors: list[BaseException] = []
+
+        def run(worker: _Worker) -> None:
+            try:
+                self._serve(worker)
+            except BaseException as exc:  # handed to the main thread, which re-raises it
+                errors.append(exc)
+                self._halt.set()
+
+        threads = [threading.Thread(target=run, args=(w,), name=f"av-worker-{w.index}",
+                                    daemon=True) for w in workers[1:]]
+        for t in threads:
+            t.start()
+        try:
+            self._serve(workers[0])
+        finally:
+            self._halt.set()
+            for t in threads:
+                t.join()
+        if errors:
+            raise errors[0]
+
+    def _serve(self, worker: _Worker) -> None:
+        """One worker's loop over its slots."""
         cfg = self.config
-        source = self.source
-        assert source is not None
-        perception = self.perception
+        source, perception, predictor = worker.source, worker.perception, worker.predictor
         fused = self.fused
+        own = [fused[i] for i in worker.slots]
         hb_every = cfg.stale_after / 4.0
         last_hb = time.monotonic()
         publish_s = 0.0
@@ -273,24 +362,25 @@ class Daemon:
         t_log = time.perf_counter()
         next_png = 0.0
         channels = 4 if cfg.depth == "render" else 3
-        batch = np.empty((cfg.slots, cfg.size, cfg.size, channels), dtype=np.uint8)
-        seqs = [0] * cfg.slots
-        slots = [0] * cfg.slots
+        width = len(worker.slots)
+        batch = np.empty((width, cfg.size, cfg.size, channels), dtype=np.uint8)
+        seqs = [0] * width
+        slots = [0] * width
         # Batch views made once per size: the loop allocates no arrays per frame.
-        gathered = [batch[:n] for n in range(cfg.slots + 1)]
+        gathered = [batch[:n] for n in range(width + 1)]
         buffer = getattr(source, "frames_buffer", None)
-        direct = None if buffer is None else [buffer[:n] for n in range(cfg.slots + 1)]
         history = self.history
-        assert history is not None
-        predictor = self.predictor
-        windows = np.empty((cfg.slots, history.k, cfg.size, cfg.size, 3), np.float32)
+        windows = None if history is None else np.empty(
+            (width, history.k, cfg.size, cfg.size, 3), np.float32)
         detect_heat = np.empty((cfg.size, cfg.size), np.float32)
-        while self.stop.signal is None:
-            new = source.poll(IDLE_POLL_S)  # type: ignore[attr-defined]
+        prefix = f"worker {worker.index}: " if len(self.workers) > 1 else ""
+        halt = self._halt
+        while self.stop.signal is None and not halt.is_set():
+            new = source.poll(IDLE_POLL_S)
             now = time.monotonic()
             if not new:
                 if now - last_hb >= hb_every:
-                    for w in fused:
+                    for w in own:
                         w.heartbeat()
                     last_hb = now
                 if getattr(source, "finished", False):
@@ -298,11 +388,12 @@ class Daemon:
                     return
                 continue
             n = len(new)
-            if direct is not None and new[n - 1].slot == n - 1:
-                frames = direct[n]  # slots 0..n-1: already in the source's buffer, in order
+            first = new[0].row
+            if buffer is not None and new[n - 1].row - first == n - 1:
+                frames = buffer[first:first + n]  # consecutive rows: already in the buffer
                 for j in range(n):
                     seqs[j] = new[j].seq
-                    slots[j] = j
+                    slots[j] = new[j].slot
             else:
                 for j in range(n):
                     f = new[j]
@@ -311,11 +402,13 @@ class Daemon:
                     slots[j] = f.slot
                 frames = gathered[n]
             out = perception(frames)
-            for j, f in enumerate(new):
-                if f.episode_start:
-                    logger.debug("slot %d: episode start at camera frame %d", f.slot, f.seq)
-                history.push(f.slot, out[j], episode_start=f.episode_start)
             if predictor is not None:
+                assert history is not None and windows is not None
+                for j, f in enumerate(new):
+                    if f.episode_start:
+                        logger.debug("slot %d: episode start at camera frame %d", f.slot,
+                                     f.seq)
+                    history.push(f.slot, out[j], episode_start=f.episode_start)
                 if self.preview is not None and slots[0] == 0:
                     detect_heat[:] = out[0, :, :, CHANNEL_HEATMAP]
                 for j in range(n):
@@ -338,8 +431,8 @@ class Daemon:
                 pub = 1e3 * publish_s / max(tm.frames, 1)
                 wall = time.perf_counter() - t_log
                 logger.info(
-                    "%d frames in %d batches (%.2f/batch): input %.3f ms/frame, network "
-                    "%.3f, publish %.3f, total %.3f; %.1f frames/s",
+                    "%s%d frames in %d batches (%.2f/batch): input %.3f ms/frame, network "
+                    "%.3f, publish %.3f, total %.3f; %.1f frames/s", prefix,
                     tm.frames, tm.batches, tm.frames / max(tm.batches, 1), ms["input"],
                     ms["network"], pub, ms["input"] + ms["network"] + pub,
                     tm.frames / wall if wall > 0 else 0.0,
@@ -355,11 +448,12 @@ class Daemon:
         """Flag shutting-down and unlink every segment this daemon holds. Idempotent."""
         if self.preview is not None:
             self.preview.close()
-        source, self.source = self.source, None
-        if source is not None:
+        sources, self.sources = self.sources, []
+        self.workers = []
+        for source in sources:
             close = source.close  # type: ignore[attr-defined]
             if hasattr(source, "names"):
-                close(unlink=True)
+                close(unlink=True)  # camera segments: this daemon made them
             else:
                 close()
         for w in self.fused:
@@ -380,6 +474,16 @@ def _positive_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if v < 1:
         raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    return v
+
+
+def _count(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 (0: one per CPU core), got {v}")
     return v
 
 
@@ -424,6 +528,11 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         "fp32 with one log line; fp32: the fp32 export (torch: always fp32)")
     p.add_argument("--threads", type=_positive_int, default=d.threads,
                    help="threads of the perception network (torch / ONNX Runtime intra-op)")
+    p.add_argument("--workers", type=_count, default=d.workers,
+                   help="serving loops (threads), each with its own network session; 0 "
+                        "(default): one per CPU core, at most one per slot, so each env's "
+                        "frame runs while the others render; 1: one loop batching every "
+                        "slot's new frame (where batching pays, as on a GPU)")
     p.add_argument("--source", type=_source, default=d.source,
                    help="camera (segments written by envs), video:PATH or device:N")
     p.add_argument("--preview", type=Path, default=None,
@@ -450,7 +559,8 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     if not a.stale_after > 0:
         p.error("--stale-after must be > 0")
     return DaemonConfig(name=a.name, slots=a.slots, size=a.size, depth=a.depth,
-                        threads=a.threads, backend=a.backend, precision=a.precision,
+                        threads=a.threads, workers=a.workers, backend=a.backend,
+                        precision=a.precision,
                         source=a.source, preview=a.preview,
                         log_every=max(0, a.log_every), stale_after=a.stale_after,
                         weights=a.weights, log_level=a.log_level.upper(),
@@ -473,7 +583,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if stop.signal is None:
             names = daemon.segment_names()
             print(f"{READY_MARKER}: name={cfg.name} slots={cfg.slots} size={cfg.size} "
-                  f"depth={cfg.depth} backend={daemon.perception.backend} "
+                  f"depth={cfg.depth} workers={len(daemon.workers)} "
+                  f"backend={daemon.perception.backend} "
                   f"precision={daemon.perception.precision} "
                   f"heatmap={cfg.heatmap} source={cfg.source} pid={os.getpid()} "
                   f"segments={','.join(names)}", flush=True)

@@ -19,6 +19,7 @@ and reused (they grow if a larger batch arrives).
 
 from __future__ import annotations
 
+import copy
 import logging
 import time
 from dataclasses import dataclass, field
@@ -156,6 +157,26 @@ class Perception:
         _, fp32, _ = resolve_backend("onnx", self.config.weights, self.config.size, "fp32")
         assert fp32 is not None
         return OnnxNetwork(fp32, self.config.size, threads=threads, capacity=capacity)
+
+    def clone(self) -> Perception:
+        """Another :class:`Perception` on the same network, backend and precision, with its
+        own session (or module buffers) and input/output buffers, made without resolving or
+        logging again: one per thread that runs perception (one object's buffers serve one
+        caller at a time). The torch backend shares the module, whose forward pass does not
+        write to it."""
+        other = copy.copy(self)
+        capacity = max(1, self._capacity)
+        net = self.net
+        if isinstance(net, OnnxNetwork):
+            other.net = OnnxNetwork(net.path, self.config.size, threads=net.threads,
+                                    capacity=capacity,
+                                    precision=net.precision)  # type: ignore[arg-type]
+        else:
+            assert self.model is not None
+            other.net = TorchNetwork(self.model, self.config.size, capacity=capacity)
+        other.timings = StageTimes()
+        other._allocate(capacity)
+        return other
 
     @property
     def size(self) -> int:

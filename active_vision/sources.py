@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
@@ -53,6 +54,8 @@ class SourceFrame:
     """Sequence number of the camera frame (the fused frame's ``source_seq``)."""
     episode_start: bool = False
     """The env marked this frame as its episode's first (``Frame.episode_start``)."""
+    row: int = 0
+    """Row of the source's ``frames_buffer`` that ``data`` is (camera segment sources)."""
 
 
 class SourceError(RuntimeError):
@@ -175,6 +178,10 @@ class CameraSegmentSource:
     it: the env attaches as its writer (``FrameWriter(..., create=False)``). A
     :class:`FrameReader` per slot receives the frames.
 
+    ``slot_ids`` (default: every slot) makes a source for some of the slots only: a daemon
+    worker serves those (:class:`SourceFrame` ``slot`` is the slot's id; ``row`` its row of
+    ``frames_buffer``, in ``slot_ids`` order).
+
     Waiting (:meth:`poll`): every slot is first looked at without blocking
     (``FrameReader.next_frame`` into a preallocated buffer: a copy only when there is a new
     frame); when none has a new frame, the call sleeps. With several slots where Linux
@@ -191,10 +198,16 @@ class CameraSegmentSource:
     IDLE_AFTER_S = 1.0
 
     def __init__(self, name: str, slots: int, size: int, channels: int,
-                 slice_s: float = 0.002, idle_slice_s: float = 0.05) -> None:
+                 slice_s: float = 0.002, idle_slice_s: float = 0.05,
+                 slot_ids: Sequence[int] | None = None) -> None:
+        self.slot_ids = list(range(slots)) if slot_ids is None else list(slot_ids)
+        if not self.slot_ids or not all(0 <= i < slots for i in self.slot_ids):
+            raise ValueError(f"slot_ids must be a non-empty subset of 0..{slots - 1}, "
+                             f"got {slot_ids}")
+        slots = len(self.slot_ids)
         self.slots = slots
         self.channels = channels
-        self.names = [camera_name(slot_name(name, i)) for i in range(slots)]
+        self.names = [camera_name(slot_name(name, i)) for i in self.slot_ids]
         self.slice_s = slice_s
         self.idle_slice_s = idle_slice_s
         self._last_frame = time.monotonic()
@@ -211,11 +224,12 @@ class CameraSegmentSource:
             raise
         self.reused = [not w.created for w in self.writers]
         self.frames_buffer = np.empty((slots, size, size, channels), dtype=np.uint8)
-        """Slot i's newest frame is in row i: the daemon runs perception on ``[:n]`` directly
-        when the new frames are slots 0..n-1 (no gathering copy)."""
+        """Row i holds the newest frame of ``slot_ids[i]``: the daemon runs perception on
+        consecutive rows directly (no gathering copy)."""
         # One SourceFrame per slot and one result list, reused by every poll (the serve
         # loop makes no SourceFrame or list per frame); a result is valid until the next poll.
-        self._frames = [SourceFrame(i, self.frames_buffer[i], 0) for i in range(slots)]
+        self._frames = [SourceFrame(slot, self.frames_buffer[i], 0, row=i)
+                        for i, slot in enumerate(self.slot_ids)]
         self._new: list[SourceFrame] = []
         # A frame already in a reused segment may be one the dead daemon never answered
         # (an env may still wait for it): it is handed out once more.
@@ -251,7 +265,7 @@ class CameraSegmentSource:
             if f is not None and f.seq != done[i]:
                 self._take(i, f.seq, f.episode_start)
         if skip >= 0:  # the woken slot first, so slot order matches the buffer's rows
-            self._new.sort(key=_slot_of)
+            self._new.sort(key=_row_of)
         return self._new
 
     def poll(self, timeout: float) -> list[SourceFrame]:
@@ -286,12 +300,12 @@ class CameraSegmentSource:
         except FrameTimeoutError:
             return self._collect()
         except WriterGoneError as exc:
-            logger.info("slot %d: camera writer gone (%s); waiting for an env to attach", i,
-                        exc.reason)
+            logger.info("slot %d: camera writer gone (%s); waiting for an env to attach",
+                        self.slot_ids[i], exc.reason)
             self._gone(i)
             return self._collect()
         except ShmError as exc:
-            logger.warning("slot %d: %s", i, exc)
+            logger.warning("slot %d: %s", self.slot_ids[i], exc)
             self._gone(i)
             return self._collect()
         self._last_frame = time.monotonic()
@@ -312,8 +326,8 @@ class CameraSegmentSource:
             w.close(unlink=unlink)
 
 
-def _slot_of(frame: SourceFrame) -> int:
-    return frame.slot
+def _row_of(frame: SourceFrame) -> int:
+    return frame.row
 
 
 __all__ = ["CameraSegmentSource", "FrameSource", "OpenCVSource", "SourceError", "SourceFrame"]

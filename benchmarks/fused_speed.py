@@ -166,10 +166,12 @@ def _ipc_child(name: str, n: int, q: mp.Queue) -> None:
 
 
 def daemon_args(threads: int, backend: str, weights: Path | None = None,
-                precision: str | None = None) -> list[str]:
+                precision: str | None = None, workers: int | None = None) -> list[str]:
     extra = ["--weights", str(weights)] if weights is not None else []
     if precision is not None:
         extra += ["--precision", precision]
+    if workers is not None:
+        extra += ["--workers", str(workers)]
     return ["--threads", str(threads), "--backend", backend, "--log-level", "WARNING", *extra]
 
 
@@ -223,40 +225,43 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
         f"daemon --threads {a.threads}, {a.repeats} interleaved round(s), medians); "
         f"IPC hand-off alone (p50): {alone_ipc * 1e6:.0f} us", flush=True
     )
-    cells: dict[tuple[int, int], list[tuple[float, ...]]] = {}
+    cells: dict[tuple[int, int, int], list[tuple[float, ...]]] = {}
+    # (envs, daemon --workers): one env has one worker whatever is asked
+    env_cells = [(n, w) for n in a.envs for w in (a.workers if n > 1 else a.workers[:1])]
     for r in range(a.repeats):
         for k, (backend, precision, weights) in enumerate(runs):
             alone_perc.setdefault(k, []).append(
                 perception_alone(a.threads, backend, n=200, weights=weights,
                                  precision=precision))
-            for n_envs in a.envs:
-                name = f"bench_fused_{os.getpid()}_{r}_{k}_{n_envs}"
+            for n_envs, workers in env_cells:
+                name = f"bench_fused_{os.getpid()}_{r}_{k}_{n_envs}_{workers}"
                 with spawn_daemon(name, n_envs, extra_args=daemon_args(
-                        a.threads, backend, weights, precision)):
+                        a.threads, backend, weights, precision, workers)):
                     results, _ = run_envs(name, n_envs, a.steps, a.world)
                 r0 = results[0]
-                cells.setdefault((k, n_envs), []).append((
+                cells.setdefault((k, n_envs, workers), []).append((
                     sum(x["steps"] / x["wall"] for x in results), r0["wall"] / r0["steps"],
                     r0["physics"], r0["render"], r0["roundtrip"], r0["reset_s"]))
     print(
-        "\n| backend | precision | envs | steps/s (all envs) | x seed (20/s) "
+        "\n| backend | precision | envs | daemon workers | steps/s (all envs) | x seed (20/s) "
         "| ms/step | physics ms | render ms | daemon round trip ms | perception alone ms "
         f"| round trip - perception ms | efficiency | reset ms | {a.envs[0]}-env steps/s / row 1 |"
     )
-    print("|---" * 14 + "|", flush=True)
+    print("|---" * 15 + "|", flush=True)
     base = None
     for k, (backend, precision, weights) in enumerate(runs):
         label = backend if weights is None else f"{backend}, {weights.name}"
         perc = float(np.median(alone_perc[k]))
-        for n_envs in a.envs:
+        for n_envs, workers in env_cells:
             agg, step_s, phys, rend, rt, reset_s = np.median(
-                np.array(cells[(k, n_envs)]), axis=0)
+                np.array(cells[(k, n_envs, workers)]), axis=0)
             stages = phys + rend + perc + 2 * alone_ipc
             ratio = ""
             if n_envs == a.envs[0]:
                 base = agg if base is None else base
                 ratio = f"{agg / base:.2f}x"
-            print(f"| {label} | {precision} | {n_envs} | {agg:.0f} | "
+            shown = "1" if n_envs == 1 else (str(workers) if workers else "auto")
+            print(f"| {label} | {precision} | {n_envs} | {shown} | {agg:.0f} | "
                   f"{agg / SEED_STEPS_PER_S:.1f}x | {step_s * 1e3:.2f} | {phys * 1e3:.2f} | "
                   f"{rend * 1e3:.2f} | {rt * 1e3:.2f} | {perc * 1e3:.2f} | "
                   f"{(rt - perc) * 1e3:.2f} | {stages / step_s:.2f} | {reset_s * 1e3:.1f} | "
@@ -276,6 +281,18 @@ def env_counts(text: str) -> list[int]:
     return counts
 
 
+def worker_counts(text: str) -> list[int]:
+    """``--workers``: comma-separated daemon worker counts (0: the daemon's default)."""
+    try:
+        counts = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        counts = []
+    if not counts or min(counts) < 0:
+        raise argparse.ArgumentTypeError(
+            f"give worker counts >= 0 separated by commas, e.g. 1,0; got {text!r}")
+    return counts
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=2000, help="steps per env")
@@ -289,6 +306,10 @@ def main() -> int:
     p.add_argument("--envs", type=env_counts, default=[1, 2],
                    help="comma-separated env counts of the env rows, each on its own daemon "
                    "slot (default 1,2); the last column compares the first count's rows")
+    p.add_argument("--workers", type=worker_counts, default=[0],
+                   help="comma-separated daemon --workers values for the rows of 2+ envs, "
+                   "in run order (0: the daemon's default, a worker per core; 1: one loop "
+                   "batching every slot), e.g. 1,0 to compare")
     p.add_argument("--train-steps", type=int, default=5120,
                    help="rover-train --env fused steps per backend (0: skip)")
     p.add_argument("--skip-envs", action="store_true", help="only the training rows")

@@ -40,7 +40,8 @@ def _daemon_child(name: str, precision: str, times, ready, stop) -> None:
     d = Daemon(DaemonConfig(name=name, precision=precision, log_every=0,
                             log_level="WARNING"))
     d.start()
-    src, perc = d.source, d.perception
+    worker = d.workers[0]
+    src, perc = worker.source, worker.perception
     poll, call = src.poll, perc.__call__
     last = [0]
 
@@ -62,7 +63,7 @@ def _daemon_child(name: str, precision: str, times, ready, stop) -> None:
             return out
 
     src.poll = timed_poll
-    d.perception = Timed()
+    worker.perception = Timed()
     ready.set()
     import threading
 

@@ -45,6 +45,7 @@ class Daemon:
 
     def __init__(self, name: str, *args: str) -> None:
         self.name = name
+        self.workers = 1
         env = dict(os.environ, PYTHONPATH=str(ROOT))
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "active_vision", "--name", name, "--threads", "1", *args],
@@ -93,11 +94,13 @@ def frames() -> dict[str, np.ndarray]:
     raise AssertionError("no seed gave a clear view of a pedestrian")
 
 
-@pytest.fixture(scope="module")
-def daemon2() -> Iterator[Daemon]:
-    """One daemon with two slots, shared by the tests that only talk to it."""
+@pytest.fixture(scope="module", params=["1", "2"], ids=["one-loop", "two-workers"])
+def daemon2(request: pytest.FixtureRequest) -> Iterator[Daemon]:
+    """One daemon with two slots, shared by the tests that only talk to it: one loop over
+    both slots (``--workers 1``), and a worker thread per slot."""
     name = _name()
-    d = Daemon(name, "--slots", "2")
+    d = Daemon(name, "--slots", "2", "--workers", request.param)
+    d.workers = int(request.param)
     try:
         yield d
     finally:
@@ -125,6 +128,7 @@ def _assert_pedestrian_found(fused: np.ndarray, mask: np.ndarray) -> None:
 
 def test_ready_line_and_segment_layouts(daemon2: Daemon) -> None:
     assert "ready" in daemon2.ready_line, daemon2.proc.stderr.read() if daemon2.proc.stderr else ""
+    assert f"workers={daemon2.workers} " in daemon2.ready_line
     name = daemon2.name
     assert _segments(name) == sorted(
         [name, f"{name}_1", camera_name(name), camera_name(slot_name(name, 1))]
