@@ -251,7 +251,8 @@ class Daemon:
         from active_vision.onnx_export import OnnxExportError
         from active_vision.perception import Perception, PerceptionConfig
 
-        groups = [list(range(k, cfg.slots, n)) for n in [worker_count(cfg)] for k in range(n)]
+        n_workers = worker_count(cfg)
+        groups = [list(range(k, cfg.slots, n_workers)) for k in range(n_workers)]
         try:
             first = Perception(PerceptionConfig(
                 size=cfg.size, depth=cfg.depth, threads=cfg.threads, weights=cfg.weights,

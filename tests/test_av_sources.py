@@ -7,6 +7,7 @@ import threading
 import uuid
 
 import numpy as np
+import pytest
 
 from active_vision.sources import CameraSegmentSource
 from shm_protocol import FrameWriter, camera_name, slot_name
@@ -63,3 +64,20 @@ def test_single_slot_wait_wakes_on_the_frame() -> None:
     finally:
         env.close()
         src.close(unlink=True)
+
+
+def test_a_source_for_some_slots_names_them_and_fills_its_own_rows() -> None:
+    name = f"test_avs_{uuid.uuid4().hex[:8]}"
+    src = CameraSegmentSource(name, slots=4, size=32, channels=3, slot_ids=[1, 3])
+    try:
+        assert src.names == [camera_name(slot_name(name, i)) for i in (1, 3)]
+        assert src.frames_buffer.shape[0] == 2
+        with FrameWriter(camera_name(slot_name(name, 3)), create=False) as env3:
+            s3 = env3.publish(_frame(33))
+            new = src.poll(0.5)
+        assert [(f.slot, f.row, f.seq) for f in new] == [(3, 1, s3)]
+        assert np.all(src.frames_buffer[1] == 33)
+    finally:
+        src.close(unlink=True)
+    with pytest.raises(ValueError, match="subset of 0..3"):
+        CameraSegmentSource(name, slots=4, size=32, channels=3, slot_ids=[4])
