@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 import uuid
 from collections.abc import Callable, Iterator
 
@@ -143,3 +144,18 @@ def test_workers_flag_refuses_a_negative_count(capsys) -> None:
     with pytest.raises(SystemExit):
         parse_args(["--workers", "-1"])
     assert "0: one per CPU core" in capsys.readouterr().err
+
+
+def test_idle_workers_burn_almost_no_cpu(make_daemon) -> None:
+    """Two workers with no frames coming (a generous bound on CPU time, not a timing)."""
+    d = make_daemon(2)
+    t, errors = _serve(d)
+    try:
+        time.sleep(0.3)  # both workers in their waits
+        c0, t0 = time.process_time(), time.monotonic()
+        time.sleep(1.5)
+        share = (time.process_time() - c0) / (time.monotonic() - t0)
+    finally:
+        _stop(d, t)
+    assert not errors, errors
+    assert share < 0.2, f"two idle workers used {share:.0%} of a core"
