@@ -52,7 +52,7 @@ REQUIRED = ("fused-inspect", "fused-maze", "lidar-inspect", "lidar-maze")
 def test_the_zoo_ships_the_four_entries_in_a_few_megabytes() -> None:
     assert set(REQUIRED) <= set(zoo.names())
     total = sum(zoo.ENTRIES[n].path.stat().st_size for n in zoo.names())
-    assert total < 10 * 2**20
+    assert total < 12 * 2**20  # two-member ensembles of 0.4-0.5 MiB students included
     for name in zoo.names():
         if zoo.ENTRIES[name].trainer != zoo.DAGGER:  # RL models and fine-tunes: their own tests
             continue

@@ -19,8 +19,10 @@ from rover_train.zoo import StudentAgent
 def tiny_entry(entry: str, tmp_path: Path) -> Iterator[tuple[StudentAgent, str]]:
     """Distil a tiny run of ``entry``'s recipe (its stored recipe checked) and yield the
     student and the name of the daemon that served stage 2, still running."""
+    # one member: an ensemble's members are whole runs like this one
     recipe = replace(RECIPES[entry], iterations=1, steps=60, epochs=1, synthetic_goals=1,
-                     synthetic_per_goal=5, fused_iterations=1, fused_steps=30)  # fmt: skip
+                     synthetic_per_goal=5, fused_iterations=1, fused_steps=30,
+                     members=1)  # fmt: skip
     d = Daemon(f"test_tiny_{uuid.uuid4().hex[:8]}").start()
     try:
         out = tmp_path / f"{entry}.pt"
