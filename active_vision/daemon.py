@@ -468,24 +468,22 @@ class Daemon:
             self._lock = None
 
 
-def _positive_int(text: str) -> int:
+def _integer(text: str, low: int, hint: str = "") -> int:
     try:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    if v < low:
+        raise argparse.ArgumentTypeError(f"must be >= {low}{hint}, got {v}")
     return v
+
+
+def _positive_int(text: str) -> int:
+    return _integer(text, 1)
 
 
 def _count(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0 (0: one per CPU core), got {v}")
-    return v
+    return _integer(text, 0, " (0: one per CPU core)")
 
 
 def _size(text: str) -> int:

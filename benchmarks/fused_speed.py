@@ -269,28 +269,25 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
     print("\nms/step, physics, render, round trip and efficiency are those of env 0.")
 
 
-def env_counts(text: str) -> list[int]:
-    """``--envs``: comma-separated positive env counts."""
+def _int_list(text: str, low: int, what: str, example: str) -> list[int]:
     try:
         counts = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
         counts = []
-    if not counts or min(counts) < 1:
+    if not counts or min(counts) < low:
         raise argparse.ArgumentTypeError(
-            f"give positive env counts separated by commas, e.g. 1,2,8; got {text!r}")
+            f"give {what} separated by commas, e.g. {example}; got {text!r}")
     return counts
+
+
+def env_counts(text: str) -> list[int]:
+    """``--envs``: comma-separated positive env counts."""
+    return _int_list(text, 1, "positive env counts", "1,2,8")
 
 
 def worker_counts(text: str) -> list[int]:
     """``--workers``: comma-separated daemon worker counts (0: the daemon's default)."""
-    try:
-        counts = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        counts = []
-    if not counts or min(counts) < 0:
-        raise argparse.ArgumentTypeError(
-            f"give worker counts >= 0 separated by commas, e.g. 1,0; got {text!r}")
-    return counts
+    return _int_list(text, 0, "worker counts >= 0", "1,0")
 
 
 def main() -> int:
