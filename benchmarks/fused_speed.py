@@ -13,7 +13,9 @@ each cell is the median over the rounds; the last column gives each row's steps/
 first env count over the first row's (measured in the same run).
 
 For each backend the daemon (``av-daemon --backend B``) serves 1 env, then 2 envs on 2
-slots (``--envs``: other counts, each env its own process); then ``rover-train --env
+slots (``--envs``: other counts, each env its own process; the rows of 2+ envs once per
+``--workers`` value: 0, the default, is the daemon's own choice, a worker thread per core,
+and ``--workers 1,0`` adds the one-loop daemon in the same run); then ``rover-train --env
 fused`` (PPO, rover-train's defaults, 1 env) trains for ``--train-steps`` steps against a
 daemon of that backend and its steps/s is read from its ``metrics.json`` (plus one run of
 the last backend with the PPO update on every core, ``--update-threads 0``).
