@@ -14,6 +14,12 @@ Measured per world (``inspect``, ``moon``, ``maze``), in this process pinned to 
 A second table times the forward camera (96x96) the fused envs render every step: RGB,
 RGB + metric depth, RGB + depth + pedestrian mask.
 
+A fourth table times that camera frame while driving (a random action between frames) among
+the crowd of 3 and of 10, each frame rendered twice in alternating order: with every geom
+drawn (the way before the camera left out what it cannot see) and as the env renders it,
+leaving out the pedestrian geoms wholly outside the view frustum and, looking straight
+ahead, the rover's own body. The two renders of a frame are checked to be pixel-identical.
+
 A third table (issue 36) times RoverEnv's steps/s with the 3 pacing pedestrians (the default
 when the crowd came) against 3, 10 and 20 walkers of the social-force crowd (the default
 now), in interleaved rounds (medians), and the ratios crowd 10 / pacing 3 (the target is
@@ -115,6 +121,38 @@ def time_camera(env: RoverEnv, n: int) -> tuple[float, float, float]:
     return out[0], out[1], out[2]
 
 
+def time_camera_culling(
+    world: str, n_pedestrians: int, frames: int, seed: int
+) -> tuple[float, float]:
+    """Median ms of a driving camera frame with every geom drawn, and as the env renders it
+    (unseen geoms left out); raises if the two frames ever differ."""
+    env = RoverEnv(world_n=world, n_pedestrians=n_pedestrians)
+    sim = env.sim
+    every = np.zeros(0, dtype=np.intp)
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed)
+    sim.render_camera()  # creates the renderer
+    full, culled = np.empty(frames), np.empty(frames)
+    for i in range(frames):
+        _, _, terminated, truncated, _ = env.step(rng.uniform([-0.6, -np.pi], [1.0, np.pi]))
+        if terminated or truncated:
+            env.reset()
+        out = {}
+        for mode in ("full", "culled") if i % 2 else ("culled", "full"):
+            if mode == "full":
+                sim._unseen_geoms = lambda: every  # every geom drawn
+            t0 = time.perf_counter()
+            out[mode] = sim.render_camera(depth=True)
+            (full if mode == "full" else culled)[i] = time.perf_counter() - t0
+            if mode == "full":
+                del sim._unseen_geoms
+        a, b = out["full"], out["culled"]
+        if not (np.array_equal(a.rgb, b.rgb) and np.array_equal(a.depth, b.depth)):
+            raise AssertionError(f"{world}, {n_pedestrians} people: frame {i} differs")
+    env.close()
+    return float(np.median(full)) * 1e3, float(np.median(culled)) * 1e3
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="fewer steps and resets")
@@ -154,6 +192,14 @@ def main(argv: list[str] | None = None) -> None:
     print("|---|---:|---:|---:|")
     for world, rgb, depth, seg in cams:
         print(f"| {world} | {rgb:.2f} ms | {depth:.2f} ms | {seg:.2f} ms |")
+    print()
+    print("| world | people | camera + depth, every geom drawn | as rendered (unseen left out) "
+          "| ratio |")  # fmt: skip
+    print("|---|---:|---:|---:|---:|")
+    for world in WORLD_NAMES:
+        for n in (3, 10):
+            full, culled = time_camera_culling(world, n, args.frames * 2, args.seed)
+            print(f"| {world} | {n} | {full:.3f} ms | {culled:.3f} ms | {full / culled:.2f}x |")
     print()
     print("| world | pacing 3 steps/s | crowd 3 | crowd 10 | crowd 20 | crowd 10 / pacing 3 | "
           "crowd 10 / crowd 3 |")  # fmt: skip

@@ -271,6 +271,8 @@ class RoverEnvFused(RoverEnvBase):
         self._frame_latency_ms = 0.0
         self._episode_start = False
         self._heatmap_center = 0.0
+        self._in_view = np.zeros(0, dtype=bool)  # pedestrians in view, set with each frame
+        self._nearest = -1
 
     @classmethod
     def _default_reward_config(cls) -> RewardConfig:
@@ -452,11 +454,14 @@ class RoverEnvFused(RoverEnvBase):
         t0 = time.perf_counter()
         seq = self._camera.publish(buf, episode_start=self._episode_start)
         self._episode_start = False
+        # What does not need the fused frame is computed while the daemon perceives
+        obs = self._state_observation()
+        self._in_view = self.sim.pedestrians_in_view()
+        self._nearest = self.nearest_pedestrian_index()
         fused = self._fused.wait_for(source_seq=seq, timeout=self.frame_timeout)
         while fused.seq <= self._stale_seq:
             fused = self._fused.wait_next(timeout=self.frame_timeout)
         self._frame_latency_ms = (time.perf_counter() - t0) * 1e3
-        obs = self._state_observation()
         obs["fused_image"] = fused.data  # a fresh copy owned by this observation
         return obs
 
@@ -487,11 +492,9 @@ class RoverEnvFused(RoverEnvBase):
         if self.report_latency:
             info["frame_latency_ms"] = self._frame_latency_ms
         info["heatmap_center"] = self._heatmap_center
-        in_view = self.sim.pedestrians_in_view()
+        in_view = self._in_view
         info["pedestrian_in_view"] = bool(in_view.any())
-        info["nearest_pedestrian_in_view"] = bool(
-            len(in_view) and in_view[self.nearest_pedestrian_index()]
-        )
+        info["nearest_pedestrian_in_view"] = bool(len(in_view) and in_view[self._nearest])
         return info
 
     def close(self) -> None:

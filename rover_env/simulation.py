@@ -35,6 +35,7 @@ from rover_env.worlds.spec import (
     CONTYPE_WORLD,
     GROUP_MARKER,
     GROUP_PEDESTRIAN,
+    GROUP_ROVER_VISUAL,
     OBSTACLE_FRICTION,
     OBSTACLE_PRIORITY,
 )
@@ -202,6 +203,12 @@ class RoverSim:
         half_fovy = math.radians(rover.CAMERA_FOVY) / 2
         self.camera_half_fov = math.atan(math.tan(half_fovy) * width / height)
         """Half the forward camera's horizontal field of view (rad): 45 deg on square frames."""
+        # the frustum's side planes pass through the camera: a sphere of radius r at (x, z)
+        # is wholly outside the right one when x > z tan(h) + r / cos(h)
+        self._tan_half_fovx = math.tan(self.camera_half_fov)
+        self._sec_half_fovx = 1.0 / math.cos(self.camera_half_fov)
+        self._tan_half_fovy = math.tan(half_fovy)
+        self._sec_half_fovy = 1.0 / math.cos(half_fovy)
         self._goal_mocap = m.body_mocapid[mujoco.mj_name2id(m, obj.mjOBJ_BODY, _GOAL_BODY)]
         self.pedestrians = Pedestrians(
             m, d, self.world, appearance=pedestrian_appearance, mode=pedestrian_mode
@@ -212,6 +219,16 @@ class RoverSim:
         }
         self._rover_geoms = np.isin(m.geom_bodyid, list(rover_bodies))
         self._pedestrian_geoms = self.pedestrians.geom_mask
+        # Geoms the forward camera leaves out of a frame it cannot show them in (the frames are
+        # pixel-identical without them; llvmpipe's cost grows with the triangles drawn): the
+        # rover's own body when the camera looks straight ahead, and pedestrian geoms wholly
+        # outside the view frustum.
+        self._rover_visuals = np.flatnonzero(
+            self._rover_geoms & (m.geom_group == GROUP_ROVER_VISUAL)
+        )
+        drawn = mujoco.MjvOption().geomgroup[m.geom_group].astype(bool)
+        self._pedestrian_visuals = np.flatnonzero(self._pedestrian_geoms & drawn)
+        self._pedestrian_rbound = m.geom_rbound[self._pedestrian_visuals].copy()
         ground_types = (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
         ground = np.isin(m.geom_type, ground_types) & (m.geom_bodyid == 0)
         codes = np.where(self._pedestrian_geoms, _PEDESTRIAN, _OBSTACLE)
@@ -495,9 +512,34 @@ class RoverSim:
         pedestrian mask."""
         height, width = self.camera_size
         r = self._gl()
-        return r.render(
-            self.data, self._camera, r.camera_option, width, height, depth, segmentation
+        rgba, unseen = self.model.geom_rgba, self._unseen_geoms()
+        alpha = rgba[unseen, 3]
+        rgba[unseen, 3] = 0.0  # transparent geoms are left out of the scene
+        try:
+            return r.render(
+                self.data, self._camera, r.camera_option, width, height, depth, segmentation
+            )
+        finally:
+            rgba[unseen, 3] = alpha
+
+    def _unseen_geoms(self) -> np.ndarray:
+        """Indices of drawn geoms the forward camera cannot see now: pedestrian geoms whose
+        bounding sphere lies wholly outside one side of the view frustum, and, unless the
+        camera is panned (then it may see a corner of the rover), the rover's own geoms."""
+        d, cam = self.data, self._camera_id
+        peds, radius = self._pedestrian_visuals, self._pedestrian_rbound
+        # centres in the camera frame: x right, y up, -z along the view
+        v = (d.geom_xpos[peds] - d.cam_xpos[cam]) @ d.cam_xmat[cam].reshape(3, 3)
+        ahead = -v[:, 2]
+        outside = (
+            (ahead + radius <= 0.0)  # behind the camera
+            | (np.abs(v[:, 0]) > ahead * self._tan_half_fovx + radius * self._sec_half_fovx)
+            | (np.abs(v[:, 1]) > ahead * self._tan_half_fovy + radius * self._sec_half_fovy)
         )
+        culled = peds[outside]
+        if self._camera_pan != 0.0:
+            return culled
+        return np.concatenate((self._rover_visuals, culled))
 
     def future_pedestrian_mask(self, horizon: float = 1.5, step: float = 0.1) -> np.ndarray:
         """bool (H, W): camera pixels a pedestrian covers at some moment in the next

@@ -224,3 +224,66 @@ def test_moon_spawn_rests_on_the_terrain() -> None:
         assert max(abs(sim.orientation[0]), abs(sim.orientation[1])) < 0.5
         assert np.abs(sim.data.qvel[:3]).max() < 0.1
     sim.close()
+
+
+def _frames_equal(a, b) -> bool:
+    return (
+        np.array_equal(a.rgb, b.rgb)
+        and np.array_equal(a.depth, b.depth)
+        and np.array_equal(a.pedestrian_mask, b.pedestrian_mask)
+    )
+
+
+@pytest.mark.parametrize("world", ["maze", "moon"])
+def test_camera_frames_are_identical_without_the_geoms_it_leaves_out(world: str) -> None:
+    """The forward camera skips geoms it cannot see (pedestrians outside the view frustum,
+    the rover's own body when not panned); every frame must equal the one with all drawn."""
+    sim = RoverSim(world, camera_size=(96, 96), n_pedestrians=10)
+    rng = np.random.default_rng(3)
+    sim.reset(rng)
+    everything = np.zeros(0, dtype=np.intp)
+    left_out = 0
+    try:
+        for k in range(40):
+            sim.set_command(float(rng.uniform(-0.3, 1.0)), float(rng.uniform(-2.0, 2.0)))
+            sim.advance(CONTROL_DT * 4)
+            sim.set_camera_pan(0.0 if k % 2 else float(rng.uniform(-1.0, 1.0)))
+            left_out += len(sim._unseen_geoms())
+            culled = sim.render_camera(depth=True, segmentation=True)
+            sim._unseen_geoms = lambda: everything  # type: ignore[method-assign]
+            try:
+                full = sim.render_camera(depth=True, segmentation=True)
+            finally:
+                del sim._unseen_geoms
+            assert _frames_equal(culled, full), f"frame {k} differs"
+    finally:
+        sim.close()
+    assert left_out > 40 * 10  # most of ten people stand outside a 90 deg view
+
+
+def test_camera_leaves_out_a_pedestrian_behind_and_keeps_one_at_the_edge(maze: RoverSim) -> None:
+    maze.reset(np.random.default_rng(8))
+    _park_pedestrians(maze)
+    maze.set_rover_pose(-3.0, -1.0, 0.0)
+    geoms = maze.pedestrians.geom_mask & (maze.model.geom_group <= 2)
+    first_body = maze.model.geom_bodyid[np.flatnonzero(geoms)[0]]
+    own = np.flatnonzero(geoms & (maze.model.geom_bodyid == first_body))  # pedestrian 0's
+    rgba = maze.model.geom_rgba.copy()
+
+    maze.place_pedestrian(0, -5.0, -1.0, 0.0)  # 2 m behind the rover
+    assert set(own) <= set(maze._unseen_geoms())
+    # at the left edge of the 90 deg view, 2.8 m ahead: the parts in view are drawn
+    maze.place_pedestrian(0, -0.2, -1.0 + 2.7, 0.0)
+    drawn = set(own) - set(maze._unseen_geoms())
+    assert drawn and drawn != set(own)
+    mask = maze.render_camera(segmentation=True).pedestrian_mask
+    assert mask.any() and not mask[:, 16:].any()  # a sliver at the left edge
+    # the rover's own body is left out looking ahead, drawn when the camera is panned
+    body = set(maze._rover_visuals)
+    assert body and body <= set(maze._unseen_geoms())
+    maze.set_camera_pan(0.5)
+    try:
+        assert not body & set(maze._unseen_geoms())
+    finally:
+        maze.set_camera_pan(0.0)
+    assert np.array_equal(maze.model.geom_rgba, rgba)  # restored after every frame
