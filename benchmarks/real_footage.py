@@ -17,6 +17,11 @@ on frames of ``vtest.avi`` and measures at the detection threshold
 - **false heat**: the share of people-free area with ``heatmap >= THRESHOLD``: its median over
   people-free crops (or frames), and the share of crops (frames) with more than 2 % and more
   than 10 % of it hot;
+- **against the silhouette** (person crops, second table): each person's MOG2 moving
+  foreground inside their box (below), kept when it fills at least ``MIN_SILHOUETTE`` of the
+  box (a walking person): the silhouette's own box cover (what a heatmap exactly on the
+  person scores as box cover), the heatmap's box cover on the same people, the share of the
+  silhouette's pixels that are hot, and the IoU of hot pixels and silhouette in the box;
 - **depth**: the network's depth in metres (``channel_to_depth``), median and 5-95th
   percentiles over every pixel of the view. The footage has no depth ground truth: a sanity
   figure (the street's far side is farther than the channel's 10 m limit).
@@ -128,6 +133,8 @@ OPENCV4_REQUIREMENT = "opencv-python-headless>=4.6,<5"
 TARGETS = {"found": 0.95, "cover": 0.4, "free_median": 0.005, "free_gt2": 0.10}
 """Issue 41's targets: found share and mean box cover (at least), people-free median hot area
 and share of crops with more than 2 % hot (at most)."""
+MIN_SILHOUETTE = 0.1
+"""A person's MOG2 silhouette counts when it fills at least this share of their box."""
 TEST_PEOPLE = 16
 TEST_FREE = 16
 """Crops ``--write-test-data`` writes: person crops, people-free crops."""
@@ -164,6 +171,9 @@ class Footage:
     person_box: np.ndarray
     """int ``(P, 4)``: x, y, w, h in the 96x96 crop."""
     person_meta: list[dict[str, object]]
+    person_silhouette: np.ndarray
+    """bool ``(P, 96, 96)``: the MOG2 moving foreground inside each person's box (the person's
+    silhouette while they walk; little or nothing once they stand still long enough to fade)."""
     free_rgb: np.ndarray
     """uint8 ``(F, 96, 96, 3)``."""
     free_meta: list[dict[str, object]]
@@ -195,6 +205,17 @@ class Figures:
     """Predicted depth in metres over every pixel of the view's maps: 5th percentile, median,
     95th percentile (no ground truth: the footage has none)."""
     hot_free: list[float] = field(default_factory=list, repr=False)
+    silhouettes: int = 0
+    """People with a MOG2 silhouette of at least ``MIN_SILHOUETTE`` of their box."""
+    silhouette_share: float = 0.0
+    """Mean fraction of those people's boxes that their silhouette fills: the box cover a
+    heatmap exactly on the silhouette would score."""
+    silhouette_cover: float = 0.0
+    """Mean box cover of the heatmap on the same people."""
+    silhouette_recall: float = 0.0
+    """Mean fraction of their silhouette pixels that are hot."""
+    silhouette_iou: float = 0.0
+    """Mean IoU, inside the box, of the hot pixels and the silhouette."""
 
     @property
     def found_share(self) -> float:
@@ -236,15 +257,32 @@ def hot_fraction(heat: np.ndarray, area: np.ndarray | None = None) -> float:
     return float((h & area).sum() / n) if n else 0.0
 
 
+def silhouette_figures(
+    heat: np.ndarray, box: Sequence[int], silhouette: np.ndarray
+) -> tuple[float, float, float, float] | None:
+    """(silhouette share of the box, heat's box cover, silhouette recall, IoU in the box) of
+    one person, or None when the silhouette fills under ``MIN_SILHOUETTE`` of the box."""
+    x, y, w, h = (int(v) for v in box)
+    ys, xs = slice(max(0, y), y + h), slice(max(0, x), x + w)
+    sil, hh = np.asarray(silhouette, bool)[ys, xs], hot(heat)[ys, xs]
+    if not sil.size or sil.mean() < MIN_SILHOUETTE:
+        return None
+    union = int((sil | hh).sum())
+    return (float(sil.mean()), float(hh.mean()), float((sil & hh).sum() / sil.sum()),
+            float((sil & hh).sum() / union) if union else 0.0)  # fmt: skip
+
+
 def figures(
     person_heat: Sequence[np.ndarray],
     boxes: Sequence[Sequence[Sequence[int]]],
     free_heat: Sequence[np.ndarray],
     free_area: Sequence[np.ndarray | None] | None = None,
+    silhouettes: Sequence[np.ndarray] | None = None,
 ) -> Figures:
     """The figures of one view: ``person_heat[i]`` holds the people ``boxes[i]`` (one or
     more boxes each); ``free_heat`` are people-free maps, measured over ``free_area``
-    (whole maps when None)."""
+    (whole maps when None); ``silhouettes[i]``, with one box a map, is person i's MOG2
+    silhouette (the silhouette columns)."""
     found: list[bool] = []
     cover: list[float] = []
     for heat, bs in zip(person_heat, boxes, strict=True):
@@ -253,6 +291,12 @@ def figures(
             cover.append(box_cover(heat, b))
     areas = free_area if free_area is not None else [None] * len(free_heat)
     fr = np.asarray([hot_fraction(h, a) for h, a in zip(free_heat, areas, strict=True)])
+    sil: list[tuple[float, float, float, float]] = []
+    for heat, bs, mask in zip(person_heat, boxes, silhouettes or [], strict=False):
+        one = silhouette_figures(heat, bs[0], mask)
+        if one is not None:
+            sil.append(one)
+    share, sil_cover, recall, iou = np.mean(sil, axis=0) if sil else (0.0, 0.0, 0.0, 0.0)
     return Figures(
         people=len(found),
         found=int(sum(found)),
@@ -262,6 +306,11 @@ def figures(
         free_gt2=float(np.mean(fr > 0.02)) if len(fr) else 0.0,
         free_gt10=float(np.mean(fr > 0.10)) if len(fr) else 0.0,
         hot_free=fr.tolist(),
+        silhouettes=len(sil),
+        silhouette_share=float(share),
+        silhouette_cover=float(sil_cover),
+        silhouette_recall=float(recall),
+        silhouette_iou=float(iou),
     )
 
 
@@ -481,7 +530,7 @@ def build_footage(
     height, width = frames[0].shape[:2]
     sx, sy = s / width, s / height
     pad = np.ones((2 * cfg.free_margin + 1,) * 2, np.uint8)
-    person_rgb, person_box, person_meta = [], [], []
+    person_rgb, person_box, person_meta, person_sil = [], [], [], []
     free_rgb, free_meta = [], []
     frame_rgb, frame_boxes, frame_free, frame_index = [], [], [], []
     boxes_by_frame: dict[str, list[list[float]]] = hog["boxes"]  # type: ignore[assignment]
@@ -511,6 +560,13 @@ def build_footage(
                 max(1, int(round(bw * k))),
                 max(1, int(round(bh * k))),
             ]
+            inside = np.zeros((height, width), np.uint8)  # the foreground inside the box
+            inside[by : by + bh, bx : bx + bw] = fg[t][by : by + bh, bx : bx + bw]
+            sil = cv2.resize(
+                inside[cy0 : cy0 + c, cx0 : cx0 + c].astype(np.float32), (s, s),
+                interpolation=cv2.INTER_AREA,
+            )  # fmt: skip
+            person_sil.append(sil >= 0.5)
             person_rgb.append(crop)
             person_box.append(box)
             person_meta.append(
@@ -554,6 +610,7 @@ def build_footage(
         person_rgb=np.asarray(person_rgb, np.uint8).reshape(-1, s, s, 3),
         person_box=np.asarray(person_box, int).reshape(-1, 4),
         person_meta=person_meta,
+        person_silhouette=np.asarray(person_sil, bool).reshape(-1, s, s),
         free_rgb=np.asarray(free_rgb, np.uint8).reshape(-1, s, s, 3),
         free_meta=free_meta,
         frame_rgb=np.asarray(frame_rgb, np.uint8),
@@ -593,7 +650,8 @@ def measure(p: Perception, fp: Footage) -> dict[str, Figures]:
     """``{"crop": Figures, "frame": Figures}`` of one perception on the footage."""
     out_p, out_f, out_w = (fused(p, x) for x in (fp.person_rgb, fp.free_rgb, fp.frame_rgb))
     heat_p, heat_f, heat_w = (o[..., CHANNEL_HEATMAP] for o in (out_p, out_f, out_w))
-    crop = figures(list(heat_p), [[b] for b in fp.person_box], list(heat_f))
+    crop = figures(list(heat_p), [[b] for b in fp.person_box], list(heat_f),
+                   silhouettes=list(fp.person_silhouette))  # fmt: skip
     frame = figures(
         list(heat_w), [list(b) for b in fp.frame_boxes], list(heat_w), list(fp.frame_free)
     )
@@ -629,6 +687,22 @@ def table(rows: dict[str, dict[str, Figures]]) -> str:
                 f"{_pct(f.free_gt2)} | {_pct(f.free_gt10)} | "
                 f"{f.depth_m[1]:.1f} ({f.depth_m[0]:.1f}-{f.depth_m[2]:.1f}) |"
             )
+    return "\n".join(lines)
+
+
+def silhouette_table(rows: dict[str, dict[str, Figures]]) -> str:
+    """The person crops against the people's MOG2 silhouettes (walking people only)."""
+    lines = [
+        "| precision | people with a silhouette | silhouette's own box cover | heatmap's box "
+        "cover | silhouette pixels hot | IoU in the box |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for prec, views in rows.items():
+        f = views["crop"]
+        lines.append(
+            f"| {prec} | {f.silhouettes} | {f.silhouette_share:.3f} | {f.silhouette_cover:.3f} "
+            f"| {_pct(f.silhouette_recall, 1)} | {f.silhouette_iou:.3f} |"
+        )
     return "\n".join(lines)
 
 
@@ -810,6 +884,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"{DEPTH_MAX_M:.0f} m limit, which reads {DEPTH_MAX_M:.0f})\n"
     )
     print(table(rows))
+    print(
+        f"\nPerson crops against the MOG2 moving foreground inside each box (people whose "
+        f"silhouette fills >= {MIN_SILHOUETTE:.0%} of it). The silhouette's own box cover is "
+        "what a heatmap exactly on the person would score as 'mean box cover':\n"
+    )
+    print(silhouette_table(rows))
     return 0
 
 

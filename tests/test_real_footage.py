@@ -19,7 +19,13 @@ import pytest  # noqa: E402
 
 from active_vision.backends import cpu_int8_support  # noqa: E402
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
-from benchmarks.real_footage import TEST_FREE, TEST_PEOPLE, figures  # noqa: E402
+from benchmarks.real_footage import (  # noqa: E402
+    MIN_SILHOUETTE,
+    TEST_FREE,
+    TEST_PEOPLE,
+    figures,
+    silhouette_figures,
+)
 from fused_image import CHANNEL_HEATMAP, FUSED_SIZE  # noqa: E402
 
 DATA = Path(__file__).resolve().parent / "data" / "real_footage"
@@ -124,3 +130,24 @@ def test_the_benchmark_names_a_missing_weights_file(capsys) -> None:
     with pytest.raises(SystemExit):
         main(["--weights", "/nonexistent/avnet.pt"])
     assert "--weights /nonexistent/avnet.pt: no such weights file" in capsys.readouterr().err
+
+
+def test_silhouette_figures_score_a_heatmap_against_the_person_inside_the_box() -> None:
+    box = (10, 20, 10, 20)  # x, y, w, h: 200 pixels
+    silhouette = np.zeros((96, 96), bool)
+    silhouette[25:35, 12:17] = True  # 50 pixels: a quarter of the box
+    silhouette[0:5, 0:5] = True  # outside the box: not the person's
+    heat = np.zeros((96, 96), np.float32)
+    heat[25:35, 12:15] = 1.0  # 30 of the silhouette's pixels
+    heat[20:22, 10:20] = 1.0  # 20 pixels of the box off the silhouette
+    share, cover, recall, iou = silhouette_figures(heat, box, silhouette)
+    assert (share, cover, recall) == pytest.approx((0.25, 0.25, 0.6))
+    assert iou == pytest.approx(30 / 70)
+    # exactly on the silhouette: its box cover is the silhouette's own share, IoU 1
+    assert silhouette_figures(silhouette.astype(np.float32), box, silhouette) == pytest.approx(
+        (0.25, 0.25, 1.0, 1.0))
+    faint = np.zeros((96, 96), bool)
+    faint[25, 12 : 12 + int(MIN_SILHOUETTE * 200) - 1] = True  # a person standing still
+    assert silhouette_figures(heat, box, faint) is None
+    f = figures([heat, heat], [[box], [box]], [heat], silhouettes=[silhouette, faint])
+    assert f.silhouettes == 1 and f.silhouette_share == pytest.approx(0.25)
