@@ -219,17 +219,17 @@ class RoverSim:
         }
         self._rover_geoms = np.isin(m.geom_bodyid, list(rover_bodies))
         self._pedestrian_geoms = self.pedestrians.geom_mask
+        ground_types = (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
         # Geoms the forward camera leaves out of a frame it cannot show them in (the frames are
         # pixel-identical without them; llvmpipe's cost grows with the triangles drawn): the
-        # rover's own body when the camera looks straight ahead, and pedestrian geoms wholly
-        # outside the view frustum.
+        # rover's own body when the camera looks straight ahead, and any other bounded geom
+        # (pedestrians, rocks, panels, walls; not the ground) wholly outside the view frustum.
         self._rover_visuals = np.flatnonzero(
             self._rover_geoms & (m.geom_group == GROUP_ROVER_VISUAL)
         )
         drawn = mujoco.MjvOption().geomgroup[m.geom_group].astype(bool)
-        self._pedestrian_visuals = np.flatnonzero(self._pedestrian_geoms & drawn)
-        self._pedestrian_rbound = m.geom_rbound[self._pedestrian_visuals].copy()
-        ground_types = (mujoco.mjtGeom.mjGEOM_PLANE, mujoco.mjtGeom.mjGEOM_HFIELD)
+        unbounded = np.isin(m.geom_type, ground_types) | (m.geom_rbound <= 0)
+        self._cullable = np.flatnonzero(drawn & ~unbounded & ~self._rover_geoms)
         ground = np.isin(m.geom_type, ground_types) & (m.geom_bodyid == 0)
         codes = np.where(self._pedestrian_geoms, _PEDESTRIAN, _OBSTACLE)
         codes[ground | self._rover_geoms] = 0
@@ -523,20 +523,22 @@ class RoverSim:
             rgba[unseen, 3] = alpha
 
     def _unseen_geoms(self) -> np.ndarray:
-        """Indices of drawn geoms the forward camera cannot see now: pedestrian geoms whose
-        bounding sphere lies wholly outside one side of the view frustum, and, unless the
-        camera is panned (then it may see a corner of the rover), the rover's own geoms."""
+        """Indices of drawn geoms the forward camera cannot see now: bounded geoms (all but
+        the ground and the rover) whose bounding sphere lies wholly outside one side of the
+        view frustum, and, unless the camera is panned (then it may see a corner of the
+        rover), the rover's own geoms."""
         d, cam = self.data, self._camera_id
-        peds, radius = self._pedestrian_visuals, self._pedestrian_rbound
+        geoms = self._cullable
+        radius = self.model.geom_rbound[geoms]  # live: random appearances resize pedestrians
         # centres in the camera frame: x right, y up, -z along the view
-        v = (d.geom_xpos[peds] - d.cam_xpos[cam]) @ d.cam_xmat[cam].reshape(3, 3)
+        v = (d.geom_xpos[geoms] - d.cam_xpos[cam]) @ d.cam_xmat[cam].reshape(3, 3)
         ahead = -v[:, 2]
         outside = (
             (ahead + radius <= 0.0)  # behind the camera
             | (np.abs(v[:, 0]) > ahead * self._tan_half_fovx + radius * self._sec_half_fovx)
             | (np.abs(v[:, 1]) > ahead * self._tan_half_fovy + radius * self._sec_half_fovy)
         )
-        culled = peds[outside]
+        culled = geoms[outside]
         if self._camera_pan != 0.0:
             return culled
         return np.concatenate((self._rover_visuals, culled))

@@ -234,17 +234,23 @@ def _frames_equal(a, b) -> bool:
     )
 
 
-@pytest.mark.parametrize("world", ["maze", "moon"])
-def test_camera_frames_are_identical_without_the_geoms_it_leaves_out(world: str) -> None:
-    """The forward camera skips geoms it cannot see (pedestrians outside the view frustum,
-    the rover's own body when not panned); every frame must equal the one with all drawn."""
-    sim = RoverSim(world, camera_size=(96, 96), n_pedestrians=10)
+@pytest.mark.parametrize(("world", "appearance"), [("maze", "fixed"), ("moon", "random")])
+def test_camera_frames_are_identical_without_the_geoms_it_leaves_out(
+    world: str, appearance: str
+) -> None:
+    """The forward camera skips geoms it cannot see (geoms outside the view frustum, the
+    rover's own body when not panned); every frame must equal the one with all drawn
+    (random appearances resize the pedestrians' geoms every episode)."""
+    sim = RoverSim(world, camera_size=(96, 96), n_pedestrians=10,
+                   pedestrian_appearance=appearance)  # fmt: skip
     rng = np.random.default_rng(3)
     sim.reset(rng)
     everything = np.zeros(0, dtype=np.intp)
     left_out = 0
     try:
         for k in range(40):
+            if k == 20:
+                sim.reset(rng)  # new appearances
             sim.set_command(float(rng.uniform(-0.3, 1.0)), float(rng.uniform(-2.0, 2.0)))
             sim.advance(CONTROL_DT * 4)
             sim.set_camera_pan(0.0 if k % 2 else float(rng.uniform(-1.0, 1.0)))
