@@ -2,7 +2,7 @@
 
     av-daemon [--name rl_observation] [--slots N] [--size 96] [--depth model|render]
               [--backend auto|onnx|torch] [--precision int8|fp32] [--threads 1]
-              [--workers 0]
+              [--workers 0] [--spin-wait auto|on|off]
               [--source camera|video:PATH|device:N] [--preview PATH]
               [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
               [--heatmap detect|predict] [--predict-weights FILE]
@@ -15,7 +15,9 @@ channel), which the env writes (``FrameWriter(..., create=False)``) and the daem
 Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flushed) and serves:
 
 1. waits for new camera frames on any slot (futex wake-ups, short timeouts; idle costs
-   almost no CPU);
+   almost no CPU); with two cores per slot a worker of one slot first watches for its frame
+   in a busy loop for up to 3 ms (``--spin-wait``, as the env does for its fused frame), so
+   a frame that comes within it costs no wake-up;
 2. runs :class:`~active_vision.perception.Perception` on every slot that has a new frame,
    as one batch, in ONNX Runtime or eager torch (``--backend``: ``auto``, the default, is
    ONNX Runtime when it is installed, else torch with one log line saying so; the ONNX file
@@ -80,6 +82,7 @@ from active_vision.launcher import READY_MARKER
 from fused_image import CHANNEL_HEATMAP, FUSED_SIZE
 from shm_protocol import (
     DEFAULT_NAME,
+    SPIN_S,
     FrameReader,
     FrameWriter,
     LayoutError,
@@ -87,6 +90,7 @@ from shm_protocol import (
     ShmError,
     camera_name,
     slot_name,
+    spin_for,
     validate_name,
 )
 
@@ -148,6 +152,10 @@ class DaemonConfig:
     next 1.5 s from the slot's last K frames)."""
     predict_weights: Path | None = None
     """Predictor weights; default: the shipped ``active_vision/weights/predict.pt``."""
+    spin_wait: str = "auto"
+    """``auto``: a worker serving one slot watches for its camera frames in a busy loop for
+    up to ``shm_protocol.SPIN_S`` before it sleeps where there are two cores per slot
+    (``shm_protocol.spin_for``); ``on``: wherever a worker serves one slot; ``off``: never."""
 
 
 def worker_count(config: DaemonConfig) -> int:
@@ -157,6 +165,15 @@ def worker_count(config: DaemonConfig) -> int:
         return 1
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(config.workers or cpus or 1, config.slots))
+
+
+def camera_spin(config: DaemonConfig) -> float:
+    """Seconds a worker watches for its camera frames before sleeping: only a worker with
+    one slot (a source over several slots sleeps on all of them at once), per
+    ``config.spin_wait``."""
+    if config.spin_wait == "off" or worker_count(config) < config.slots:
+        return 0.0
+    return SPIN_S if config.spin_wait == "on" else spin_for(config.slots)
 
 
 @dataclass
@@ -282,9 +299,14 @@ class Daemon:
                     logger.info("took over segment %s left by a dead daemon", w.name)
             if cfg.source == "camera":
                 channels = 4 if cfg.depth == "render" else 3
+                spin = camera_spin(cfg)
+                if spin:
+                    logger.info("each worker watches for its camera frames for up to %.0f ms "
+                                "before sleeping (--spin-wait %s)", spin * 1e3, cfg.spin_wait)
                 for group in groups:
                     self.sources.append(CameraSegmentSource(cfg.name, cfg.slots, cfg.size,
-                                                            channels, slot_ids=group))
+                                                            channels, slot_ids=group,
+                                                            spin=spin))
             else:
                 if cfg.depth == "render":
                     raise DaemonError(f"--depth render needs --source camera (frames with a "
@@ -532,6 +554,11 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         "(default): one per CPU core, at most one per slot, so each env's "
                         "frame runs while the others render; 1: one loop batching every "
                         "slot's new frame (where batching pays, as on a GPU)")
+    p.add_argument("--spin-wait", choices=("auto", "on", "off"), default=d.spin_wait,
+                   help="a worker serving one slot watches for its camera frames for up to "
+                        "3 ms before sleeping, taking the wake-up off the env's step: auto "
+                        "(default) where there are two cores per slot (one for each env, one "
+                        "for its worker), on, or off (a machine shared with other work)")
     p.add_argument("--source", type=_source, default=d.source,
                    help="camera (segments written by envs), video:PATH or device:N")
     p.add_argument("--preview", type=Path, default=None,
@@ -563,7 +590,8 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         source=a.source, preview=a.preview,
                         log_every=max(0, a.log_every), stale_after=a.stale_after,
                         weights=a.weights, log_level=a.log_level.upper(),
-                        heatmap=a.heatmap, predict_weights=a.predict_weights)
+                        heatmap=a.heatmap, predict_weights=a.predict_weights,
+                        spin_wait=a.spin_wait)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -193,13 +193,18 @@ class CameraSegmentSource:
     ``IDLE_AFTER_S`` without any frame the slices grow to ``idle_slice_s`` (a woken slot
     still answers at once; a frame on another slot waits at most one slice). Slots whose env
     has gone (closed or died) are only looked at, never waited on, until a frame arrives.
+
+    ``spin`` (seconds): a one-slot source watches its slot's wake word that long before it
+    sleeps (``FrameReader(spin=...)``), so a frame that comes meanwhile is taken without a
+    futex wake-up; the daemon sets it where there are two cores per slot
+    (``shm_protocol.spin_for``).
     """
 
     IDLE_AFTER_S = 1.0
 
     def __init__(self, name: str, slots: int, size: int, channels: int,
                  slice_s: float = 0.002, idle_slice_s: float = 0.05,
-                 slot_ids: Sequence[int] | None = None) -> None:
+                 slot_ids: Sequence[int] | None = None, spin: float = 0.0) -> None:
         self.slot_ids = list(range(slots)) if slot_ids is None else list(slot_ids)
         if not self.slot_ids or not all(0 <= i < slots for i in self.slot_ids):
             raise ValueError(f"slot_ids must be a non-empty subset of 0..{slots - 1}, "
@@ -218,7 +223,7 @@ class CameraSegmentSource:
                 w = FrameWriter(seg, shape=(size, size, channels), dtype=np.uint8, create=True,
                                 replace=True)
                 self.writers.append(w)
-                self.readers.append(FrameReader(seg))
+                self.readers.append(FrameReader(seg, spin=spin))
         except BaseException:
             self.close(unlink=True)
             raise

@@ -19,6 +19,7 @@ from rover_env import reward as rw
 from rover_env.core import RoverEnvBase, float_box, state_spaces
 from rover_env.reward import RewardConfig
 from shm_protocol import (
+    SPIN_S,
     FrameReader,
     FrameWriter,
     LayoutError,
@@ -27,6 +28,7 @@ from shm_protocol import (
     camera_name,
     segment_path,
     slot_name,
+    spin_for,
     writer_alive,
 )
 
@@ -183,7 +185,14 @@ class RoverEnvFused(RoverEnvBase):
     ``frame_timeout`` seconds per fused frame; ``report_latency`` (default False) puts the
     measured ``frame_latency_ms`` in ``info``: a wall-clock value, so two runs with the
     same seed and actions then differ in it (Gymnasium's ``check_env`` compares infos, so
-    leave it off there). The keyword-only options common to every roverav env
+    leave it off there). ``spin_wait``: after publishing its camera frame the env watches
+    for the fused frame in a busy loop for up to 3 ms (``shm_protocol.SPIN_S``) before it
+    sleeps, at the price of a busy core while the daemon perceives; with the daemon doing
+    the same for camera frames (``av-daemon --spin-wait``), the step saves two futex
+    wake-ups. None (default) spins when this process may use at least two cores per daemon
+    slot, one for each env and one for its daemon worker (``shm_protocol.spin_for``); True
+    always; False never (e.g. on a machine shared with other work).
+    The keyword-only options common to every roverav env
     (:class:`~rover_env.core.EnvOptions`): ``control_dt``, ``physics_dt``,
     ``reward_config`` (default ``RewardConfig.fused()``), ``render_mode``
     (``"rgb_array"``: chase camera), ``render_size``, ``n_pedestrians`` (0-20, default
@@ -216,6 +225,7 @@ class RoverEnvFused(RoverEnvBase):
         slot: int | str = 0,
         frame_timeout: float = FRAME_TIMEOUT,
         report_latency: bool = False,
+        spin_wait: bool | None = None,
         **options: Any,
     ) -> None:
         del scan_topic, imu_topic, cmd_vel_topic  # ROS topics: accepted, no effect
@@ -230,6 +240,12 @@ class RoverEnvFused(RoverEnvBase):
             )
         if not frame_timeout > 0:
             raise ValueError(f"frame_timeout must be > 0 s, got {frame_timeout}")
+        if spin_wait is not None and not isinstance(spin_wait, bool):
+            raise ValueError(
+                f"spin_wait must be True, False or None (spin when the machine has a core for "
+                f"each env and daemon worker), got {spin_wait!r}"
+            )
+        self.spin_wait = spin_wait
         cfg = options.get("reward_config")
         if cfg is not None and cfg.clearance_penalty:
             raise ValueError(
@@ -361,6 +377,7 @@ class RoverEnvFused(RoverEnvBase):
             camera.close()
             fused.close()
             raise
+        fused.spin = self._spin()
         self._fused, self._camera = fused, camera
         # Fused frames already in the segment answer camera frames of an earlier link (a
         # daemon restarted with a new camera segment restarts its frame numbers while the
@@ -371,6 +388,13 @@ class RoverEnvFused(RoverEnvBase):
         h, w, ch = camera.shape
         self._render_depth = ch == 4
         self._camera_buf = np.zeros((h, w, ch), dtype=np.uint8)
+
+    def _spin(self) -> float:
+        """Seconds to watch for the fused frame before sleeping (``spin_wait``; None:
+        ``shm_protocol.spin_for`` the daemon's slots)."""
+        if self.spin_wait is None:
+            return spin_for(served_slots(self._base))
+        return SPIN_S if self.spin_wait else 0.0
 
     def _check_slot_served(self) -> None:
         """Fail fast when a running daemon serves the base name with fewer slots than

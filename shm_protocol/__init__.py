@@ -37,7 +37,7 @@ from .names import (
     slot_name,
     validate_name,
 )
-from .reader import Frame, FrameReader, writer_alive
+from .reader import SPIN_S, Frame, FrameReader, spin_for, writer_alive
 from .writer import FrameWriter
 
 __all__ = [
@@ -52,6 +52,7 @@ __all__ = [
     "MultiWaiter",
     "NonFiniteError",
     "SHM_DIR",
+    "SPIN_S",
     "SegmentBusyError",
     "SegmentNotFoundError",
     "ShmError",
@@ -64,6 +65,7 @@ __all__ = [
     "segment_path",
     "segments_of",
     "slot_name",
+    "spin_for",
     "validate_name",
     "writer_alive",
 ]

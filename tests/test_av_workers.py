@@ -13,8 +13,16 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from active_vision.daemon import Daemon, DaemonConfig, worker_count
-from shm_protocol import FrameReader, FrameTimeoutError, FrameWriter, camera_name, slot_name
+from active_vision.daemon import Daemon, DaemonConfig, camera_spin, worker_count
+from shm_protocol import (
+    SPIN_S,
+    FrameReader,
+    FrameTimeoutError,
+    FrameWriter,
+    camera_name,
+    slot_name,
+    spin_for,
+)
 
 FRAME = np.full((96, 96, 3), 128, np.uint8)
 
@@ -159,3 +167,16 @@ def test_idle_workers_burn_almost_no_cpu(make_daemon) -> None:
         _stop(d, t)
     assert not errors, errors
     assert share < 0.2, f"two idle workers used {share:.0%} of a core"
+
+
+def test_a_worker_of_one_slot_spins_where_spin_wait_says() -> None:
+    from active_vision.daemon import parse_args
+
+    assert camera_spin(DaemonConfig(slots=1)) == spin_for(1)  # auto: two cores per slot
+    assert camera_spin(DaemonConfig(slots=1, spin_wait="on")) == SPIN_S
+    assert camera_spin(DaemonConfig(slots=1, spin_wait="off")) == 0.0
+    # a worker over several slots sleeps on all of them at once, never spins
+    assert camera_spin(DaemonConfig(slots=2, workers=1, spin_wait="on")) == 0.0
+    assert parse_args(["--spin-wait", "off"]).spin_wait == "off"
+    with pytest.raises(SystemExit):
+        parse_args(["--spin-wait", "always"])

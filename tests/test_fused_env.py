@@ -17,7 +17,7 @@ from helpers.daemon import Daemon
 import rover_env  # noqa: F401  (registers the ids)
 from rover_env.discrete_env import DiscreteRoverEnvFused, decode_action
 from rover_env.fused_env import RoverEnvFused
-from shm_protocol import SegmentNotFoundError, WriterGoneError
+from shm_protocol import SPIN_S, SegmentNotFoundError, WriterGoneError, spin_for
 
 ROOT = Path(__file__).resolve().parents[1]
 PI = np.float32(np.pi)
@@ -255,3 +255,16 @@ def test_stalled_daemon_is_a_frame_timeout_and_the_env_recovers() -> None:
     finally:
         d.stop()
         d.remove_leftovers()
+
+
+def test_spin_wait_decides_how_the_env_waits_for_its_frame(daemon: Daemon) -> None:
+    for spin_wait, spin in ((None, spin_for(2)), (True, SPIN_S), (False, 0.0)):
+        env = _fused(daemon, spin_wait=spin_wait)
+        try:
+            assert env._fused is not None and env._fused.spin == spin
+            env.reset(seed=0)
+            env.step(env.action_space.sample())  # steps alike either way
+        finally:
+            env.close()
+    with pytest.raises(ValueError, match="spin_wait must be True, False or None"):
+        _fused(daemon, spin_wait="yes")

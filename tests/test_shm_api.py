@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from shm_protocol import (
+    SPIN_S,
     FrameReader,
     FrameTimeoutError,
     FrameWriter,
@@ -21,6 +22,7 @@ from shm_protocol import (
     SegmentNotFoundError,
     ShmError,
     WriterGoneError,
+    spin_for,
 )
 from shm_protocol import reader as reader_mod
 from shm_protocol.layout import FLAG_CHECKSUM, Layout
@@ -363,3 +365,63 @@ def test_closed_objects_refuse_work(shm_name: str) -> None:
     with pytest.raises(ShmError):
         w.publish(np.zeros((2, 2, 1), np.uint8))
     assert not os.path.exists(f"/dev/shm/{shm_name}")
+
+
+# --- spinning before the futex sleep -----------------------------------------------------
+
+
+class _CountingFutex:
+    """Stands in for a reader's futex word and counts its sleeps."""
+
+    def __init__(self, word) -> None:  # noqa: ANN001
+        self.word, self.sleeps = word, 0
+        self.address = word.address
+
+    def wait(self, expected: int, timeout: float) -> None:
+        self.sleeps += 1
+        self.word.wait(expected, timeout)
+
+
+@pytest.mark.parametrize("spin", [0.0, 1.0])
+def test_a_spinning_reader_takes_a_frame_without_sleeping(shm_name: str, spin: float) -> None:
+    """With a spin longer than the frame takes to come, the wait never sleeps on the futex;
+    without one it does. The frame is the same either way."""
+    w = FrameWriter(shm_name, shape=FUSED, dtype=np.float32)
+    r = FrameReader(shm_name, spin=spin)
+    futex = r._futex = _CountingFutex(r._futex)  # type: ignore[assignment]
+    try:
+        w.publish(_frame(1.0), source_seq=1)
+        r.wait_next(timeout=1.0)
+        later = threading.Timer(0.05, lambda: w.publish(_frame(2.0), source_seq=2))
+        later.start()
+        f = r.wait_for(source_seq=2, timeout=5.0)
+        later.join()
+        assert f.source_seq == 2 and f.data[0, 0, 0] == 2.0
+        assert (futex.sleeps == 0) == (spin > 0), futex.sleeps
+    finally:
+        r.close()
+        w.close(unlink=True)
+
+
+def test_a_spin_ends_in_the_futex_sleep_and_keeps_the_timeout(shm_name: str) -> None:
+    w = FrameWriter(shm_name, shape=FUSED, dtype=np.float32)
+    r = FrameReader(shm_name, spin=0.05)
+    futex = r._futex = _CountingFutex(r._futex)  # type: ignore[assignment]
+    try:
+        w.publish(_frame(1.0))
+        r.wait_next(timeout=1.0)
+        with pytest.raises(FrameTimeoutError):
+            r.wait_next(timeout=0.3)  # spins 0.05 s, then sleeps
+        assert futex.sleeps > 0
+        with pytest.raises(ValueError, match="spin must be >= 0"):
+            FrameReader(shm_name, spin=-1.0)
+    finally:
+        r.close()
+        w.close(unlink=True)
+
+
+def test_spin_for_wants_a_core_for_each_env_and_each_worker() -> None:
+    assert spin_for(1, cores=2) == SPIN_S
+    assert spin_for(2, cores=4) == SPIN_S
+    assert spin_for(2, cores=2) == 0.0  # two envs and two workers on two cores: sleep
+    assert spin_for(1, cores=1) == 0.0

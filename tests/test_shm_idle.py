@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 
 from active_vision.sources import CameraSegmentSource
-from shm_protocol import FrameReader, FrameTimeoutError, FrameWriter, camera_name, slot_name
+from shm_protocol import (
+    SPIN_S,
+    FrameReader,
+    FrameTimeoutError,
+    FrameWriter,
+    camera_name,
+    slot_name,
+)
 
 IDLE_S = 1.5
 MAX_IDLE_CPU = 0.20  # of one core; the futex wait measured about 1 %
@@ -23,11 +30,13 @@ def _cpu_share(wait) -> float:  # noqa: ANN001
     return (time.process_time() - c0) / (time.monotonic() - t0)
 
 
-def test_an_idle_reader_burns_almost_no_cpu() -> None:
+@pytest.mark.parametrize("spin", [0.0, SPIN_S])
+def test_an_idle_reader_burns_almost_no_cpu(spin: float) -> None:
+    """Also when it spins before sleeping: once per wait call, a few ms."""
     name = f"test_idle_{uuid.uuid4().hex[:8]}"
     w = FrameWriter(name, shape=(8, 8, 3), dtype=np.uint8)
     try:
-        r = FrameReader(name)
+        r = FrameReader(name, spin=spin)
         for _ in range(20):  # a 1 ms cadence, then the frames stop
             w.publish(np.zeros((8, 8, 3), np.uint8))
             r.wait_next(timeout=1.0)
@@ -46,10 +55,10 @@ def test_an_idle_reader_burns_almost_no_cpu() -> None:
     assert share < MAX_IDLE_CPU, f"an idle reader used {share:.0%} of a core"
 
 
-@pytest.mark.parametrize("slots", [1, 2])
-def test_the_daemons_camera_wait_burns_almost_no_cpu_when_idle(slots: int) -> None:
+@pytest.mark.parametrize(("slots", "spin"), [(1, 0.0), (2, 0.0), (1, SPIN_S)])
+def test_the_daemons_camera_wait_burns_almost_no_cpu_when_idle(slots: int, spin: float) -> None:
     base = f"test_idle_{uuid.uuid4().hex[:8]}"
-    source = CameraSegmentSource(base, slots, 16, 3)
+    source = CameraSegmentSource(base, slots, 16, 3, spin=spin)
     envs = [FrameWriter(camera_name(slot_name(base, i)), shape=(16, 16, 3), dtype=np.uint8,
                         create=False) for i in range(slots)]
     try:
