@@ -89,8 +89,8 @@ from shm_protocol import (
     SegmentNotFoundError,
     ShmError,
     camera_name,
+    machine_spin,
     slot_name,
-    spin_for,
     validate_name,
 )
 
@@ -108,6 +108,9 @@ EXIT_USAGE = 2
 IDLE_POLL_S = 0.2
 """Longest wait for a frame before the loop looks at its signals and heartbeat again."""
 PNG_PREVIEW_EVERY_S = 0.5
+SPIN_RECHECK_S = 5.0
+"""How often a worker looks again whether its camera waits may spin (other daemons on this
+machine may have started or stopped)."""
 
 
 @dataclass
@@ -154,8 +157,9 @@ class DaemonConfig:
     """Predictor weights; default: the shipped ``active_vision/weights/predict.pt``."""
     spin_wait: str = "auto"
     """``auto``: a worker serving one slot watches for its camera frames in a busy loop for
-    up to ``shm_protocol.SPIN_S`` before it sleeps where there are two cores per slot
-    (``shm_protocol.spin_for``); ``on``: wherever a worker serves one slot; ``off``: never."""
+    up to ``shm_protocol.SPIN_S`` before it sleeps where there are two cores for each env
+    slot of every daemon on this machine (``shm_protocol.machine_spin``, looked at again
+    every ``SPIN_RECHECK_S``); ``on``: wherever a worker serves one slot; ``off``: never."""
 
 
 def worker_count(config: DaemonConfig) -> int:
@@ -173,7 +177,7 @@ def camera_spin(config: DaemonConfig) -> float:
     ``config.spin_wait``."""
     if config.spin_wait == "off" or worker_count(config) < config.slots:
         return 0.0
-    return SPIN_S if config.spin_wait == "on" else spin_for(config.slots)
+    return SPIN_S if config.spin_wait == "on" else machine_spin(config.slots)
 
 
 @dataclass
@@ -398,9 +402,16 @@ class Daemon:
         detect_heat = np.empty((cfg.size, cfg.size), np.float32)
         prefix = f"worker {worker.index}: " if len(self.workers) > 1 else ""
         halt = self._halt
+        readers = getattr(source, "readers", [])
+        next_spin_check = time.monotonic() + SPIN_RECHECK_S
         while self.stop.signal is None and not halt.is_set():
             new = source.poll(IDLE_POLL_S)
             now = time.monotonic()
+            if readers and now >= next_spin_check:
+                spin = camera_spin(cfg)
+                for r in readers:
+                    r.spin = spin
+                next_spin_check = now + SPIN_RECHECK_S
             if not new:
                 if now - last_hb >= hb_every:
                     for w in own:

@@ -6,6 +6,8 @@ for each perception backend (torch and onnx) side by side in one run.
     python benchmarks/fused_speed.py --backends onnx     # one backend
     python benchmarks/fused_speed.py --backends onnx --precision fp32,int8 --repeats 3 \
         --train-steps 0                           # both precisions, interleaved
+    python benchmarks/fused_speed.py --backends onnx --spin-wait auto,off --envs 1 \
+        --repeats 3 --train-steps 0               # env and daemon spinning, and not
 
 Every env row is one (backend, precision) combination: the daemon runs with ``--backend B
 --precision P``. With ``--repeats N`` all rows are run N times in interleaved rounds and
@@ -15,7 +17,9 @@ first env count over the first row's (measured in the same run).
 For each backend the daemon (``av-daemon --backend B``) serves 1 env, then 2 envs on 2
 slots (``--envs``: other counts, each env its own process; the rows of 2+ envs once per
 ``--workers`` value: 0, the default, is the daemon's own choice, a worker thread per core,
-and ``--workers 1,0`` adds the one-loop daemon in the same run); then ``rover-train --env
+and ``--workers 1,0`` adds the one-loop daemon in the same run; every row once per
+``--spin-wait`` value: ``auto``, the default, lets env and daemon watch for each other's
+frames before sleeping where there are two cores per slot, ``off`` never); then ``rover-train --env
 fused`` (PPO, rover-train's defaults, 1 env) trains for ``--train-steps`` steps against a
 daemon of that backend and its steps/s is read from its ``metrics.json`` (plus one run of
 the last backend with the PPO update on every core, ``--update-threads 0``).
@@ -66,11 +70,13 @@ def _timed(fn, acc: list[float]):
     return wrapper
 
 
-def run_env(name: str, slot: int, steps: int, world: str, out: mp.Queue) -> None:
+def run_env(name: str, slot: int, steps: int, world: str, out: mp.Queue,
+            spin_wait: bool | None = None) -> None:
     """Step one env ``steps`` times; put its timings on ``out``."""
     from rover_env.fused_env import RoverEnvFused
 
-    env = RoverEnvFused(rl_obs_name=name, slot=slot, world_n=world, report_latency=True)
+    env = RoverEnvFused(rl_obs_name=name, slot=slot, world_n=world, report_latency=True,
+                        spin_wait=spin_wait)
     physics: list[float] = []
     render: list[float] = []
     env.sim.advance = _timed(env.sim.advance, physics)
@@ -168,19 +174,23 @@ def _ipc_child(name: str, n: int, q: mp.Queue) -> None:
 
 
 def daemon_args(threads: int, backend: str, weights: Path | None = None,
-                precision: str | None = None, workers: int | None = None) -> list[str]:
+                precision: str | None = None, workers: int | None = None,
+                spin_wait: str = "auto") -> list[str]:
     extra = ["--weights", str(weights)] if weights is not None else []
     if precision is not None:
         extra += ["--precision", precision]
     if workers is not None:
         extra += ["--workers", str(workers)]
+    extra += ["--spin-wait", spin_wait]
     return ["--threads", str(threads), "--backend", backend, "--log-level", "WARNING", *extra]
 
 
-def run_envs(name: str, n_envs: int, steps: int, world: str) -> tuple[list[dict], float]:
+def run_envs(name: str, n_envs: int, steps: int, world: str,
+             spin_wait: str = "auto") -> tuple[list[dict], float]:
     ctx = mp.get_context("spawn")
     q: mp.Queue = ctx.Queue()
-    procs = [ctx.Process(target=run_env, args=(name, i, steps, world, q))
+    spin = {"auto": None, "on": True, "off": False}[spin_wait]
+    procs = [ctx.Process(target=run_env, args=(name, i, steps, world, q, spin))
              for i in range(n_envs)]
     t0 = time.perf_counter()
     for pr in procs:
@@ -227,43 +237,45 @@ def env_rows(a: argparse.Namespace, backends: list[str]) -> None:
         f"daemon --threads {a.threads}, {a.repeats} interleaved round(s), medians); "
         f"IPC hand-off alone (p50): {alone_ipc * 1e6:.0f} us", flush=True
     )
-    cells: dict[tuple[int, int, int], list[tuple[float, ...]]] = {}
-    # (envs, daemon --workers): one env has one worker whatever is asked
-    env_cells = [(n, w) for n in a.envs for w in (a.workers if n > 1 else a.workers[:1])]
+    cells: dict[tuple[int, int, int, str], list[tuple[float, ...]]] = {}
+    # (envs, daemon --workers, --spin-wait): one env has one worker whatever is asked
+    env_cells = [(n, w, sp) for n in a.envs for w in (a.workers if n > 1 else a.workers[:1])
+                 for sp in a.spin_wait]
     for r in range(a.repeats):
         for k, (backend, precision, weights) in enumerate(runs):
             alone_perc.setdefault(k, []).append(
                 perception_alone(a.threads, backend, n=200, weights=weights,
                                  precision=precision))
-            for n_envs, workers in env_cells:
-                name = f"bench_fused_{os.getpid()}_{r}_{k}_{n_envs}_{workers}"
+            for n_envs, workers, spin in env_cells:
+                name = f"bench_fused_{os.getpid()}_{r}_{k}_{n_envs}_{workers}_{spin}"
                 with spawn_daemon(name, n_envs, extra_args=daemon_args(
-                        a.threads, backend, weights, precision, workers)):
-                    results, _ = run_envs(name, n_envs, a.steps, a.world)
+                        a.threads, backend, weights, precision, workers, spin)):
+                    results, _ = run_envs(name, n_envs, a.steps, a.world, spin)
                 r0 = results[0]
-                cells.setdefault((k, n_envs, workers), []).append((
+                cells.setdefault((k, n_envs, workers, spin), []).append((
                     sum(x["steps"] / x["wall"] for x in results), r0["wall"] / r0["steps"],
                     r0["physics"], r0["render"], r0["roundtrip"], r0["reset_s"]))
     print(
-        "\n| backend | precision | envs | daemon workers | steps/s (all envs) | x seed (20/s) "
+        "\n| backend | precision | envs | daemon workers | spin wait | steps/s (all envs) "
+        "| x seed (20/s) "
         "| ms/step | physics ms | render ms | daemon round trip ms | perception alone ms "
         f"| round trip - perception ms | efficiency | reset ms | {a.envs[0]}-env steps/s / row 1 |"
     )
-    print("|---" * 15 + "|", flush=True)
+    print("|---" * 16 + "|", flush=True)
     base = None
     for k, (backend, precision, weights) in enumerate(runs):
         label = backend if weights is None else f"{backend}, {weights.name}"
         perc = float(np.median(alone_perc[k]))
-        for n_envs, workers in env_cells:
+        for n_envs, workers, spin in env_cells:
             agg, step_s, phys, rend, rt, reset_s = np.median(
-                np.array(cells[(k, n_envs, workers)]), axis=0)
+                np.array(cells[(k, n_envs, workers, spin)]), axis=0)
             stages = phys + rend + perc + 2 * alone_ipc
             ratio = ""
             if n_envs == a.envs[0]:
                 base = agg if base is None else base
                 ratio = f"{agg / base:.2f}x"
             shown = "1" if n_envs == 1 else (str(workers) if workers else "auto")
-            print(f"| {label} | {precision} | {n_envs} | {shown} | {agg:.0f} | "
+            print(f"| {label} | {precision} | {n_envs} | {shown} | {spin} | {agg:.0f} | "
                   f"{agg / SEED_STEPS_PER_S:.1f}x | {step_s * 1e3:.2f} | {phys * 1e3:.2f} | "
                   f"{rend * 1e3:.2f} | {rt * 1e3:.2f} | {perc * 1e3:.2f} | "
                   f"{(rt - perc) * 1e3:.2f} | {stages / step_s:.2f} | {reset_s * 1e3:.1f} | "
@@ -292,6 +304,15 @@ def worker_counts(text: str) -> list[int]:
     return _int_list(text, 0, "worker counts >= 0", "1,0")
 
 
+def spin_choices(text: str) -> list[str]:
+    """``--spin-wait``: comma-separated auto / on / off."""
+    values = [x.strip() for x in text.split(",") if x.strip()]
+    if not values or any(v not in ("auto", "on", "off") for v in values):
+        raise argparse.ArgumentTypeError(
+            f"give auto, on or off separated by commas, e.g. auto,off; got {text!r}")
+    return values
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--steps", type=int, default=2000, help="steps per env")
@@ -309,6 +330,10 @@ def main() -> int:
                    help="comma-separated daemon --workers values for the rows of 2+ envs, "
                    "in run order (0: the daemon's default, a worker per core; 1: one loop "
                    "batching every slot), e.g. 1,0 to compare")
+    p.add_argument("--spin-wait", type=spin_choices, default=["auto"],
+                   help="comma-separated env spin_wait / av-daemon --spin-wait values, every "
+                   "env row once per value, in run order (auto: spin where there are two "
+                   "cores per slot; off: sleep at once), e.g. auto,off to compare")
     p.add_argument("--train-steps", type=int, default=5120,
                    help="rover-train --env fused steps per backend (0: skip)")
     p.add_argument("--skip-envs", action="store_true", help="only the training rows")

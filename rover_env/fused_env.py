@@ -26,9 +26,9 @@ from shm_protocol import (
     SegmentBusyError,
     SegmentNotFoundError,
     camera_name,
+    machine_spin,
     segment_path,
     slot_name,
-    spin_for,
     writer_alive,
 )
 
@@ -189,9 +189,11 @@ class RoverEnvFused(RoverEnvBase):
     for the fused frame in a busy loop for up to 3 ms (``shm_protocol.SPIN_S``) before it
     sleeps, at the price of a busy core while the daemon perceives; with the daemon doing
     the same for camera frames (``av-daemon --spin-wait``), the step saves two futex
-    wake-ups. None (default) spins when this process may use at least two cores per daemon
-    slot, one for each env and one for its daemon worker (``shm_protocol.spin_for``); True
-    always; False never (e.g. on a machine shared with other work).
+    wake-ups. None (default) spins when this process may use at least two cores per env
+    slot of every av-daemon on this machine, one for each env and one for its daemon worker
+    (``shm_protocol.machine_spin``, looked at again on every reset); True always; False
+    never (e.g. on a machine shared with other work). A reader whose spins stop paying
+    sleeps at once for a while (``shm_protocol.FrameReader``).
     The keyword-only options common to every roverav env
     (:class:`~rover_env.core.EnvOptions`): ``control_dt``, ``physics_dt``,
     ``reward_config`` (default ``RewardConfig.fused()``), ``render_mode``
@@ -391,9 +393,9 @@ class RoverEnvFused(RoverEnvBase):
 
     def _spin(self) -> float:
         """Seconds to watch for the fused frame before sleeping (``spin_wait``; None:
-        ``shm_protocol.spin_for`` the daemon's slots)."""
+        ``shm_protocol.machine_spin``, two cores for each env slot on this machine)."""
         if self.spin_wait is None:
-            return spin_for(served_slots(self._base))
+            return machine_spin(served_slots(self._base))
         return SPIN_S if self.spin_wait else 0.0
 
     def _check_slot_served(self) -> None:
@@ -464,6 +466,8 @@ class RoverEnvFused(RoverEnvBase):
         if self._camera is None or not self._link_is_current():
             log.info("re-attaching to the daemon's segments for '%s'", self.rl_obs_name)
             self._connect(self.connection_check_timeout)
+        elif self._fused is not None:
+            self._fused.spin = self._spin()  # envs may have come or gone on this machine
         # reset()'s info describes the new episode, not the last step of the previous one
         self._heatmap_center = 0.0
         self._episode_start = True  # the next camera frame opens the episode

@@ -37,7 +37,7 @@ from .names import (
     slot_name,
     validate_name,
 )
-from .reader import SPIN_S, Frame, FrameReader, spin_for, writer_alive
+from .reader import SPIN_S, Frame, FrameReader, machine_spin, spin_for, writer_alive
 from .writer import FrameWriter
 
 __all__ = [
@@ -61,6 +61,7 @@ __all__ = [
     "default_name",
     "default_slots",
     "existing_segments",
+    "machine_spin",
     "remove_segments",
     "segment_path",
     "segments_of",

@@ -99,6 +99,15 @@ def existing_segments(base: str) -> list[str]:
         return []
 
 
+def camera_segments() -> int:
+    """How many env camera segments (``*_camera``) this machine's shared memory holds: the
+    env slots of every av-daemon running here (and any a killed one left behind)."""
+    try:
+        return sum(1 for n in os.listdir(SHM_DIR) if n.endswith(CAMERA_SUFFIX))
+    except OSError:
+        return 0
+
+
 def default_name() -> str:
     """``$ROVERAV_SHM_NAME`` (set by rover-pair) or :data:`DEFAULT_NAME`."""
     return os.environ.get(NAME_ENV_VAR) or DEFAULT_NAME

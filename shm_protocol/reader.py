@@ -44,7 +44,7 @@ from .layout import (
     normalize_dtype,
     normalize_shape,
 )
-from .names import validate_name
+from .names import camera_segments, validate_name
 
 logger = logging.getLogger(__name__)
 
@@ -62,14 +62,27 @@ where :func:`spin_for` allows it: longer than a frame's round trip on the projec
 (0.5 ms int8, 1.2-3.5 ms fp32) and than an env's step between frames."""
 
 
+SPIN_PAUSE_S = 1.0
+"""How long a reader sleeps at once after its spins stopped paying (see ``FrameReader``)."""
+_SPIN_EMA = 0.1  # weight of the latest spin in the reader's running share of failed spins
+_SPIN_GIVE_UP = 0.5  # that share at which it pauses spinning for SPIN_PAUSE_S
+
+
 def spin_for(slots: int, cores: int | None = None) -> float:
-    """The spin for the waits of an av-daemon serving ``slots`` envs and of those envs:
-    :data:`SPIN_S` when there are at least two cores per slot (``cores``: those this
+    """The spin for the waits of av-daemons serving ``slots`` envs in all and of those
+    envs: :data:`SPIN_S` when there are at least two cores per slot (``cores``: those this
     process may run on), one for each env and one for its daemon worker, so that watching
     for a frame takes no core from anyone; else 0 (sleep at once)."""
     if cores is None:
         cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
     return SPIN_S if 2 * max(slots, 1) <= cores else 0.0
+
+
+def machine_spin(own_slots: int) -> float:
+    """:func:`spin_for` the env slots of every av-daemon on this machine (its camera
+    segments, and at least ``own_slots``): two rover-pairs or Ray workers on one machine
+    count each other's envs."""
+    return spin_for(max(own_slots, camera_segments()))
 
 
 class Frame(NamedTuple):
@@ -111,7 +124,11 @@ class FrameReader:
         default, sleeps at once). A frame that comes within the spin is taken without a
         wake-up (tens of microseconds on a VM, and the core's caches cool while it sleeps),
         at the price of a busy core meanwhile: use it where the waiting thread has a core to
-        itself. Settable later as the ``spin`` attribute.
+        itself. Settable later as the ``spin`` attribute. A spin fails when the frame came
+        only after it (in the same call) or when the thread was kept off its core for a fifth
+        of it (another thread wanted the core); a call that ends with no frame at all (an
+        idle writer) does not count. Once half the recent spins (a running share) failed, the
+        reader sleeps at once for ``SPIN_PAUSE_S`` and then tries again (``spin_paused``).
 
     Not thread-safe: use one reader per thread.
     """
@@ -133,6 +150,8 @@ class FrameReader:
         if not spin >= 0:
             raise ValueError(f"spin must be >= 0 seconds, got {spin!r}")
         self.spin = float(spin)
+        self._spin_failures = 0.0  # running share of failed spins
+        self._spin_paused_until = 0.0
         self._want_shape = None if shape is None else normalize_shape(shape)
         self._want_dtype = None if dtype is None else normalize_dtype(dtype)
         if stale_after is not None and not stale_after > 0:
@@ -384,13 +403,18 @@ class FrameReader:
         self._check_out(out)
         newer = min_src is None
         deadline = time.monotonic() + timeout
-        spin_end = min(time.monotonic() + self.spin, deadline) if self.spin > 0.0 else 0.0
+        spin_end = 0.0
+        if self.spin > 0.0 and not self.spin_paused:
+            spin_end = min(time.monotonic() + self.spin, deadline)
+        missed = False  # a spin ended without a frame: a failure if one comes in this wait
         while True:
             t, fw = self._t, self._futex
             # read before looking: no lost wake-up (a futex is only set with a trailer)
             wake = t.wake if fw is not None and t is not None else 0
             f = self._read(out, newer, min_src)
             if f is not None:
+                if missed:
+                    self._judge_spin(failed=True)
                 return f
             now = time.monotonic()
             shutdown = t is not None and t.flags & FLAG_SHUTTING_DOWN
@@ -408,9 +432,16 @@ class FrameReader:
                 raise FrameTimeoutError(self._timeout_message(timeout, min_src), self.name, timeout)
             if spin_end and fw is not None and t is not None:
                 clock = time.monotonic
+                w0, c0 = clock(), time.thread_time()
                 while t.wake == wake and clock() < spin_end:
                     pass  # watch the wake word: no futex wake-up for a frame that comes now
-                if clock() >= spin_end:
+                w1 = clock()
+                if time.thread_time() - c0 < 0.8 * (w1 - w0):
+                    self._judge_spin(failed=True)  # kept off the core: another thread wanted it
+                elif t.wake != wake:
+                    self._judge_spin(failed=False)
+                if w1 >= spin_end or self.spin_paused:
+                    missed = t.wake == wake and not self.spin_paused
                     spin_end = 0.0  # the rest of this wait sleeps
                 continue
             pause = min(deadline, self._next_check) - now
@@ -418,6 +449,23 @@ class FrameReader:
                 fw.wait(wake, min(pause, WAIT_SLICE_S))
             else:
                 time.sleep(min(pause, POLL_INTERVAL_S))
+
+    @property
+    def spin_paused(self) -> bool:
+        """True while the reader sleeps at once because its recent spins did not pay."""
+        return time.monotonic() < self._spin_paused_until
+
+    def _judge_spin(self, failed: bool) -> None:
+        """Count one spin that paid or ``failed`` (the frame came after it, or the thread
+        was kept off its core); pause spinning once half the recent ones failed. A spin that
+        ends a wait with no frame at all (an idle writer) counts neither way."""
+        share = (1.0 - _SPIN_EMA) * self._spin_failures + _SPIN_EMA * failed
+        if share >= _SPIN_GIVE_UP:
+            self._spin_paused_until = time.monotonic() + SPIN_PAUSE_S
+            share = 0.0
+            logger.debug("%s: spins stopped paying; sleeping at once for %.1f s", self.name,
+                         SPIN_PAUSE_S)
+        self._spin_failures = share
 
     # --- liveness ----------------------------------------------------------------------
 

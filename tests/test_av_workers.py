@@ -20,8 +20,8 @@ from shm_protocol import (
     FrameTimeoutError,
     FrameWriter,
     camera_name,
+    machine_spin,
     slot_name,
-    spin_for,
 )
 
 FRAME = np.full((96, 96, 3), 128, np.uint8)
@@ -172,7 +172,7 @@ def test_idle_workers_burn_almost_no_cpu(make_daemon) -> None:
 def test_a_worker_of_one_slot_spins_where_spin_wait_says() -> None:
     from active_vision.daemon import parse_args
 
-    assert camera_spin(DaemonConfig(slots=1)) == spin_for(1)  # auto: two cores per slot
+    assert camera_spin(DaemonConfig(slots=1)) == machine_spin(1)  # auto: 2 cores a slot
     assert camera_spin(DaemonConfig(slots=1, spin_wait="on")) == SPIN_S
     assert camera_spin(DaemonConfig(slots=1, spin_wait="off")) == 0.0
     # a worker over several slots sleeps on all of them at once, never spins

@@ -17,7 +17,7 @@ from helpers.daemon import Daemon
 import rover_env  # noqa: F401  (registers the ids)
 from rover_env.discrete_env import DiscreteRoverEnvFused, decode_action
 from rover_env.fused_env import RoverEnvFused
-from shm_protocol import SPIN_S, SegmentNotFoundError, WriterGoneError, spin_for
+from shm_protocol import SPIN_S, SegmentNotFoundError, WriterGoneError, machine_spin
 
 ROOT = Path(__file__).resolve().parents[1]
 PI = np.float32(np.pi)
@@ -258,7 +258,7 @@ def test_stalled_daemon_is_a_frame_timeout_and_the_env_recovers() -> None:
 
 
 def test_spin_wait_decides_how_the_env_waits_for_its_frame(daemon: Daemon) -> None:
-    for spin_wait, spin in ((None, spin_for(2)), (True, SPIN_S), (False, 0.0)):
+    for spin_wait, spin in ((None, machine_spin(2)), (True, SPIN_S), (False, 0.0)):
         env = _fused(daemon, spin_wait=spin_wait)
         try:
             assert env._fused is not None and env._fused.spin == spin

@@ -22,6 +22,7 @@ from shm_protocol import (
     SegmentNotFoundError,
     ShmError,
     WriterGoneError,
+    machine_spin,
     spin_for,
 )
 from shm_protocol import reader as reader_mod
@@ -420,8 +421,56 @@ def test_a_spin_ends_in_the_futex_sleep_and_keeps_the_timeout(shm_name: str) -> 
         w.close(unlink=True)
 
 
+def test_a_reader_whose_spins_do_not_pay_sleeps_at_once_for_a_while(
+    shm_name: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Frames that keep coming after the spin pause the spinning, then it resumes; waits
+    that end with no frame at all (an idle writer) do not."""
+    monkeypatch.setattr(reader_mod, "SPIN_PAUSE_S", 0.3)
+    w = FrameWriter(shm_name, shape=FUSED, dtype=np.float32)
+    r = FrameReader(shm_name, spin=0.002)
+    try:
+        w.publish(_frame(1.0))
+        r.wait_next(timeout=1.0)
+        for _ in range(10):  # idle: no frames at all
+            with pytest.raises(FrameTimeoutError):
+                r.wait_next(timeout=0.004)
+        assert not r.spin_paused
+        for i in range(10):  # each frame 10 ms after the call: every spin is too short
+            if r.spin_paused:
+                break
+            later = threading.Timer(0.01, lambda v=float(i): w.publish(_frame(v)))
+            later.start()
+            r.wait_next(timeout=1.0)
+            later.join()
+        assert r.spin_paused
+        futex = r._futex = _CountingFutex(r._futex)  # type: ignore[assignment]
+        later = threading.Timer(0.02, lambda: w.publish(_frame(2.0)))
+        later.start()
+        assert r.wait_next(timeout=1.0).data[0, 0, 0] == 2.0
+        later.join()
+        assert futex.sleeps > 0  # paused: slept at once
+        time.sleep(0.35)
+        assert not r.spin_paused
+    finally:
+        r.close()
+        w.close(unlink=True)
+
+
 def test_spin_for_wants_a_core_for_each_env_and_each_worker() -> None:
     assert spin_for(1, cores=2) == SPIN_S
     assert spin_for(2, cores=4) == SPIN_S
     assert spin_for(2, cores=2) == 0.0  # two envs and two workers on two cores: sleep
     assert spin_for(1, cores=1) == 0.0
+
+
+def test_machine_spin_counts_every_daemons_envs_on_this_machine() -> None:
+    """Two daemons of one slot each on a machine: four busy threads, not two."""
+    cores = len(os.sched_getaffinity(0))
+    names = [f"test_spin_{os.getpid()}_{i}_camera" for i in range(cores)]
+    writers = [FrameWriter(n, shape=(4, 4, 3), dtype=np.uint8) for n in names]
+    try:
+        assert machine_spin(1) == 0.0  # at least `cores` env slots: two cores each is too many
+    finally:
+        for w in writers:
+            w.close(unlink=True)
