@@ -15,7 +15,8 @@ channel), which the env writes (``FrameWriter(..., create=False)``) and the daem
 Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flushed) and serves:
 
 1. waits for new camera frames on any slot (futex wake-ups, short timeouts; idle costs
-   almost no CPU); with two cores per slot a worker of one slot first watches for its frame
+   almost no CPU); with two cores for each env slot on the machine a worker of one slot
+   first watches for its frame
    in a busy loop for up to 3 ms (``--spin-wait``, as the env does for its fused frame), so
    a frame that comes within it costs no wake-up;
 2. runs :class:`~active_vision.perception.Perception` on every slot that has a new frame,
@@ -568,8 +569,9 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     p.add_argument("--spin-wait", choices=("auto", "on", "off"), default=d.spin_wait,
                    help="a worker serving one slot watches for its camera frames for up to "
                         "3 ms before sleeping, taking the wake-up off the env's step: auto "
-                        "(default) where there are two cores per slot (one for each env, one "
-                        "for its worker), on, or off (a machine shared with other work)")
+                        "(default) where the machine has two cores for each env slot of its "
+                        "daemons (one for the env, one for its worker), on, or off (a "
+                        "machine shared with other work)")
     p.add_argument("--source", type=_source, default=d.source,
                    help="camera (segments written by envs), video:PATH or device:N")
     p.add_argument("--preview", type=Path, default=None,

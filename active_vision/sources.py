@@ -196,8 +196,8 @@ class CameraSegmentSource:
 
     ``spin`` (seconds): a one-slot source watches its slot's wake word that long before it
     sleeps (``FrameReader(spin=...)``), so a frame that comes meanwhile is taken without a
-    futex wake-up; the daemon sets it where there are two cores per slot
-    (``shm_protocol.spin_for``).
+    futex wake-up; the daemon sets it where there are two cores for each env slot on the
+    machine (``shm_protocol.machine_spin``).
     """
 
     IDLE_AFTER_S = 1.0
