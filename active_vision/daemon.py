@@ -16,9 +16,8 @@ Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flu
 
 1. waits for new camera frames on any slot (futex wake-ups, short timeouts; idle costs
    almost no CPU); with two cores for each env slot on the machine a worker of one slot
-   first watches for its frame
-   in a busy loop for up to 3 ms (``--spin-wait``, as the env does for its fused frame), so
-   a frame that comes within it costs no wake-up;
+   first watches for its frame in a busy loop for up to 3 ms (``--spin-wait``, as the env
+   does for its fused frame), so a frame that comes within it costs no wake-up;
 2. runs :class:`~active_vision.perception.Perception` on every slot that has a new frame,
    as one batch, in ONNX Runtime or eager torch (``--backend``: ``auto``, the default, is
    ONNX Runtime when it is installed, else torch with one log line saying so; the ONNX file
