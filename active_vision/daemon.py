@@ -88,6 +88,7 @@ from shm_protocol import (
     LayoutError,
     SegmentNotFoundError,
     ShmError,
+    available_cores,
     camera_name,
     machine_spin,
     slot_name,
@@ -167,8 +168,7 @@ def worker_count(config: DaemonConfig) -> int:
     most one per slot; 1 for a video or device source (it feeds every slot at once)."""
     if config.source != "camera":
         return 1
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return max(1, min(config.workers or cpus or 1, config.slots))
+    return max(1, min(config.workers or available_cores(), config.slots))
 
 
 def camera_spin(config: DaemonConfig) -> float:

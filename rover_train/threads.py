@@ -16,20 +16,13 @@ gradient steps with env steps and never get a free core: use one count for both.
 from __future__ import annotations
 
 import logging
-import os
 
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
+from shm_protocol import available_cores
+
 log = logging.getLogger(__name__)
-
-
-def available_cores() -> int:
-    """Cores this process may run on (its CPU affinity), at least 1."""
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return max(1, os.cpu_count() or 1)
 
 
 class PhaseThreads(BaseCallback):

@@ -37,7 +37,15 @@ from .names import (
     slot_name,
     validate_name,
 )
-from .reader import SPIN_S, Frame, FrameReader, machine_spin, spin_for, writer_alive
+from .reader import (
+    SPIN_S,
+    Frame,
+    FrameReader,
+    available_cores,
+    machine_spin,
+    spin_for,
+    writer_alive,
+)
 from .writer import FrameWriter
 
 __all__ = [
@@ -57,6 +65,7 @@ __all__ = [
     "SegmentNotFoundError",
     "ShmError",
     "WriterGoneError",
+    "available_cores",
     "camera_name",
     "default_name",
     "default_slots",

@@ -68,13 +68,21 @@ _SPIN_EMA = 0.1  # weight of the latest spin in the reader's running share of fa
 _SPIN_GIVE_UP = 0.5  # that share at which it pauses spinning for SPIN_PAUSE_S
 
 
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def spin_for(slots: int, cores: int | None = None) -> float:
     """The spin for the waits of av-daemons serving ``slots`` envs in all and of those
     envs: :data:`SPIN_S` when there are at least two cores per slot (``cores``: those this
     process may run on), one for each env and one for its daemon worker, so that watching
     for a frame takes no core from anyone; else 0 (sleep at once)."""
     if cores is None:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
+        cores = available_cores()
     return SPIN_S if 2 * max(slots, 1) <= cores else 0.0
 
 
@@ -436,12 +444,13 @@ class FrameReader:
                 while t.wake == wake and clock() < spin_end:
                     pass  # watch the wake word: no futex wake-up for a frame that comes now
                 w1 = clock()
-                if time.thread_time() - c0 < 0.8 * (w1 - w0):
-                    self._judge_spin(failed=True)  # kept off the core: another thread wanted it
-                elif t.wake != wake:
-                    self._judge_spin(failed=False)
+                woken = t.wake != wake
+                off_core = time.thread_time() - c0 < 0.8 * (w1 - w0)  # another thread wanted it
+                if off_core or woken:
+                    self._judge_spin(failed=off_core)
                 if w1 >= spin_end or self.spin_paused:
-                    missed = t.wake == wake and not self.spin_paused
+                    # counted once: judged above if kept off the core, else when a frame comes
+                    missed = not (woken or off_core or self.spin_paused)
                     spin_end = 0.0  # the rest of this wait sleeps
                 continue
             pause = min(deadline, self._next_check) - now
