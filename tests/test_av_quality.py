@@ -560,3 +560,44 @@ def test_calibrate_cli_writes_the_shifted_head_and_its_threshold(tmp_path, heldo
     new = load_model(out, fuse=False).head.bias[HEAD_HEATMAP].detach()
     assert float(new - old) == pytest.approx(shift, abs=5e-3)  # fp16 storage
     assert not any(k.startswith("heldout_") for k in meta)  # figures of the old head: gone
+
+
+def test_clutter_hides_what_is_behind_it_and_keeps_targets_consistent() -> None:
+    """Distractors are drawn only over what is farther than them: a drawn pixel takes the
+    distractor's distance as its depth and 0 as its mask (a pedestrian behind a façade is
+    hidden), a pedestrian nearer than every distractor keeps its mask and depth, and
+    the inputs are untouched."""
+    from active_vision.training.clutter import clutter_batch
+
+    n, h, w = 8, 96, 96
+    x = torch.full((n, 3, h, w), 0.5)
+    mask = torch.zeros(n, 1, h, w)
+    depth = torch.full((n, 1, h, w), 1e3)  # sky everywhere
+    depth[:, :, 60:] = torch.linspace(6.0, 0.5, 36).view(1, 1, 36, 1)  # ground, nearing
+    mask[:, :, 40:70, 10:16] = 1  # a pedestrian 1.0 m away: nearer than every distractor
+    depth[:, :, 40:70, 10:16] = 1.0
+    mask[:, :, 20:40, 70:74] = 1  # a pedestrian 20 m away: behind any façade
+    depth[:, :, 20:40, 70:74] = 20.0
+    x[:, :, 20:40, 70:74] = 0.9
+    before = (x.clone(), mask.clone(), depth.clone())
+    px, pm, pd = clutter_batch(x, mask, depth, torch.Generator().manual_seed(3), prob=1.0)
+    assert torch.equal(x, before[0]) and torch.equal(mask, before[1])
+    assert torch.equal(depth, before[2])
+    drawn = pd < depth  # pixels a distractor covers
+    assert bool(drawn.any())
+    assert torch.all(pm[drawn] == 0)
+    assert torch.all(pd <= depth)  # nothing is drawn behind what the frame shows
+    near = (slice(None), slice(None), slice(40, 70), slice(10, 16))
+    assert torch.equal(pm[near], mask[near]) and torch.equal(pd[near], depth[near])
+    far = (slice(None), slice(None), slice(20, 40), slice(70, 74))
+    hidden = pm[far] == 0
+    assert bool(hidden.any())  # some frame's façade or pole hides the far pedestrian
+    assert torch.all(pd[far][hidden] < 20.0)
+    assert torch.all(pm[far][~hidden] == 1)
+    # allowed limits the frames; prob 0 changes nothing
+    allowed = torch.zeros(n, dtype=torch.bool)
+    allowed[0] = True
+    qx, qm, qd = clutter_batch(x, mask, depth, torch.Generator().manual_seed(3), 1.0, allowed)
+    assert torch.equal(qx[1:], x[1:]) and not torch.equal(qx[0], x[0])
+    ox, om, od = clutter_batch(x, mask, depth, torch.Generator().manual_seed(0), prob=0.0)
+    assert torch.equal(ox, x) and torch.equal(om, mask) and torch.equal(od, depth)

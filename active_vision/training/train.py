@@ -41,8 +41,10 @@ Losses:
   ``1 + PEDESTRIAN_DEPTH_WEIGHT`` times.
 
 Augmentation: copy-paste of pedestrians between the frames of a batch, occluded by what
-is nearer (:func:`paste_figures`, half of the frames), horizontal flip (image, mask and
-depth together), brightness, contrast, per-channel gain and pixel noise.
+is nearer (:func:`paste_figures`, half of the frames), distractors that are not people
+(``--clutter``: façades, poles, cones and texture drawn in the frame's geometry,
+:mod:`active_vision.training.clutter`), horizontal flip (image, mask and depth together),
+brightness, contrast, per-channel gain and pixel noise.
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ from active_vision.models import (
     weights_meta,
 )
 from active_vision.models import save_weights as _save
+from active_vision.training.clutter import clutter_batch
 from active_vision.training.dataset import (
     DEFAULT_DATA_DIR,
     Dataset,
@@ -207,6 +210,11 @@ class AVNetRecipe:
     depth_world_weights: dict[str, float] = field(
         default_factory=dict, metadata={"parse": parse_world_weights, "metavar": "W=X,..."})
     """Depth-loss weight of each world's frames, e.g. ``moon=4`` (a world not named: 1)."""
+    clutter: float = 0.0
+    """Share of training frames that get distractors drawn in (:mod:`~active_vision.training.
+    clutter`: façades, poles, cones, texture), so that real scenery is not read as a person."""
+    clutter_worlds: tuple[str, ...] = field(default=(), metadata={"parse": parse_worlds})
+    """Worlds whose frames may get distractors (none named: every world)."""
     init: Path | None = None
     """Start from these AVNet weights (same widths) instead of random ones: a fine-tune."""
     calibrate: bool = False
@@ -218,6 +226,8 @@ class AVNetRecipe:
         """What is wrong with this recipe (named by its option), or None."""
         if not 0.0 <= self.paste_prob <= 1.0:
             return f"--paste-prob {self.paste_prob}: give a share in [0, 1]"
+        if not 0.0 <= self.clutter <= 1.0:
+            return f"--clutter {self.clutter}: give a share in [0, 1]"
         if any(w < 0 for w in self.depth_world_weights.values()):
             return f"--depth-world-weights {self.depth_world_weights}: a weight cannot be negative"
         if self.init is not None and not self.init.is_file():
@@ -306,13 +316,17 @@ def paste_figures(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
 
 
 def augment_batch(x: torch.Tensor, mask: torch.Tensor, depth: torch.Tensor,
-                  gen: torch.Generator, paste_prob: float = 0.0
+                  gen: torch.Generator, paste_prob: float = 0.0, clutter: float = 0.0,
+                  clutter_allowed: torch.Tensor | None = None
                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The training augmentation of a batch: pastes (:func:`paste_figures`), flips, and
-    photometric changes; the mask and the depth follow the geometry."""
+    """The training augmentation of a batch: pastes (:func:`paste_figures`), distractors
+    (:func:`~active_vision.training.clutter.clutter_batch`, in the frames ``clutter_allowed``
+    marks), flips, and photometric changes; the mask and the depth follow the geometry."""
     n, dev = x.shape[0], x.device
     if paste_prob > 0.0:
         x, mask, depth = paste_figures(x, mask, depth, gen, paste_prob)
+    if clutter > 0.0:
+        x, mask, depth = clutter_batch(x, mask, depth, gen, clutter, clutter_allowed)
     flip = (torch.rand(n, generator=gen) < 0.5).to(dev)
     x = torch.where(flip.view(n, 1, 1, 1), x.flip(-1), x)
     mask = torch.where(flip.view(n, 1, 1, 1), mask.flip(-1), mask)
@@ -401,6 +415,13 @@ def train(cfg: AVNetRecipe, run: TrainRun | None = None, data: Dataset | None = 
     frame_depth_weight = torch.tensor(
         [cfg.depth_world_weights.get(w, 1.0) for w in data.worlds], dtype=torch.float32
     )[torch.from_numpy(data.world)].to(dev)
+    unknown = sorted(set(cfg.clutter_worlds) - set(data.worlds))
+    if unknown:
+        raise ValueError(f"--clutter-worlds {','.join(unknown)}: not a world of the training "
+                         f"data ({', '.join(data.worlds)})")
+    frame_clutter = (torch.from_numpy(np.isin(np.asarray(data.worlds)[data.world],
+                                              cfg.clutter_worlds))
+                     if cfg.clutter_worlds else None)
     model = AVNet(AVNetConfig(widths=tuple(cfg.widths), full_res=cfg.full_res))
     if cfg.init is not None:
         start = load_model(cfg.init, fuse=False)
@@ -445,7 +466,8 @@ def train(cfg: AVNetRecipe, run: TrainRun | None = None, data: Dataset | None = 
         for b in range(steps_per_epoch):
             idx = order[b * cfg.batch:(b + 1) * cfg.batch]
             x = rgb[idx].float() / 255.0
-            x, m, d = augment_batch(x, mask[idx], depth_m[idx], gen, cfg.paste_prob)
+            x, m, d = augment_batch(x, mask[idx], depth_m[idx], gen, cfg.paste_prob, cfg.clutter,
+                                    None if frame_clutter is None else frame_clutter[idx])
             heat, dep = losses(model(x), m, d, figure_weights(m, cfg.small_figure_boost),
                                frame_depth_weight[idx])
             loss = heat + dep
