@@ -427,6 +427,9 @@ def test_a_reader_whose_spins_do_not_pay_sleeps_at_once_for_a_while(
     """Frames that keep coming after the spin pause the spinning, then it resumes; waits
     that end with no frame at all (an idle writer) do not."""
     monkeypatch.setattr(reader_mod, "SPIN_PAUSE_S", 0.3)
+    # the thread always has its core here: a spin that a busy machine keeps off its core is
+    # a failure by design, which would pause the idle waits below on a loaded CI machine
+    monkeypatch.setattr(reader_mod.time, "thread_time", time.monotonic)
     w = FrameWriter(shm_name, shape=FUSED, dtype=np.float32)
     r = FrameReader(shm_name, spin=0.002)
     try:
