@@ -21,11 +21,18 @@ WEIGHTS_DIR = DEFAULT_WEIGHTS.parent
 
 
 SHIPPED_CROWDS = ("pacing", "crowd:3", "crowd:10", "groups:8", "crossing:6", "oblivious:6")
-SHIPPED_AVNET = train.AVNetRecipe(crowds=SHIPPED_CROWDS, depth_world_weights={"moon": 4.0},
-                                  threads=2, calibrate=True, max_minutes=240.0)
-"""The options of the command that made the shipped network (everything else at its
-default): ``--crowds ... --depth-world-weights moon=4 --threads 2 --calibrate
---max-minutes 240``."""
+START_WEIGHTS = WEIGHTS_DIR / "start" / "avnet.pt"
+START_AVNET = train.AVNetRecipe(crowds=SHIPPED_CROWDS, depth_world_weights={"moon": 4.0},
+                                threads=2, calibrate=True, max_minutes=240.0)
+"""The command that made the network the shipped one was fine-tuned from (everything else at
+its default): ``--crowds ... --depth-world-weights moon=4 --threads 2 --calibrate
+--max-minutes 240``, from scratch."""
+SHIPPED_AVNET = dataclasses.replace(
+    START_AVNET, epochs=2, lr=5e-4, threads=1, max_minutes=60.0, calibrate=False, clutter=0.5,
+    clutter_worlds=("moon", "maze"), init=Path("active_vision/weights/start/avnet.pt"))
+"""The shipped network's command: that network fine-tuned among distractors (``--init
+active_vision/weights/start/avnet.pt --epochs 2 --lr 5e-4 --threads 1 --clutter 0.5
+--clutter-worlds moon,maze --max-minutes 60``, no calibration)."""
 
 SHIPPED_PREDICT = predict_train.PredictRecipe(crowds=("pacing", "crowd:3", "crowd:10"))
 """The shipped predictor's command: ``predict_train --crowds pacing,crowd:3,crowd:10``."""
@@ -34,6 +41,9 @@ SHIPPED_PREDICT = predict_train.PredictRecipe(crowds=("pacing", "crowd:3", "crow
 def test_the_shipped_perception_files_carry_their_recipes() -> None:
     avnet = train.read_recipe(DEFAULT_WEIGHTS)
     assert avnet == SHIPPED_AVNET
+    # the file it starts from ships too, with its own recipe, so each remakes from its file
+    assert avnet.init is not None and avnet.init.resolve() == START_WEIGHTS.resolve()
+    assert train.read_recipe(START_WEIGHTS) == START_AVNET
     assert predict_train.read_recipe(WEIGHTS_DIR / "predict.pt") == SHIPPED_PREDICT
     assert quantize.read_recipe(WEIGHTS_DIR / int8_file_name(DEFAULT_WEIGHTS, 96)) == (
         quantize.QuantizeRecipe())
