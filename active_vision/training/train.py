@@ -211,8 +211,9 @@ class AVNetRecipe:
         default_factory=dict, metadata={"parse": parse_world_weights, "metavar": "W=X,..."})
     """Depth-loss weight of each world's frames, e.g. ``moon=4`` (a world not named: 1)."""
     clutter: float = 0.0
-    """Share of training frames that get distractors drawn in (:mod:`~active_vision.training.
-    clutter`: façades, poles, cones, texture), so that real scenery is not read as a person."""
+    """Share of training frames that get distractors drawn in (façades, poles, cones,
+    texture: :mod:`active_vision.training.clutter`), so that real scenery is not read as a
+    person."""
     clutter_worlds: tuple[str, ...] = field(default=(), metadata={"parse": parse_worlds})
     """Worlds whose frames may get distractors (none named: every world)."""
     init: Path | None = None
