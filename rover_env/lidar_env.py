@@ -77,6 +77,9 @@ class RoverEnv(RoverEnvBase):
     | collision (``reward_collision``) | -0.5 when the LIDAR minimum is below 0.3 m |
     | clearance (``reward_clearance``) | not in the seed (0): ``clearance_penalty`` x metres |
     | | the LIDAR minimum lies inside ``clearance_distance`` |
+    | personal space (``reward_personal_space``) | not in the seed (0): |
+    | | ``personal_space_penalty`` x metres the nearest person stands inside |
+    | | ``personal_space_distance`` |
 
     A step that ends the episode returns only its penalty (as in the seed):
     flip -20, stuck-in-collision -20, stuck -25, out of bounds -10
@@ -123,8 +126,10 @@ class RoverEnv(RoverEnvBase):
     ``reward``, ``episode_reward``,
     ``goals_reached``, ``is_success`` (at least one goal), ``collision`` (the seed's:
     the LIDAR closer than ``RewardConfig.collision_distance``), ``collision_count``,
-    ``scenery_contact`` (the rover's body touched the scenery this step),
-    ``termination_reason`` ("" while running), ``distance_to_goal``,
+    ``scenery_contact`` (the rover's body touched the scenery this step), ``contact``
+    (it touched anything, scenery or a person: what the evaluators count as a collision
+    episode beside ``collision``; ``RewardConfig(contact_is_collision=True)`` makes it a
+    collision step), ``termination_reason`` ("" while running), ``distance_to_goal``,
     ``x_position``, ``y_position``, ``goal``, each ``reward_*`` term, and the social
     metrics (the same in every roverav env): ``min_pedestrian_distance`` (m, inf with no
     pedestrians), ``personal_space_intrusion`` (a pedestrian within 1.2 m),

@@ -62,6 +62,21 @@ class RewardConfig:
     so that RL learns to keep off the panels before it touches one."""
     clearance_penalty: float = 0.0
     """Per metre of the LIDAR minimum inside ``clearance_distance``, per step (negative)."""
+    personal_space_distance: float = 0.0
+    """Every env: a step whose nearest pedestrian stands closer than this (m, rover centre to
+    person centre on the ground) pays ``personal_space_penalty`` per metre inside it. Not in
+    the seed (0: no term); the nav task (rover_train) sets it to the personal space, 1.2 m.
+    It reads the simulator's pedestrian positions, not the agent's observation: a reward is
+    the trainer's signal, so a camera agent cannot lower it by looking away."""
+    personal_space_penalty: float = 0.0
+    """Per metre of the nearest pedestrian inside ``personal_space_distance``, per step
+    (negative): the charge grows as the person nears contact."""
+    contact_is_collision: bool = False
+    """True: a step in which the rover's body touches a pedestrian or the scenery
+    (``info["contact"]``) counts as a collision step too (the penalty, and the
+    stuck-in-collision count that ends the episode at ``collision_limit``). The seed's LIDAR
+    envs count only the LIDAR minimum, which misses a person touching the rover's side; the
+    fused envs count contacts already. The nav task sets it."""
     distance_delta_scale: float = c.DISTANCE_DELTA_SCALE
     """Progress reward per metre closer to the goal (seed: 0.3 * 1.5; fused: 0.9)."""
     linear_velocity_scale: float = c.LINEAR_VELOCITY_SCALE
@@ -101,11 +116,12 @@ class RewardConfig:
             raise ValueError(f"stuck_window must be >= 1 step, got {self.stuck_window}")
         if self.collision_limit < 0:
             raise ValueError(f"collision_limit must be >= 0, got {self.collision_limit}")
-        if self.clearance_penalty > 0:
-            raise ValueError(f"clearance_penalty is a penalty: it must be <= 0, got "
-                             f"{self.clearance_penalty}")
+        for name in ("clearance_penalty", "personal_space_penalty"):
+            if getattr(self, name) > 0:
+                raise ValueError(f"{name} is a penalty: it must be <= 0, got "
+                                 f"{getattr(self, name)}")
         for name in ("success_distance", "stuck_threshold", "collision_distance",
-                     "clearance_distance"):
+                     "clearance_distance", "personal_space_distance"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if self.pedestrian_penalty_frame not in PENALTY_FRAMES:
@@ -154,6 +170,15 @@ def clearance_penalty(nearest: float, cfg: RewardConfig) -> float:
     """``clearance_penalty`` times the metres by which the LIDAR minimum ``nearest`` lies
     inside ``clearance_distance`` (0 outside it, and with the term off)."""
     return cfg.clearance_penalty * max(0.0, cfg.clearance_distance - nearest)
+
+
+def personal_space_penalty(nearest_pedestrian: float, cfg: RewardConfig) -> float:
+    """``personal_space_penalty`` times the metres by which the nearest pedestrian
+    (``nearest_pedestrian`` m away, ``inf`` with none) stands inside
+    ``personal_space_distance`` (0 outside it, and with the term off)."""
+    if not cfg.personal_space_penalty:
+        return 0.0
+    return cfg.personal_space_penalty * max(0.0, cfg.personal_space_distance - nearest_pedestrian)
 
 
 def heatmap_center_sum(heatmap: np.ndarray, columns: int = c.HEATMAP_CENTER_COLUMNS) -> float:

@@ -44,7 +44,7 @@ class Task:
     """The env option: the first goal ends the episode (else a new goal is drawn)."""
     length: int | None = None
     """Steps per episode; None: the env's own (2000 LIDAR, 6000 fused)."""
-    reward: dict[str, float] = field(default_factory=dict)
+    reward: dict[str, float | bool] = field(default_factory=dict)
     """``RewardConfig`` fields the task sets (the rest stay the env's own)."""
     lidar_reward: dict[str, float] = field(default_factory=dict)
     """``RewardConfig`` fields the task sets on the LIDAR envs only (LIDAR terms)."""
@@ -72,17 +72,31 @@ NAV_CLEARANCE = 0.6
 per step (a collision is below 0.3 m). Ending at the first collision alone left 44 % of
 evaluation episodes with one: the policy grazed the panels (benchmarks/RESULTS.md)."""
 NAV_CLEARANCE_PENALTY = -2.0
+NAV_PERSONAL_SPACE = 1.2
+"""Metres (rover centre to person centre, ``rover_env.constants.PERSONAL_SPACE_M``): inside
+this the nav task charges ``NAV_PERSONAL_SPACE_PENALTY`` per metre per step, on every env
+kind, from the simulator's pedestrian positions; touching a person ends the episode as a
+collision does (``RewardConfig.contact_is_collision``)."""
+NAV_PERSONAL_SPACE_PENALTY = -1.0
+"""Per metre inside ``NAV_PERSONAL_SPACE``, per step: at contact (about 0.6 m) -0.6 a step,
+about what 5 cm of progress pays, so keeping a metre from a person beats brushing past."""
 DEFAULT_TASK = "seed"
 TASKS = {
     "seed": Task("seed", "the seed's: goal after goal until a failure or the env's length "
                  "(2000 steps LIDAR, 6000 fused)"),
     "nav": Task("nav", f"one goal: the episode ends at it (success, the goal reward), at "
                 f"the first collision (the stuck-in-collision penalty) or after {NAV_LENGTH} "
-                f"steps, as the evaluators count success; progress pays "
-                f"{NAV_PROGRESS_SCALE:g} per metre; LIDAR envs pay {NAV_CLEARANCE_PENALTY:g} "
-                f"per metre inside {NAV_CLEARANCE:g} m of an obstacle",
+                f"steps, as the evaluators count success; touching a person or the "
+                f"scenery is a collision; progress pays {NAV_PROGRESS_SCALE:g} per metre; "
+                f"a person within {NAV_PERSONAL_SPACE:g} m costs "
+                f"{NAV_PERSONAL_SPACE_PENALTY:g} per metre inside it per step; LIDAR envs "
+                f"pay {NAV_CLEARANCE_PENALTY:g} per metre inside {NAV_CLEARANCE:g} m of an "
+                f"obstacle",
                 goal_ends_episode=True, length=NAV_LENGTH,
-                reward={"collision_limit": 0, "distance_delta_scale": NAV_PROGRESS_SCALE},
+                reward={"collision_limit": 0, "distance_delta_scale": NAV_PROGRESS_SCALE,
+                        "contact_is_collision": True,
+                        "personal_space_distance": NAV_PERSONAL_SPACE,
+                        "personal_space_penalty": NAV_PERSONAL_SPACE_PENALTY},
                 lidar_reward={"clearance_distance": NAV_CLEARANCE,
                               "clearance_penalty": NAV_CLEARANCE_PENALTY}),
 }  # fmt: skip

@@ -11,13 +11,17 @@ Episode i is reset with seed ``--seed + i``, so two policies meet the same start
 
 Metrics (the table, and ``--json``'s last line):
 - success rate: episodes that reached the goal.
-- collision rate: episodes with at least one collision step.
+- collision rate: episodes in which the rover collided: a collision step in the seed's sense
+  (``info["collision"]``: the LIDAR closer than 0.3 m on the LIDAR envs) or any touch of a
+  person or the scenery (``info["contact"]``). The split follows it: seed collisions,
+  pedestrian contact, scenery contact (shares of episodes).
 - timeouts: episodes ended by the step limit without success or failure.
 - path length: metres driven (mean over episodes).
 - SPL: success weighted by path length, mean of S * d0 / max(p, d0) with d0 the straight
   start-goal distance (a lower bound of the shortest path) and p the path driven.
 - time to goal: simulated seconds, mean over successful episodes.
 - personal-space intrusion rate: fraction of steps with a pedestrian within 1.2 m.
+- intimate-space intrusion: share of episodes with a pedestrian within 0.45 m at some step.
 - min pedestrian distance: the smallest over all steps of all episodes (mean of the
   per-episode minima in brackets).
 """
@@ -31,7 +35,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -46,6 +50,9 @@ from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
 from rover_train.recipe import RecipeError, read_recipe
 from rover_train.waypoint import WithWaypoint
 from shm_protocol.names import default_name, default_slots
+
+if TYPE_CHECKING:
+    from rover_train.record import EpisodeRecorder
 
 VIDEO_PANEL = 256  # pixels per side of each video panel
 VIDEO_PANEL_NAMES = ("chase", "gray", "heatmap", "depth")  # left to right
@@ -70,6 +77,8 @@ class EpisodeResult:
     ret: float
     pedestrian_contact: bool = False  # the rover's body touched a pedestrian
     scenery_contact: bool = False  # ... or the scenery
+    seed_collision: bool = False  # a step with info["collision"] (the seed's LIDAR test)
+    intimate_intrusion: bool = False  # a pedestrian within 0.45 m at some step
 
 
 class PolicyLoadError(ValueError):
@@ -275,12 +284,17 @@ def draw_outcome(frame: np.ndarray, outcome: str) -> np.ndarray:
 
 
 def run_episode(
-    env: Any, act: Any, seed: int, max_steps: int, frames: list | None
+    env: Any, act: Any, seed: int, max_steps: int, frames: list | None,
+    recorder: EpisodeRecorder | None = None,
 ) -> EpisodeResult:
     """One evaluation episode of ``act`` from ``reset(seed=seed)``. ``frames``, when given,
     gets a labelled video frame per step (:func:`label_frame`) and then the last one again
-    with the outcome (:func:`draw_outcome`), held ``OUTCOME_HOLD_S``."""
+    with the outcome (:func:`draw_outcome`), held ``OUTCOME_HOLD_S``. ``recorder``, when
+    given, gets the reset and every step (:class:`rover_train.record.EpisodeRecorder`; the
+    caller closes it)."""
     obs, info = env.reset(seed=seed)
+    if recorder is not None:
+        recorder.reset(obs, info)
     reset = getattr(act, "reset", None)
     if callable(reset):  # a policy with a state (ModelAgent): a new episode
         reset()
@@ -289,7 +303,7 @@ def run_episode(
     start_distance = float(obs["target"][0])
     control_dt = float(getattr(base, "control_dt", 0.05))
     path = 0.0
-    collided = ped_contact = scenery_contact = False
+    seed_collision = ped_contact = scenery_contact = intimate = False
     intrusions = 0
     min_ped = float(info.get("min_pedestrian_distance", np.inf))
     ret = 0.0
@@ -300,15 +314,18 @@ def run_episode(
         steps += 1
         goal = info.get("goal")  # this step's goal (a reached one is replaced at once)
         obs, reward, terminated, truncated, info = env.step(act(obs))
+        if recorder is not None:
+            recorder.step(obs, info)
         if frames is not None:
             frames.append(_labelled_frame(env, obs, info, steps, goal))
         ret += float(reward)
         new = np.array(obs["pose"][:2], dtype=np.float64)
         path += float(np.linalg.norm(new - pos))
         pos = new
-        collided |= bool(info.get("collision", False))
+        seed_collision |= bool(info.get("collision", False))
         ped_contact |= bool(info.get("pedestrian_collision", False))
         scenery_contact |= bool(info.get("scenery_contact", False))
+        intimate |= bool(info.get("intimate_space_intrusion", False))
         d_ped = float(info.get("min_pedestrian_distance", np.inf))
         intrusions += int(d_ped < PERSONAL_SPACE_M)
         min_ped = min(min_ped, d_ped)
@@ -323,7 +340,7 @@ def run_episode(
             break
     result = EpisodeResult(
         success=success,
-        collided=collided,
+        collided=seed_collision or ped_contact or scenery_contact,
         timeout=termination in ("timeout", "length"),
         termination=termination,
         path_length=path,
@@ -335,6 +352,8 @@ def run_episode(
         ret=ret,
         pedestrian_contact=ped_contact,
         scenery_contact=scenery_contact,
+        seed_collision=seed_collision,
+        intimate_intrusion=intimate,
     )
     if frames is not None and steps > 0:
         hold = max(1, round(OUTCOME_HOLD_S / control_dt))
@@ -356,6 +375,10 @@ def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
         "episodes": n,
         "success_rate": sum(r.success for r in results) / n,
         "collision_rate": sum(r.collided for r in results) / n,
+        "seed_collision_rate": sum(r.seed_collision for r in results) / n,
+        "pedestrian_contact_rate": sum(r.pedestrian_contact for r in results) / n,
+        "scenery_contact_rate": sum(r.scenery_contact for r in results) / n,
+        "intimate_intrusion_rate": sum(r.intimate_intrusion for r in results) / n,
         "timeouts": sum(r.timeout for r in results),
         "path_length_m": float(np.mean([r.path_length for r in results])),
         "spl": float(np.mean(spl)),
@@ -375,15 +398,16 @@ def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
 
 
 def summarise_scenario(results: list[EpisodeResult]) -> dict[str, Any]:
-    """:func:`summarise` plus what the scenario suite's table adds: the shares of episodes
-    with pedestrian and with scenery contact, and the success's 95 % Wilson interval."""
+    """:func:`summarise` plus what the scenario suite's table adds: the 95 % Wilson
+    intervals of the success and of the collision and pedestrian-contact shares."""
     from rover_train.suite import wilson_interval
 
     summary = summarise(results)
     n = len(results)
     summary["success_ci95"] = list(wilson_interval(sum(r.success for r in results), n))
-    summary["pedestrian_contact_rate"] = sum(r.pedestrian_contact for r in results) / n
-    summary["scenery_contact_rate"] = sum(r.scenery_contact for r in results) / n
+    summary["collision_ci95"] = list(wilson_interval(sum(r.collided for r in results), n))
+    summary["pedestrian_contact_ci95"] = list(
+        wilson_interval(sum(r.pedestrian_contact for r in results), n))
     return summary
 
 
@@ -396,7 +420,12 @@ def _table_rows(summary: dict[str, Any]) -> list[tuple[str, str]]:
     return [
         ("episodes", str(summary["episodes"])),
         ("success rate", fmt(summary["success_rate"], ".0%")),
-        ("collision rate", fmt(summary["collision_rate"], ".0%")),
+        ("collision rate (contact counted)", fmt(summary["collision_rate"], ".0%")),
+        ("  seed's collision / ped. contact / scenery contact",
+         " / ".join(fmt(summary.get(k), ".0%") for k in (
+             "seed_collision_rate", "pedestrian_contact_rate", "scenery_contact_rate"))),
+        ("intimate-space intrusion (episodes)", fmt(summary.get("intimate_intrusion_rate"),
+                                                    ".0%")),
         ("timeouts", str(summary["timeouts"])),
         ("path length (m)", fmt(summary["path_length_m"], ".2f")),
         ("SPL", fmt(summary["spl"], ".3f")),
@@ -503,6 +532,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--video", type=Path,
                    help="write an MP4: chase view beside the fused channels, labelled")
     p.add_argument("--video-episodes", type=int, default=1, help="episodes recorded in the video")
+    p.add_argument("--record", type=Path, metavar="DIR",
+                   help="write every episode as a ROS 2 bag, DIR/episode_<seed>.mcap (camera, "
+                        "chase view, scan, IMU, odometry, tf, cmd_vel, goal, pedestrians, "
+                        "fused channels on sim time; docs/foxglove_layout.json opens it in "
+                        "Foxglove; needs pip install 'roverav[ros]')")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on the last line")
     p.add_argument(
         "--suite", nargs="?", const="all", default=None, metavar="SCENARIOS",
@@ -526,10 +560,19 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         if args.video is not None:
             p.error("--video records one env's episodes: drop it with --suite")
+        if args.record is not None:
+            p.error("--record records one env's episodes: drop it with --suite")
         try:
             select_scenarios(args.suite)
         except ValueError as exc:
             p.error(f"--suite: {exc}")
+    if args.record is not None:
+        from active_vision.ros_formats import RosExtraMissingError, typestore
+
+        try:
+            typestore()
+        except RosExtraMissingError as exc:
+            p.error(f"--record: {exc}")
 
     if args.task is None:
         args.task = run_metrics(args.model).get("task", DEFAULT_TASK)
@@ -557,6 +600,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.video is not None and frames:
         write_video(frames, args.video, fps)
         print(f"wrote {args.video} ({len(frames)} frames)")
+    if args.record is not None:
+        print(f"recorded {args.episodes} episodes to {args.record}/episode_<seed>.mcap")
     if args.json:
         print(json.dumps(summary))
     return 0
@@ -573,6 +618,7 @@ def _evaluate(
     ``env_kwargs``, spread over ``args.slots`` envs: (results, video frames, fps)."""
     from shm_protocol.errors import ShmError
 
+    bag_dir = getattr(args, "record", None)  # rover-eval --record DIR
     envs: list[Any] = []
     try:
         try:
@@ -582,7 +628,8 @@ def _evaluate(
                     task=args.task,
                     pedestrian_mode=env_kwargs["pedestrian_mode"],
                     n_pedestrians=env_kwargs["n_pedestrians"],
-                    render_mode="rgb_array" if record and k == 0 else None,
+                    render_mode=("rgb_array" if (record and k == 0) or bag_dir is not None
+                                 else None),
                 ))  # fmt: skip
         except ShmError as exc:
             raise _EvalError(
@@ -599,8 +646,15 @@ def _evaluate(
             k = i % len(envs)
             keep = record and k == 0 and i < args.video_episodes * len(envs)
             envs[k].action_space.seed(args.seed + i)  # the random policy's draws, reproducible
-            results.append(run_episode(envs[k], policies[k], args.seed + i, args.max_steps,
-                                       frames if keep else None))  # fmt: skip
+            if bag_dir is None:
+                results.append(run_episode(envs[k], policies[k], args.seed + i, args.max_steps,
+                                           frames if keep else None))  # fmt: skip
+                continue
+            from rover_train.record import EpisodeRecorder, episode_path
+
+            with EpisodeRecorder(envs[k], episode_path(bag_dir, args.seed + i, i)) as rec:
+                results.append(run_episode(envs[k], policies[k], args.seed + i,
+                                           args.max_steps, frames if keep else None, rec))
         fps = 1.0 / float(getattr(envs[0].unwrapped, "control_dt", 0.05))
     finally:
         for env in envs:

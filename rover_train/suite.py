@@ -7,10 +7,13 @@ i)``, ended at the first goal, a termination, the env's length or ``max_steps``)
 row is printed per scenario:
 
 - success: share of episodes that reached the goal, with its 95 % Wilson interval;
-- collisions: episodes with a collision step in the seed's sense (LIDAR closer than
-  ``RewardConfig.collision_distance``: the zoo's targets count these);
+- collisions: episodes in which the rover collided: a collision step in the seed's sense
+  (the LIDAR closer than ``RewardConfig.collision_distance``) or any touch of a person or
+  the scenery (``info["contact"]``); the headline the zoo's targets count;
 - ped. contact / scenery contact: episodes in which the rover's body touched a pedestrian
-  (either way round, ``info["pedestrian_collision"]``) / touched the scenery;
+  (either way round, ``info["pedestrian_collision"]``, with its 95 % interval) / touched
+  the scenery;
+- intimate: episodes with a pedestrian within 0.45 m at some step;
 - timeouts, SPL, time to goal (s, successful episodes), personal-space intrusion (share of
   steps with a pedestrian within 1.2 m) and the smallest pedestrian distance (m).
 """
@@ -26,8 +29,9 @@ from rover_env.scenarios import Scenario
 WILSON_Z = 1.96  # 95 % interval
 
 SUITE_COLUMNS = (
-    "scenario", "episodes", "success [95% CI]", "collisions", "ped. contact",
-    "scenery contact", "timeouts", "SPL", "time to goal (s)", "intrusion", "min dist. (m)",
+    "scenario", "episodes", "success [95% CI]", "collisions", "ped. contact [95% CI]",
+    "scenery contact", "intimate", "timeouts", "SPL", "time to goal (s)", "intrusion",
+    "min dist. (m)",
 )  # fmt: skip
 
 
@@ -66,6 +70,7 @@ def _pct(v: float) -> str:
 def format_suite_row(scenario: Scenario, s: dict[str, Any]) -> list[str]:
     """One Markdown row's cells (:data:`SUITE_COLUMNS`)."""
     lo, hi = s["success_ci95"]
+    plo, phi = s["pedestrian_contact_ci95"]
     ttg = s["time_to_goal_s"]
     dmin = s["min_pedestrian_distance_m"]
     return [
@@ -73,8 +78,9 @@ def format_suite_row(scenario: Scenario, s: dict[str, Any]) -> list[str]:
         str(s["episodes"]),
         f"{_pct(s['success_rate'])} [{_pct(lo)}-{_pct(hi)}]",
         _pct(s["collision_rate"]),
-        _pct(s["pedestrian_contact_rate"]),
+        f"{_pct(s['pedestrian_contact_rate'])} [{_pct(plo)}-{_pct(phi)}]",
         _pct(s["scenery_contact_rate"]),
+        _pct(s["intimate_intrusion_rate"]),
         str(s["timeouts"]),
         f"{s['spl']:.2f}",
         "n/a" if ttg is None else f"{ttg:.1f}",

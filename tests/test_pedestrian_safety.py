@@ -1,0 +1,168 @@
+"""Keeping clear of people (issue 71): ``info["contact"]`` counts a touched person, the
+evaluators' headline counts it as a collision episode, and the nav task's personal-space
+term works the same on the LIDAR, fused and gaze envs."""
+
+from __future__ import annotations
+
+import math
+import uuid
+from collections.abc import Iterator
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from helpers.daemon import Daemon
+
+from rover_env import RoverEnv, RoverEnvFused
+from rover_env.gaze_env import RoverEnvFusedGaze
+from rover_env.reward import STUCK_IN_COLLISION, RewardConfig, personal_space_penalty
+from rover_train.envs import (
+    NAV_PERSONAL_SPACE,
+    NAV_PERSONAL_SPACE_PENALTY,
+    env_kwargs,
+    get_task,
+)
+from rover_train.evaluate import run_episode, summarise, summarise_scenario
+
+PARK = np.array([0.0, 0.0], dtype=np.float32)
+ROVER_AT = (-2.0, 0.5, math.pi / 2)  # moon's open ground, facing +y
+
+
+class WalkerIntoRover(gym.Wrapper):
+    """RoverEnv on the moon with one oblivious walker laid on an 8 m line straight through
+    the parked rover: every reset (whatever the seed) sets the same scene up."""
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        kwargs["options"] = {"rover_pose": ROVER_AT, "goal": (3.0, 3.0)}
+        obs, info = self.env.reset(**kwargs)
+        rx, ry, _ = ROVER_AT
+        crowd = self.env.unwrapped.sim.pedestrians.crowd
+        crowd.lay_crossing(0, (rx - 4.0, ry), (rx + 4.0, ry), (rx - 4.0, ry), 1.2)
+        return obs, info
+
+
+def _walker_env(**kwargs: Any) -> WalkerIntoRover:
+    return WalkerIntoRover(RoverEnv(world_n="moon", n_pedestrians=1,
+                                    pedestrian_mode="oblivious", **kwargs))  # fmt: skip
+
+
+def test_a_person_walking_into_the_rover_is_a_contact_but_not_a_lidar_collision() -> None:
+    env = _walker_env()
+    try:
+        env.reset(seed=1)
+        contacts, lidar_collisions = 0, 0
+        for _ in range(140):
+            _, _, terminated, _, info = env.step(PARK)
+            assert info["contact"] == (info["pedestrian_collision"] or info["scenery_contact"])
+            contacts += info["contact"]
+            lidar_collisions += info["collision"]
+            assert not terminated
+        assert contacts > 0 and lidar_collisions == 0  # the seed's collision misses it
+    finally:
+        env.close()
+
+
+def test_the_evaluators_headline_counts_a_touched_person_as_a_collision_episode() -> None:
+    env = _walker_env()
+    try:
+        result = run_episode(env, lambda obs: PARK, seed=1, max_steps=140, frames=None)
+    finally:
+        env.close()
+    assert result.pedestrian_contact and not result.seed_collision
+    assert result.collided  # the headline: contact counted
+    summary = summarise_scenario([result])
+    assert summary["collision_rate"] == 1.0 and summary["seed_collision_rate"] == 0.0
+    assert summary["pedestrian_contact_rate"] == 1.0
+    assert summary["intimate_intrusion_rate"] == float(result.intimate_intrusion)
+    lo, hi = summary["pedestrian_contact_ci95"]
+    assert 0.0 < lo < 1.0 and hi == 1.0
+    assert summarise([result])["collision_rate"] == 1.0
+
+
+def test_the_nav_task_ends_the_episode_at_a_touched_person_and_charges_the_approach() -> None:
+    env = _walker_env(**{k: v for k, v in env_kwargs("lidar", "moon", task="nav").items()
+                         if k != "world_n"})  # fmt: skip
+    try:
+        env.reset(seed=1)
+        charged = 0
+        for _ in range(140):
+            _, reward, terminated, _, info = env.step(PARK)
+            if terminated:
+                break
+            d = info["min_pedestrian_distance"]
+            expected = NAV_PERSONAL_SPACE_PENALTY * max(0.0, NAV_PERSONAL_SPACE - d)
+            assert info["reward_personal_space"] == pytest.approx(expected)
+            charged += expected < 0
+            parts = sum(v for k, v in info.items() if k.startswith("reward_"))
+            assert parts == pytest.approx(reward)
+        assert terminated, "the walker never reached the rover"
+        assert info["contact"] and info["collision"]  # the contact made it a collision step
+        assert info["termination_reason"] == STUCK_IN_COLLISION
+        assert charged >= 5  # paid on the approach, before the touch
+    finally:
+        env.close()
+
+
+def test_the_term_is_off_by_default_and_checked() -> None:
+    assert personal_space_penalty(0.3, RewardConfig()) == 0.0  # not in the seed
+    assert not RewardConfig().contact_is_collision
+    assert not RewardConfig.fused().contact_is_collision
+    cfg = RewardConfig(personal_space_distance=1.2, personal_space_penalty=-1.0)
+    assert personal_space_penalty(0.7, cfg) == pytest.approx(-0.5)
+    assert personal_space_penalty(2.0, cfg) == 0.0
+    assert personal_space_penalty(math.inf, cfg) == 0.0  # nobody in the world
+    with pytest.raises(ValueError, match="personal_space_penalty is a penalty"):
+        RewardConfig(personal_space_penalty=1.0)
+    with pytest.raises(ValueError, match="personal_space_distance must be >= 0"):
+        RewardConfig(personal_space_distance=-1.0)
+    seed = env_kwargs("lidar", "moon")  # the seed's task leaves the reward alone
+    assert "reward_config" not in seed
+    for kind in ("lidar", "lidar-discrete", "fused", "fused-gaze", "discrete",
+                 "fused-gaze-discrete"):  # fmt: skip
+        cfg = get_task("nav").reward_config(kind)
+        assert cfg is not None and cfg.contact_is_collision
+        assert cfg.personal_space_distance == NAV_PERSONAL_SPACE
+        assert cfg.personal_space_penalty == NAV_PERSONAL_SPACE_PENALTY
+
+
+# --- the fused and gaze envs, on a real daemon ----------------------------------------------------
+@pytest.fixture(scope="module")
+def daemon() -> Iterator[Daemon]:
+    d = Daemon(f"test_safety_{uuid.uuid4().hex[:8]}", slots=1).start()
+    yield d
+    assert d.proc is not None and d.proc.poll() is None, "daemon died:\n" + "".join(d.log)
+    d.stop()
+    d.remove_leftovers()
+
+
+@pytest.mark.parametrize("cls", [RoverEnvFused, RoverEnvFusedGaze])
+def test_the_fused_envs_charge_the_nav_tasks_personal_space_wherever_the_camera_looks(
+    daemon: Daemon, cls: type[RoverEnvFused]
+) -> None:
+    kwargs = env_kwargs("fused", "moon", task="nav")
+    env = cls(rl_obs_name=daemon.name, connection_check_timeout=5, slot=0, world_n="moon",
+              reward_config=kwargs["reward_config"], n_pedestrians=1,
+              pedestrian_mode="pacing")  # fmt: skip
+    try:
+        rx, ry, _ = ROVER_AT
+        env.reset(seed=1, options={"rover_pose": (rx, ry, 0.0), "goal": (3.0, 3.0)})
+        charges = []
+        for ahead, pan in ((0.9, 0.0), (0.9, 1.0), (0.8, -1.0), (3.0, 0.0)):
+            env.sim.place_pedestrian(0, rx + ahead, ry, math.pi)
+            action = [0.0, 0.0, pan] if cls is RoverEnvFusedGaze else [0.0, 0.0]
+            if cls is not RoverEnvFusedGaze and pan:
+                continue
+            _, reward, terminated, _, info = env.step(np.array(action, dtype=np.float32))
+            assert not terminated
+            d = info["min_pedestrian_distance"]
+            expected = NAV_PERSONAL_SPACE_PENALTY * max(0.0, NAV_PERSONAL_SPACE - d)
+            assert info["reward_personal_space"] == pytest.approx(expected)
+            parts = sum(v for k, v in info.items() if k.startswith("reward_"))
+            assert parts == pytest.approx(reward)
+            charges.append((pan, info["reward_personal_space"]))
+        assert charges[0][1] < 0 and charges[-1][1] == 0.0  # inside 1.2 m, then out of it
+        if cls is RoverEnvFusedGaze:  # looking away does not lower it
+            assert charges[1][1] == pytest.approx(charges[0][1], abs=0.02)
+    finally:
+        env.close()
