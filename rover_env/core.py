@@ -118,6 +118,15 @@ class EnvOptions:
         """The options from an env's keywords; ``TypeError`` naming ``owner`` and the accepted
         keywords for an unknown one."""
         unknown = sorted(set(options) - {f.name for f in dataclasses.fields(cls)})
+        if "camera_scan" in unknown:
+            raise TypeError(
+                f"{owner}() has no fused image, so it takes no camera_scan: the scan is built "
+                "from the fused image's depth and heatmap. The fused envs take it "
+                "(RoverEnvFused, DiscreteRoverEnvFused, RoverEnvFusedGaze, "
+                "DiscreteRoverEnvFusedGaze: roverav/RoverEnvFused-v0, "
+                "roverav/RoverEnvFusedDiscrete-v0, roverav/RoverEnvFusedGaze-v0, "
+                "roverav/RoverEnvFusedGazeDiscrete-v0); the LIDAR envs have their lidar key"
+            )
         if unknown:
             accepted = ", ".join(f.name for f in dataclasses.fields(cls))
             raise TypeError(
@@ -152,7 +161,8 @@ class RoverEnvBase(gym.Env):
         ``reward_config.collision_distance``.
     ``_task_reward(obs) -> float``
         The non-terminal reward. Default: goal + progress + velocity bonus + turn penalty +
-        collision penalty (the seed's table) + clearance penalty (off in the seed). Record
+        collision penalty (the seed's table) + clearance penalty + personal-space penalty
+        (both off in the seed). Record
         each extra term with :meth:`_add_reward_term` so it shows in ``info``.
     ``_on_reset() -> None``
         Called after the sim and the goal are reset, before the first ``_observe`` (e.g. to
@@ -163,7 +173,9 @@ class RoverEnvBase(gym.Env):
     Readable per-step state for hooks: ``self.sim``, ``self.goal`` (x, y),
     ``self.distance_to_goal``, ``self.distance_delta`` (m closer to this step's goal),
     ``self.goal_reached`` (this step), ``self.collided``
-    (this step), ``self.position`` (3,), ``self.orientation`` (pitch, roll, yaw),
+    (this step), ``self.contact`` (the rover's body touched a pedestrian or the scenery this
+    step), ``self.nearest_pedestrian`` (m), ``self.position`` (3,), ``self.orientation``
+    (pitch, roll, yaw),
     ``self.odometry`` (linear, angular), ``self.reward_config``.
 
     Episode end: ``terminated`` for flip, stuck, stuck-in-collision and out of bounds
@@ -283,6 +295,7 @@ class RoverEnvBase(gym.Env):
         terms["reward_turn"] = rw.turn_penalty(float(self.odometry[1]), cfg)
         terms["reward_collision"] = rw.collision_penalty(self.collided, cfg)
         terms["reward_clearance"] = rw.clearance_penalty(self.nearest_range, cfg)
+        terms["reward_personal_space"] = rw.personal_space_penalty(self.nearest_pedestrian, cfg)
         return (
             terms["reward_goal"]
             + terms["reward_progress"]
@@ -290,6 +303,7 @@ class RoverEnvBase(gym.Env):
             + terms["reward_turn"]
             + terms["reward_collision"]
             + terms["reward_clearance"]
+            + terms["reward_personal_space"]
         )
 
     def _on_reset(self) -> None:
@@ -357,6 +371,8 @@ class RoverEnvBase(gym.Env):
         self.collided = False
         self.nearest_range = float(self.max_lidar_range)
         self.pedestrian_contact = False
+        self.contact = False
+        self.nearest_pedestrian = math.inf
         self.distance_delta = 0.0
         self._steps = 0
         self._episode_reward = 0.0
@@ -463,9 +479,10 @@ class RoverEnvBase(gym.Env):
         self._total_steps += 1
         self._read_state()
         self._positions.append((float(self.position[0]), float(self.position[1])))
-        self.pedestrian_contact = (
-            self.sim.rover_contacts().pedestrian or self.sim.pedestrians.touching_rover
-        )
+        contacts = self.sim.rover_contacts()
+        self.pedestrian_contact = contacts.pedestrian or self.sim.pedestrians.touching_rover
+        self.contact = contacts.obstacle or self.pedestrian_contact
+        self.nearest_pedestrian = self.min_pedestrian_distance()
 
         # Progress is measured against the goal of this step, even if it was just reached.
         self.distance_delta = self._previous_distance - self.distance_to_goal
@@ -477,7 +494,9 @@ class RoverEnvBase(gym.Env):
                 self._sample_goal()
         self._previous_distance = self.distance_to_goal
         obs = self._observe()
-        self.collided = self._collision()
+        self.collided = self._collision() or (
+            self.reward_config.contact_is_collision and self.contact
+        )
         if self.collided:
             self.collision_count += 1
         self._reward_terms = {}
@@ -508,6 +527,7 @@ class RoverEnvBase(gym.Env):
         return obs, float(reward), terminated, truncated, info
 
     def _info(self, reward: float, reason: str) -> dict[str, Any]:
+        scenery = self.sim.rover_contacts().obstacle
         info: dict[str, Any] = {
             "steps": self._steps,
             "total_steps": self._total_steps,
@@ -517,7 +537,8 @@ class RoverEnvBase(gym.Env):
             "is_success": self.goals_reached > 0,
             "collision": self.collided,
             "collision_count": self.collision_count,
-            "scenery_contact": self.sim.rover_contacts().obstacle,
+            "scenery_contact": scenery,
+            "contact": scenery or self.pedestrian_contact,
             "termination_reason": reason,
             "distance_to_goal": self.distance_to_goal,
             **self._social_info(),

@@ -16,6 +16,7 @@ from gymnasium import spaces
 from fused_image import CHANNEL_HEATMAP, FUSED_SIZE, depth_to_channel
 from rover_env import constants as c
 from rover_env import reward as rw
+from rover_env.camera_scan import CameraScan, CameraScanConfig
 from rover_env.core import RoverEnvBase, float_box, state_spaces
 from rover_env.reward import RewardConfig
 from shm_protocol import (
@@ -130,6 +131,18 @@ class RoverEnvFused(RoverEnvBase):
 
     Depth: ``1 - d / 10 m`` clipped to [0, 1] (``fused_image.depth_to_channel``).
 
+    ``camera_scan=True`` (every fused env, the gaze envs included; off by default, so the
+    seed's spaces stay) adds ``camera_scan``, (3, 32) float32: a rover-frame memory of what
+    the camera has seen over 360°. Per bearing sector (the LIDAR's 32, over [-pi, pi)
+    counter-clockwise from straight behind), row 0 is the nearest scenery seen there (m from
+    the rover's centre; 10 when none is known), row 1 the nearest person seen (m; 10 when
+    none), row 2 the seconds since the camera last looked that way (20 when never). The
+    readings move with the rover's own motion; a person's are dropped 2 s after the camera
+    looks away, the scenery's after 20 s. Computed in this process from the fused image's
+    depth and heatmap, the camera's geometry and pan, and the env's pose: no simulator truth
+    (:mod:`rover_env.camera_scan`; a ``CameraScanConfig`` instead of True changes its
+    constants).
+
     ## Rewards
 
     | Term (``info`` key) | Value |
@@ -137,6 +150,7 @@ class RoverEnvFused(RoverEnvBase):
     | goal (``reward_goal``) | +100 when closer than 0.5 m (the step's only term); new goal |
     | progress (``reward_progress``) | (metres closer to the goal) x 0.9 |
     | heatmap (``reward_heatmap``) | -0.1 x sum of the heatmap's 4 centre columns (of 96) |
+    | personal space (``reward_personal_space``) | not in the seed (0): as in ``RoverEnv`` |
 
     The centre columns scale with the width: ``round(4 * W / 96)`` columns. With
     ``RewardConfig(pedestrian_penalty_frame="heading")`` the heatmap term charges the sum
@@ -162,7 +176,7 @@ class RoverEnvFused(RoverEnvBase):
     ## Info
 
     RoverEnv's keys (``steps``, ``total_steps``, ``reward``, ``goals_reached``,
-    ``is_success``, ``collision``, ``scenery_contact``, ``termination_reason``,
+    ``is_success``, ``collision``, ``scenery_contact``, ``contact``, ``termination_reason``,
     ``distance_to_goal``, ``min_pedestrian_distance``, ``personal_space_intrusion``,
     ``intimate_space_intrusion``, ``pedestrian_collision``, ``rover_hit_pedestrian``,
     ``pedestrian_hit_rover``, the reward terms) plus ``heatmap_center`` (the centre-column
@@ -228,6 +242,7 @@ class RoverEnvFused(RoverEnvBase):
         frame_timeout: float = FRAME_TIMEOUT,
         report_latency: bool = False,
         spin_wait: bool | None = None,
+        camera_scan: bool | CameraScanConfig = False,
         **options: Any,
     ) -> None:
         del scan_topic, imu_topic, cmd_vel_topic  # ROS topics: accepted, no effect
@@ -246,6 +261,11 @@ class RoverEnvFused(RoverEnvBase):
             raise ValueError(
                 f"spin_wait must be True, False or None (spin when the machine has a core for "
                 f"each env and daemon worker), got {spin_wait!r}"
+            )
+        if not isinstance(camera_scan, bool | CameraScanConfig):
+            raise ValueError(
+                f"camera_scan must be True, False or a rover_env.camera_scan.CameraScanConfig, "
+                f"got {camera_scan!r}"
             )
         self.spin_wait = spin_wait
         cfg = options.get("reward_config")
@@ -285,6 +305,14 @@ class RoverEnvFused(RoverEnvBase):
                 **state_spaces(),
             }
         )
+        self.camera_scan: CameraScan | None = None
+        if camera_scan is not False:
+            self.camera_scan = CameraScan(
+                (height, width), self.control_dt,
+                None if camera_scan is True else camera_scan)  # fmt: skip
+            self.observation_space = spaces.Dict(
+                {**self.observation_space.spaces, "camera_scan": self.camera_scan.space}
+            )
         self.action_space = float_box(c.FUSED_ACTION_LOW, c.FUSED_ACTION_HIGH)
         self._frame_latency_ms = 0.0
         self._episode_start = False
@@ -471,6 +499,8 @@ class RoverEnvFused(RoverEnvBase):
         # reset()'s info describes the new episode, not the last step of the previous one
         self._heatmap_center = 0.0
         self._episode_start = True  # the next camera frame opens the episode
+        if self.camera_scan is not None:
+            self.camera_scan.reset()
 
     def _observe(self) -> dict[str, np.ndarray]:
         assert self._camera is not None and self._fused is not None
@@ -491,6 +521,11 @@ class RoverEnvFused(RoverEnvBase):
             fused = self._fused.wait_next(timeout=self.frame_timeout)
         self._frame_latency_ms = (time.perf_counter() - t0) * 1e3
         obs["fused_image"] = fused.data  # a fresh copy owned by this observation
+        scan = self.camera_scan
+        if scan is not None:
+            scan.update(fused.data, float(self.position[0]), float(self.position[1]),
+                        float(self.orientation[2]), self.sim.camera_pan)  # fmt: skip
+            obs["camera_scan"] = scan.observation.copy()
         return obs
 
     def _collision(self) -> bool:
@@ -513,7 +548,9 @@ class RoverEnvFused(RoverEnvBase):
         else:
             charged = self._heatmap_center
         heat = self._add_reward_term("heatmap", rw.heatmap_center_penalty(charged, cfg))
-        return progress + heat
+        near = self._add_reward_term(
+            "personal_space", rw.personal_space_penalty(self.nearest_pedestrian, cfg))
+        return progress + heat + near
 
     def _info(self, reward: float, reason: str) -> dict[str, Any]:
         info = super()._info(reward, reason)
