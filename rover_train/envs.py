@@ -129,12 +129,14 @@ def env_kwargs(
     frame_timeout: float | None = None,
     report_latency: bool = False,
     task: str = DEFAULT_TASK,
+    camera_scan: bool = False,
 ) -> dict[str, Any]:
     """Constructor keywords for env ``kind`` (a key of ``ENV_IDS``); ``size`` is the forward
     camera's (height, width); ``frame_timeout`` (fused kinds) the seconds to wait for each
     fused frame; ``report_latency`` (fused kinds) puts the wall-clock ``frame_latency_ms``
     in ``info``; ``task`` (a key of :data:`TASKS`) sets ``goal_ends_episode`` and the
-    length, which ``length`` overrides."""
+    length, which ``length`` overrides; ``camera_scan`` (fused kinds) adds the camera scan
+    to the observation (``rover_env.camera_scan``)."""
     if kind not in ENV_IDS:
         raise ValueError(f"unknown env kind {kind!r}; choose one of {sorted(ENV_IDS)}")
     the_task = get_task(task)
@@ -165,6 +167,13 @@ def env_kwargs(
             kwargs["frame_timeout"] = frame_timeout
         if report_latency:
             kwargs["report_latency"] = True
+        if camera_scan:
+            kwargs["camera_scan"] = True
+    elif camera_scan:
+        raise ValueError(
+            f"camera_scan is built from the fused image: the fused env kinds {FUSED_KINDS} "
+            f"take it, not {kind!r} (whose lidar key already sees all around)"
+        )
     elif frame_timeout is not None:
         raise ValueError(f"frame_timeout is for the fused env kinds {FUSED_KINDS}, not {kind!r}")
     return kwargs

@@ -130,6 +130,17 @@ def _with_waypoint_if_trained_so(model: Path, env: Any) -> Any:
     return WithWaypoint(env, env.unwrapped.world) if waypoint else env
 
 
+def trained_with_scan(model: Path | None) -> bool:
+    """Whether ``model`` was trained with ``rover-train --camera-scan`` (its recipe says):
+    rover-eval then makes the fused env with ``camera_scan=True`` itself."""
+    if model is None or not model.is_file():
+        return False
+    try:
+        return bool(read_recipe(model).get("camera_scan", False))
+    except RecipeError:  # a model .zip rover-train did not write
+        return False
+
+
 def run_metrics(model: Path | None) -> dict[str, Any]:
     """The ``metrics.json`` rover-train wrote beside ``model`` ({} when there is none)."""
     meta = model.parent / "metrics.json" if model is not None else None
@@ -145,6 +156,14 @@ def check_spaces(path: Path, model: Any, env: Any) -> None:
     for what in ("observation", "action"):
         want = getattr(model, f"{what}_space")
         have = getattr(env, f"{what}_space")
+        if want != have and what == "observation" and "camera_scan" in getattr(
+                want, "spaces", {}) and "camera_scan" not in getattr(have, "spaces", {}):
+            raise PolicyLoadError(
+                f"{path} was trained with the camera scan (rover-train --camera-scan): its "
+                "observation has the camera_scan key, and this env has none. Make the env "
+                "with camera_scan=True (a fused env: RoverEnvFused and its gaze and discrete "
+                "kinds); rover-eval and zoo.load do so themselves from the model's recipe."
+            )
         if want != have:
             raise PolicyLoadError(
                 f"{path} was trained for another env: its {what} space is {_describe(want)}, "
@@ -625,7 +644,7 @@ def _evaluate(
             for k in range(min(args.slots, args.episodes)):
                 envs.append(make_env(
                     args.env, world=env_kwargs["world_n"], slot=args.slot + k, name=args.name,
-                    task=args.task,
+                    task=args.task, camera_scan=trained_with_scan(args.model),
                     pedestrian_mode=env_kwargs["pedestrian_mode"],
                     n_pedestrians=env_kwargs["n_pedestrians"],
                     render_mode=("rgb_array" if (record and k == 0) or bag_dir is not None

@@ -10,7 +10,8 @@ target's 100 m: PPO's policies drove into panels they could not tell from open g
 (docs/journal.md). So the MLP also sees each LIDAR range as ``exp(-range / PROXIMITY_M)``
 and the target as (distance within ``GOAL_NEAR_M``, cos and sin of its bearing), and the
 map planner's waypoint, where the observation has one (``rover-train --waypoint``), also as
-the cos and sin of its bearing.
+the cos and sin of its bearing. The camera scan (``rover-train --camera-scan``) is a vector
+key too, its ranges also seen as proximities, as the LIDAR's are.
 """
 
 from __future__ import annotations
@@ -29,6 +30,11 @@ PROXIMITY_M = 0.5
 GOAL_NEAR_M = 12.0
 """Metres: the target distance feature is min(distance, GOAL_NEAR_M) scaled to [-1, 1]."""
 LIDAR_KEY = "lidar"
+SCAN_KEY = "camera_scan"  # (obstacle, person, age) x sectors: rover_env.camera_scan
+SCAN_PROXIMITY_M = 1.0
+"""Metres: the camera scan's ranges are also seen as exp(-range / SCAN_PROXIMITY_M) (a person
+at 0.6 m 0.55, at 1.2 m 0.30, at 3 m 0.05): its 10 m reach flattens a near person as the
+LIDAR's 12 m does."""
 TARGET_KEY = "target"  # (distance m, bearing rad)
 
 
@@ -95,6 +101,9 @@ class RoverExtractor(BaseFeaturesExtractor):
         inputs = [(vec - self._centre) / self._half]
         if LIDAR_KEY in self.vector_keys:
             inputs.append(torch.exp(-observations[LIDAR_KEY].flatten(1) / PROXIMITY_M))
+        if SCAN_KEY in self.vector_keys:
+            ranges = observations[SCAN_KEY][:, :2].flatten(1)
+            inputs.append(torch.exp(-ranges / SCAN_PROXIMITY_M))
         if TARGET_KEY in self.vector_keys:
             dist, bearing = observations[TARGET_KEY][:, 0], observations[TARGET_KEY][:, 1]
             near = torch.clamp(dist, max=GOAL_NEAR_M) * (2.0 / GOAL_NEAR_M) - 1.0

@@ -57,6 +57,8 @@ class WorkerConfig:
     """Seconds an env waits for its daemon's segments."""
     waypoint: bool = False
     """The map planner's waypoint in the observation (``rover-train --waypoint``)."""
+    camera_scan: bool = False
+    """The camera scan in the observation (``rover-train --camera-scan``)."""
     daemon_args: tuple[str, ...] = ("--threads", "1")
     """Extra av-daemon flags."""
     daemon_max_restarts: int = 3
@@ -78,6 +80,7 @@ def worker_config(args: Any) -> WorkerConfig:
         n_pedestrians=args.n_pedestrians,
         connect_timeout=max(args.connect_timeout, 30.0),
         waypoint=args.waypoint,
+        camera_scan=getattr(args, "camera_scan", False),
     )
 
 
@@ -145,7 +148,8 @@ class EnvWorker:
                                     pedestrian_mode=cfg.pedestrian_mode,
                                     n_pedestrians=cfg.n_pedestrians,
                                     connect_timeout=cfg.connect_timeout,
-                                    waypoint=cfg.waypoint)  # fmt: skip
+                                    waypoint=cfg.waypoint,
+                                    camera_scan=cfg.camera_scan)  # fmt: skip
                 self.envs.append(thunk())
         except BaseException:
             self.close()

@@ -100,6 +100,11 @@ class TrainArgs:
     """Add the map planner's next waypoint to the observation (the ``waypoint`` key: distance
     and bearing of the point the planner expert steers at, on the world's map;
     rover_train.waypoint). The maze's RL entry uses it."""
+    camera_scan: bool = False
+    """Fused envs: add the camera scan to the observation (the ``camera_scan`` key: per
+    bearing sector around the rover, the nearest scenery and person the camera has seen and
+    how long ago it looked; rover_env.camera_scan). A camera agent learns from it what the
+    90° image forgets; the policy reads it like the LIDAR."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), recurrent-ppo (all envs: PPO with an LSTM policy, from sb3-contrib),
     sac (lidar, fused) or dqn (discrete)."""
@@ -314,6 +319,11 @@ def validate(args: TrainArgs) -> str | None:
             "--algo sac needs continuous actions: use --env lidar|fused|fused-gaze, "
             "or --algo ppo/dqn"
         )
+    if args.camera_scan and args.env not in FUSED_KINDS:
+        return (
+            f"--camera-scan is built from the fused image: use --env with one of "
+            f"{', '.join(FUSED_KINDS)} (--env {args.env} has the LIDAR, which sees all round)"
+        )
     if args.slots < 1 or args.timesteps < 1:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
     if args.task not in TASKS:  # the CLI's choices say so too; TrainArgs built in code
@@ -447,6 +457,7 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
             connect_timeout=args.connect_timeout,
             append_monitor=append_monitor,
             waypoint=args.waypoint,
+            camera_scan=args.camera_scan,
         )
         for i in range(args.slots)
     ]

@@ -3,10 +3,12 @@ against the simulator's truth on seeded scenes and on a real daemon."""
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import uuid
 from collections.abc import Iterator
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -222,3 +224,36 @@ def test_on_seeded_episodes_the_scan_agrees_with_the_truth(daemon: Daemon) -> No
     assert float(np.median(errors)) < 0.8
     assert in_view > 20 and found / in_view > 0.5
     assert readings > 20 and false / readings < 0.35
+
+
+def test_a_camera_agent_trains_on_the_scan_and_is_evaluated_with_it(
+    daemon: Daemon, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """rover-train --camera-scan stores the flag in the model's recipe; rover-eval makes the
+    env with the scan itself, and an env without it is refused with the fix."""
+    from rover_train import evaluate
+    from rover_train.envs import make_env
+    from rover_train.recipe import read_recipe
+    from rover_train.train import parse_args, train
+
+    args = ["--env", "fused", "--world", "maze", "--task", "nav", "--camera-scan", "--name",
+            daemon.name, "--slots", "1", "--n-steps", "32", "--batch-size", "32", "--n-epochs",
+            "1", "--no-progress", "--checkpoint-every", "0", "--timesteps", "32", "--logdir",
+            str(tmp_path)]  # fmt: skip
+    assert train(parse_args(args))["status"] == "complete"
+    model = tmp_path / "model.zip"
+    assert read_recipe(model)["camera_scan"] is True
+    code = evaluate.main([str(model), "--env", "fused", "--world", "maze", "--name", daemon.name,
+                          "--episodes", "1", "--max-steps", "5", "--json"])  # fmt: skip
+    assert code == 0
+    out = capsys.readouterr().out.strip().splitlines()[-1]
+    assert json.loads(out)["episodes"] == 1
+    env = make_env("fused", world="maze", name=daemon.name, task="nav")
+    try:
+        with pytest.raises(evaluate.PolicyLoadError, match="camera_scan=True"):
+            evaluate.load_policy(model, None, env, "ppo")
+    finally:
+        env.close()
+    with pytest.raises(SystemExit):
+        parse_args(["--env", "lidar", "--camera-scan"])
+    assert "--camera-scan is built from the fused image" in capsys.readouterr().err
