@@ -33,7 +33,7 @@ class RoverEnvDiscrete(SeedActionTable, RoverEnv):
     ``direction_idx`` k is the desired heading ``-pi + k * pi / 6`` rad *relative to the
     current yaw* (k = 6: straight on; k = 0: turn round), exactly RoverEnv's continuous
     ``[speed, relative heading]`` action ``[speed_levels[a // 12], direction_angles[a % 12]]``
-    through the same PID. Example: 52 -> 1.0 m/s straight on. Integer-like inputs are
+    through the same PID. Example: 54 -> 1.0 m/s straight on. Integer-like inputs are
     accepted; anything else or outside ``0..59`` raises ``ValueError``.
 
     Everything else (observation, reward, episode end, info, arguments) is

@@ -62,13 +62,17 @@ class ModelAgent:
 
     :param observe: applied to each observation before the model sees it (a model trained
         with ``rover-train --waypoint`` gets its ``waypoint`` key this way).
+    :param act: applied to the model's action before the env gets it (a model trained with
+        ``rover-train --relative-table`` drives the continuous env this way).
     """
 
     def __init__(self, model: Any, deterministic: bool = True,
-                 observe: Callable[[Any], Any] | None = None) -> None:  # fmt: skip
+                 observe: Callable[[Any], Any] | None = None,
+                 act: Callable[[Any], Any] | None = None) -> None:  # fmt: skip
         self.model = model
         self.deterministic = deterministic
         self.observe = observe
+        self.act_map = act
         self.reset()
 
     def reset(self) -> None:
@@ -83,7 +87,7 @@ class ModelAgent:
             deterministic=self.deterministic,
         )  # fmt: skip
         self._episode_start = np.zeros((1,), dtype=bool)
-        return action
+        return action if self.act_map is None else self.act_map(action)
 
     act = __call__
 

@@ -243,19 +243,41 @@ class DaemonRecovery(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
+def policy_view(env: gym.Env, world: str, waypoint: bool = False, drop_image: bool = False,
+                relative_table: bool = False) -> gym.Env:  # fmt: skip
+    """``env`` as a policy trained with these rover-train flags sees and drives it:
+    ``WithWaypoint`` (``--waypoint``), then ``DropImage`` (``--drop-image``), then
+    ``RelativeTable`` (``--relative-table``) (:mod:`rover_train.wrappers`)."""
+    if waypoint:
+        from rover_train.waypoint import WithWaypoint
+
+        env = WithWaypoint(env, world)
+    if drop_image or relative_table:
+        from rover_train.wrappers import DropImage, RelativeTable
+
+        if drop_image:
+            env = DropImage(env)
+        if relative_table:
+            env = RelativeTable(env)
+    return env
+
+
 def env_factory(
     kind: str,
     monitor_dir: str | None = None,
     append_monitor: bool = False,
     waypoint: bool = False,
+    drop_image: bool = False,
+    relative_table: bool = False,
     **kwargs: Any,
 ) -> Callable[[], gym.Env]:
     """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker.
 
-    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``, and with ``waypoint``
-    ``WithWaypoint`` around the env (:mod:`rover_train.waypoint`); ``EpisodeRng`` lets a
-    resumed run restart each episode in flight from its start. ``append_monitor`` appends
-    to the slot's ``monitor.csv`` (a resumed run) instead of starting it afresh. Fused envs
+    The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``, with :func:`policy_view`'s
+    wrappers (``waypoint``, ``drop_image``, ``relative_table``) around the env;
+    ``EpisodeRng`` lets a resumed run restart each episode in flight from its start.
+    ``append_monitor`` appends to the slot's ``monitor.csv`` (a resumed run) instead of
+    starting it afresh. Fused envs
     are made with ``report_latency=True``: the trainer logs ``charts/frame_latency_ms``.
     """
 
@@ -274,10 +296,7 @@ def env_factory(
             )
         else:
             env = make_env(kind, **kwargs)
-        if waypoint:
-            from rover_train.waypoint import WithWaypoint
-
-            env = WithWaypoint(env, kwargs["world"])
+        env = policy_view(env, kwargs["world"], waypoint, drop_image, relative_table)
         env = EpisodeRng(env)
         filename = None
         if monitor_dir is not None:

@@ -48,7 +48,7 @@ from rover_train.algos import ALGOS, RECURRENT, ModelAgent, algo_class
 from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
 from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
 from rover_train.recipe import RecipeError, read_recipe
-from rover_train.waypoint import WithWaypoint
+from rover_train.wrappers import agent_io
 from shm_protocol.names import default_name, default_slots
 
 if TYPE_CHECKING:
@@ -112,22 +112,32 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
         except Exception as exc:  # noqa: BLE001 - try the next algorithm
             errors.append(f"{name}: {exc}")
             continue
-        seen = _with_waypoint_if_trained_so(model, env)
-        check_spaces(model, loaded, seen)
-        if name in RECURRENT or seen is not env:
-            return ModelAgent(loaded, observe=None if seen is env else seen.observation)
+        recipe = _recipe(model)
+        check_spaces(model, loaded, _as_trained(recipe, env))
+        observe, act = agent_io(recipe)
+        if name in RECURRENT or observe is not None or act is not None:
+            return ModelAgent(loaded, observe=observe, act=act)
         return lambda obs: loaded.predict(obs, deterministic=True)[0]
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
 
 
-def _with_waypoint_if_trained_so(model: Path, env: Any) -> Any:
-    """``env`` as a model trained with ``rover-train --waypoint`` sees it (``WithWaypoint``
-    on ``env``'s world map), or ``env`` itself for any other model."""
+def _recipe(model: Path) -> dict[str, Any]:
+    """The rover-train arguments stored in ``model`` ({} for a .zip rover-train did not write)."""
     try:
-        waypoint = read_recipe(model).get("waypoint", False)
-    except RecipeError:  # a model .zip rover-train did not write
+        return read_recipe(model)
+    except RecipeError:
+        return {}
+
+
+def _as_trained(recipe: dict[str, Any], env: Any) -> Any:
+    """``env`` as a model trained with ``recipe`` sees it (``rover_train.envs.policy_view``:
+    the waypoint, the image dropped, the relative table), for the space check."""
+    from rover_train.envs import policy_view
+
+    flags = {k: bool(recipe.get(k)) for k in ("waypoint", "drop_image", "relative_table")}
+    if not any(flags.values()):
         return env
-    return WithWaypoint(env, env.unwrapped.world) if waypoint else env
+    return policy_view(env, env.unwrapped.world, **flags)
 
 
 def trained_with_scan(model: Path | None) -> bool:

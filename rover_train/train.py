@@ -105,6 +105,14 @@ class TrainArgs:
     bearing sector around the rover, the nearest scenery and person the camera has seen and
     how long ago it looked; rover_env.camera_scan). A camera agent learns from it what the
     90° image forgets; the policy reads it like the LIDAR."""
+    drop_image: bool = False
+    """Fused envs: the policy does not see ``fused_image`` (with --camera-scan it reads the scan
+    and the state through an MLP instead of the pixels through a CNN; the daemon still
+    perceives every frame). rover_train.wrappers.DropImage."""
+    relative_table: bool = False
+    """--env fused or fused-gaze: Discrete(60) actions, the seed's 5 speeds x 12 headings
+    relative to the yaw (RoverEnvDiscrete's table; the gaze env's camera stays ahead), for
+    PPO and DQN from scratch. rover_train.wrappers.RelativeTable."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), recurrent-ppo (all envs: PPO with an LSTM policy, from sb3-contrib),
     sac (lidar, fused) or dqn (discrete)."""
@@ -309,12 +317,13 @@ def resume_args(given: TrainArgs, argv: Sequence[str] | None) -> TrainArgs:
 
 def validate(args: TrainArgs) -> str | None:
     """A message naming what is wrong with ``args`` and how to fix it, or None."""
-    if args.algo == "dqn" and args.env not in DISCRETE_KINDS:
+    discrete = args.env in DISCRETE_KINDS or args.relative_table
+    if args.algo == "dqn" and not discrete:
         return (
             "--algo dqn needs a discrete action space: use --env discrete|fused-gaze-discrete "
             "(or --algo ppo/sac)"
         )
-    if args.algo == "sac" and args.env in DISCRETE_KINDS:
+    if args.algo == "sac" and discrete:
         return (
             "--algo sac needs continuous actions: use --env lidar|fused|fused-gaze, "
             "or --algo ppo/dqn"
@@ -324,6 +333,11 @@ def validate(args: TrainArgs) -> str | None:
             f"--camera-scan is built from the fused image: use --env with one of "
             f"{', '.join(FUSED_KINDS)} (--env {args.env} has the LIDAR, which sees all round)"
         )
+    if args.drop_image and args.env not in FUSED_KINDS:
+        return f"--drop-image takes the fused image out: use it with a fused --env, not {args.env}"
+    if args.relative_table and args.env not in ("fused", "fused-gaze"):
+        return ("--relative-table puts Discrete(60) over a continuous fused env: use --env fused "
+                "or fused-gaze (lidar-discrete has the same table already)")
     if args.slots < 1 or args.timesteps < 1:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
     if args.task not in TASKS:  # the CLI's choices say so too; TrainArgs built in code
@@ -458,6 +472,8 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
             append_monitor=append_monitor,
             waypoint=args.waypoint,
             camera_scan=args.camera_scan,
+            drop_image=args.drop_image,
+            relative_table=args.relative_table,
         )
         for i in range(args.slots)
     ]

@@ -236,13 +236,31 @@ def test_a_camera_agent_trains_on_the_scan_and_is_evaluated_with_it(
     from rover_train.recipe import read_recipe
     from rover_train.train import parse_args, train
 
-    args = ["--env", "fused", "--world", "maze", "--task", "nav", "--camera-scan", "--name",
+    args = ["--env", "fused", "--world", "maze", "--task", "nav", "--camera-scan",
+            "--drop-image", "--relative-table", "--waypoint", "--name",
             daemon.name, "--slots", "1", "--n-steps", "32", "--batch-size", "32", "--n-epochs",
             "1", "--no-progress", "--checkpoint-every", "0", "--timesteps", "32", "--logdir",
             str(tmp_path)]  # fmt: skip
     assert train(parse_args(args))["status"] == "complete"
     model = tmp_path / "model.zip"
-    assert read_recipe(model)["camera_scan"] is True
+    recipe = read_recipe(model)
+    assert recipe["camera_scan"] and recipe["drop_image"] and recipe["relative_table"]
+    from rover_train.algos import ModelAgent, algo_class
+    from rover_train.wrappers import agent_io
+
+    trained = algo_class("ppo").load(model, device="cpu")
+    assert "fused_image" not in trained.observation_space.spaces  # an MLP on scan and state
+    assert trained.action_space.n == 60
+    observe, act = agent_io(recipe)
+    agent = ModelAgent(trained, observe=observe, act=act)  # what zoo.load makes of an rl entry
+    plain = make_env("fused", world="maze", name=daemon.name, task="nav", camera_scan=True)
+    try:
+        obs, _ = plain.reset(seed=2)
+        action = agent.act(obs)  # the plain env's observation in, its Box action out
+        assert plain.action_space.contains(action)
+        plain.step(action)
+    finally:
+        plain.close()
     code = evaluate.main([str(model), "--env", "fused", "--world", "maze", "--name", daemon.name,
                           "--episodes", "1", "--max-steps", "5", "--json"])  # fmt: skip
     assert code == 0
@@ -257,3 +275,23 @@ def test_a_camera_agent_trains_on_the_scan_and_is_evaluated_with_it(
     with pytest.raises(SystemExit):
         parse_args(["--env", "lidar", "--camera-scan"])
     assert "--camera-scan is built from the fused image" in capsys.readouterr().err
+
+
+def test_the_relative_table_is_rover_env_discretes_table() -> None:
+    from rover_env.lidar_discrete_env import RoverEnvDiscrete
+    from rover_train.wrappers import RelativeTable, relative_action
+
+    discrete = RoverEnvDiscrete(world_n="maze")
+    table = RelativeTable(RoverEnv(world_n="maze"))
+    try:
+        assert table.action_space == discrete.action_space
+        for a in range(60):
+            speed, heading = discrete._table_entry(a)  # relative to the yaw
+            assert np.allclose(relative_action(a), [speed, heading])
+            assert np.allclose(table.action(a), [speed, heading])
+        assert np.allclose(relative_action(54), [1.0, 0.0])  # full speed straight on
+        with pytest.raises(ValueError, match="outside 0..59"):
+            relative_action(60)
+    finally:
+        discrete.close()
+        table.close()

@@ -101,11 +101,12 @@ def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent 
         return StudentAgent.load(file)
     from rover_train.algos import ModelAgent, algo_class
     from rover_train.recipe import read_recipe
-    from rover_train.waypoint import observer
+    from rover_train.wrappers import agent_io
 
     recipe = read_recipe(file)
     model = algo_class(recipe["algo"]).load(file, device="cpu")
-    return ModelAgent(model, observe=observer(recipe["world"]) if recipe.get("waypoint") else None)
+    observe, act = agent_io(recipe)
+    return ModelAgent(model, observe=observe, act=act)
 
 
 __all__ = [
