@@ -21,14 +21,16 @@ for the same reason ``active_vision`` sets ``OMP_WAIT_POLICY=PASSIVE`` for torch
 ``auto`` (:func:`resolve_backend`) is ``onnx`` when ``onnxruntime`` imports and the export is
 available, else ``torch`` with one log line saying why.
 
-Precision (``PerceptionConfig.precision``, ``av-daemon --precision``): ``int8`` runs the
-int8 model quantized from the export (static QDQ quantization, per-channel weights, made by
+Precision (``PerceptionConfig.precision``, ``av-daemon --precision``): the int8 model is
+quantized from the export (static QDQ quantization, 7-bit weights per channel, made by
 ``python -m active_vision.training.quantize`` and shipped beside the export as
-``<export>.int8.onnx``) where the ONNX backend runs, the file is there and the CPU has int8
-dot-product instructions (:func:`cpu_int8_support`: AVX-512 VNNI or AVX-VNNI on x86, the
-dot-product extension on Arm); otherwise, and when ONNX Runtime fails to load that file, the
-fp32 export runs, with one log line saying why. ``fp32`` always runs the fp32 export. The
-torch backend runs fp32 whatever is asked.
+``<export>.int8.onnx``). ``auto`` (the default) runs it where the ONNX backend runs, the file
+is there, it agrees with fp32 on this CPU and is faster here, as measured once per machine
+(:mod:`active_vision.precision`), else the fp32 export, with one log line saying which and
+why. ``int8`` runs it where it agrees with fp32 on this CPU and refuses to start
+(:class:`BackendError`) where it does not. ``fp32`` always runs the fp32 export, unchecked.
+Where the int8 file is missing or ONNX Runtime fails to load it, ``auto`` and ``int8`` run
+the fp32 export with one log line. The torch backend runs fp32 whatever is asked.
 """
 
 from __future__ import annotations
@@ -49,12 +51,13 @@ logger = logging.getLogger(__name__)
 BackendName = Literal["auto", "onnx", "torch"]
 BACKENDS: tuple[str, ...] = ("auto", "onnx", "torch")
 Precision = Literal["fp32", "int8"]
+"""What a network computes in."""
 PRECISIONS: tuple[str, ...] = ("fp32", "int8")
-DEFAULT_PRECISION: Precision = "int8"
-"""int8: on the held-out split it is within 0.01 IoU/recall and 0.005 AbsRel/delta1 of fp32
-in every world, and about 2x faster on one thread (benchmarks/precision_speed.py)."""
-_INT8_CPU_FLAGS = ("avx512_vnni", "avx_vnni", "asimddp")
-"""/proc/cpuinfo flags of int8 dot-product instructions (x86 VNNI, Arm dot product)."""
+PRECISION_CHOICES: tuple[str, ...] = ("auto", "fp32", "int8")
+"""What may be asked for: a precision, or ``auto`` (the faster one that agrees with fp32)."""
+DEFAULT_PRECISION = "auto"
+"""int8 where the int8 model agrees with fp32 on this CPU and is faster (1.4x on an AVX2
+CPU, about 2x with VNNI), else fp32 (:mod:`active_vision.precision`)."""
 _INT8_DISABLED_OPTIMIZERS = ("NchwcTransformer",)
 """ONNX Runtime graph passes left out for the int8 model (see :class:`OnnxNetwork`)."""
 
@@ -87,26 +90,6 @@ def onnxruntime_available() -> bool:
     except ImportError:
         return False
     return True
-
-
-def cpu_int8_support(cpuinfo: Path = Path("/proc/cpuinfo")) -> tuple[bool, str]:
-    """Whether this CPU runs int8 convolutions fast (an int8 dot-product instruction), and
-    the flag found or why not. Without one, ONNX Runtime's int8 kernels are no faster than
-    fp32 and on AVX2 they can saturate (the reason for ``reduce_range``)."""
-    try:
-        text = cpuinfo.read_text(errors="replace")
-    except OSError as exc:
-        return False, f"cannot read {cpuinfo} ({exc.strerror})"
-    flags: set[str] = set()
-    for line in text.splitlines():
-        key, _, value = line.partition(":")
-        if key.strip() in ("flags", "Features"):
-            flags.update(value.split())
-            break
-    for flag in _INT8_CPU_FLAGS:
-        if flag in flags:
-            return True, flag
-    return False, f"no int8 dot-product instruction ({', '.join(_INT8_CPU_FLAGS)}) in {cpuinfo}"
 
 
 class TorchNetwork:
@@ -267,14 +250,16 @@ def resolve_backend(requested: str, weights: Path | None, size: int,
     ``auto``: ``onnx`` when onnxruntime imports and the export is shipped, cached or can be
     made; otherwise ``torch``, with one log line saying why. ``onnx``: the same, but a
     missing piece is a :class:`BackendError` (or ``OnnxExportError``, ``WeightsError``).
-    ``precision="int8"`` on ``onnx``: the int8 file when it is there and the CPU supports it
-    (:func:`cpu_int8_support`), else the fp32 export with one log line saying why.
+    ``precision`` ``auto`` or ``int8`` on ``onnx``: the int8 file when it is there, else the
+    fp32 export with one log line saying why. Whether the int8 file then runs is
+    :func:`active_vision.precision.choose_precision`'s call
+    (:class:`~active_vision.perception.Perception` asks it).
     """
     if requested not in BACKENDS:
         raise BackendError(f"backend must be one of {', '.join(BACKENDS)}, got {requested!r}")
-    if precision not in PRECISIONS:
+    if precision not in PRECISION_CHOICES:
         raise BackendError(
-            f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+            f"precision must be one of {', '.join(PRECISION_CHOICES)}, got {precision!r}")
     if requested == "torch":
         return "torch", None, "fp32"
     from active_vision.onnx_export import (
@@ -308,11 +293,6 @@ def resolve_backend(requested: str, weights: Path | None, size: int,
                        "export; make it with `python -m active_vision.training.quantize`",
                        fp32.name.removesuffix(".onnx"), INT8_SUFFIX)
         return "onnx", fp32, "fp32"
-    ok, why = cpu_int8_support()
-    if not ok:
-        logger.warning("this CPU has %s: perception runs the fp32 export, which is as fast "
-                       "here (--precision fp32 says so without this line)", why)
-        return "onnx", fp32, "fp32"
     return "onnx", int8, "int8"
 
 
@@ -320,13 +300,13 @@ __all__ = [
     "BACKENDS",
     "DEFAULT_PRECISION",
     "PRECISIONS",
+    "PRECISION_CHOICES",
     "BackendError",
     "BackendName",
     "Network",
     "OnnxNetwork",
     "Precision",
     "TorchNetwork",
-    "cpu_int8_support",
     "onnxruntime_available",
     "resolve_backend",
 ]

@@ -35,10 +35,12 @@ from active_vision.backends import (
     BackendError,
     Network,
     OnnxNetwork,
+    Precision,
     TorchNetwork,
     resolve_backend,
 )
 from active_vision.models import AVNet, load_model
+from active_vision.precision import choose_precision
 from fused_image import CHANNEL_DEPTH, FUSED_SIZE, LUMA_WEIGHTS
 
 logger = logging.getLogger(__name__)
@@ -67,9 +69,13 @@ class PerceptionConfig:
     Runtime when it imports (and the export is available), else torch. A ``model`` passed to
     :class:`Perception` runs in torch unless ``onnx`` is asked for explicitly."""
     precision: str = DEFAULT_PRECISION
-    """``int8`` | ``fp32``: ``int8`` runs the shipped int8 model in ONNX Runtime where it is
-    there and this CPU has int8 dot-product instructions, else the fp32 export (one log line
-    says why); the torch backend always runs fp32 (:mod:`active_vision.backends`)."""
+    """``auto`` | ``int8`` | ``fp32`` (:mod:`active_vision.backends`): ``auto`` runs the int8
+    model in ONNX Runtime where it agrees with fp32 on this CPU and is faster, else the fp32
+    export (one log line says which and why); ``int8`` runs it where it agrees and is
+    refused where it does not; the torch backend always runs fp32."""
+    int8_check: bool = True
+    """False: ``int8`` runs the int8 model without checking it against fp32 on this CPU
+    (what the evaluator does, to measure the model itself)."""
 
 
 @dataclass
@@ -126,6 +132,9 @@ class Perception:
             )
         backend, onnx_path, precision = resolve_backend(
             requested, self.config.weights, self.config.size, self.config.precision)
+        if precision == "int8" and (self.config.int8_check or self.config.precision == "auto"):
+            assert onnx_path is not None
+            onnx_path, precision = self._checked_int8(onnx_path)
         capacity = max(1, self.config.max_batch)
         if backend == "onnx":
             assert onnx_path is not None
@@ -141,6 +150,16 @@ class Perception:
         self.timings = StageTimes()
         self._capacity = 0
         self._allocate(capacity)
+
+    def _checked_int8(self, int8: Path) -> tuple[Path, Precision]:
+        """The file and precision to run where ``auto`` or ``int8`` found the int8 model
+        ``int8``: :func:`~active_vision.precision.choose_precision` against the fp32 export
+        on this CPU (one log line; raises :class:`BackendError` where ``int8`` is refused)."""
+        _, fp32, _ = resolve_backend("onnx", self.config.weights, self.config.size, "fp32")
+        assert fp32 is not None
+        chosen = choose_precision(self.config.precision, fp32, int8, self.config.size,
+                                  self.config.threads or 1)
+        return (int8 if chosen == "int8" else fp32), chosen
 
     def _onnx_network(self, path: Path, precision: str, capacity: int) -> OnnxNetwork:
         """The ONNX network of ``path``; an int8 file that ONNX Runtime cannot load (a build

@@ -1,7 +1,7 @@
-"""int8 perception: the shipped int8 model agrees with fp32 on rendered frames, ships named
-for the weights' sha256, a missing or unloadable int8 file (or a CPU without int8 dot
-products) falls back to fp32 with one log line, the maker quantizes any export, and the
-command lines check ``--precision`` and the maker's options."""
+"""int8 perception: the shipped int8 model agrees with fp32 on rendered frames on this CPU,
+ships named for the weights' sha256, a missing or unloadable int8 file falls back to fp32
+with one log line, the maker quantizes any export, and the command lines check
+``--precision`` and the maker's options. How ``auto`` chooses: tests/test_av_precision.py."""
 
 from __future__ import annotations
 
@@ -19,7 +19,6 @@ import torch  # noqa: E402
 
 from active_vision.backends import (  # noqa: E402
     OnnxNetwork,
-    cpu_int8_support,
     resolve_backend,
 )
 from active_vision.models import DEFAULT_WEIGHTS, AVNet, AVNetConfig, save_weights  # noqa: E402
@@ -42,15 +41,15 @@ from active_vision.training.quantize import (  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 FRAMES_SEED = 515_151  # neither the training nor an evaluation split
 # int8 against fp32 on the fused frame (channel units, [0, 1]); measured 2026-11-26 on 24
-# such frames: gray identical, heatmap mean |diff| 0.0002, detections' IoU 0.99, depth mean
-# |diff| 0.0014 (1.4 cm), 99th percentile 0.029.
+# such frames (VNNI, 8-bit weights): gray identical, heatmap mean |diff| 0.0002, detections'
+# IoU 0.99, depth mean |diff| 0.0014 (1.4 cm), 99th percentile 0.029; 2026-12-02 (AVX2
+# without VNNI, 7-bit weights): heatmap 0.0002, IoU 0.98, depth 0.0011. On a CPU whose int8
+# kernels saturate this fails (the 8-bit model on AVX2: IoU 0.69, depth 0.11).
 HEAT_MEAN_TOL = 0.005
 DETECTION_IOU_MIN = 0.95
 DEPTH_MEAN_TOL = 0.005
 DEPTH_P99_TOL = 0.06
 CHANNEL_GRAY, CHANNEL_HEATMAP, CHANNEL_DEPTH = 0, 1, 2
-needs_int8_cpu = pytest.mark.skipif(not cpu_int8_support()[0],
-                                    reason=f"this CPU: {cpu_int8_support()[1]}")
 
 
 @pytest.fixture(scope="module")
@@ -58,11 +57,11 @@ def rendered() -> np.ndarray:
     return ds.render_dataset(ds.DatasetConfig(frames=24, seed=FRAMES_SEED)).rgb
 
 
-@needs_int8_cpu
 def test_int8_agrees_with_fp32_on_rendered_frames(rendered: np.ndarray) -> None:
     n = len(rendered)
     fp32 = Perception(PerceptionConfig(backend="onnx", precision="fp32", max_batch=n))
-    int8 = Perception(PerceptionConfig(backend="onnx", precision="int8", max_batch=n))
+    int8 = Perception(PerceptionConfig(backend="onnx", precision="int8", max_batch=n,
+                                       int8_check=False))
     assert (fp32.precision, int8.precision) == ("fp32", "int8")
     a, b = fp32(rendered).copy(), int8(rendered).copy()
     np.testing.assert_array_equal(a[..., CHANNEL_GRAY], b[..., CHANNEL_GRAY])
@@ -86,13 +85,12 @@ def test_shipped_int8_model_is_named_for_the_shipped_weights() -> None:
     assert len(list(DEFAULT_WEIGHTS.parent.glob("*.int8.onnx"))) == 1, "stale int8 shipped"
 
 
-@needs_int8_cpu
-def test_auto_picks_int8_here_and_says_so_once(caplog: pytest.LogCaptureFixture) -> None:
+def test_the_backend_line_is_said_once(caplog: pytest.LogCaptureFixture) -> None:
     with caplog.at_level(logging.INFO, logger="active_vision"):
         p = Perception(PerceptionConfig())
-    assert (p.backend, p.precision) == ("onnx", "int8")
+    assert p.backend == "onnx"
     lines = [r.getMessage() for r in caplog.records if "perception backend" in r.getMessage()]
-    assert len(lines) == 1 and "int8" in lines[0]
+    assert len(lines) == 1 and p.precision in lines[0]
     # the torch backend runs fp32 whatever is asked, without a warning
     assert resolve_backend("torch", None, 96, "int8") == ("torch", None, "fp32")
 
@@ -119,7 +117,7 @@ def test_missing_int8_file_falls_back_to_fp32_with_one_log_line(
     assert (p.backend, p.precision) == ("onnx", "fp32")
     warnings = _warnings(caplog)
     assert len(warnings) == 1, warnings
-    assert "quantize" in warnings[0] or "CPU" in warnings[0]
+    assert "quantize" in warnings[0]
 
 
 def test_unloadable_int8_file_falls_back_to_fp32_with_one_log_line(
@@ -131,18 +129,6 @@ def test_unloadable_int8_file_falls_back_to_fp32_with_one_log_line(
     assert (p.backend, p.precision) == ("onnx", "fp32")
     assert len(_warnings(caplog)) == 1, _warnings(caplog)
     p(np.zeros((2, 32, 32, 3), np.uint8))  # and it serves
-
-
-def test_cpu_check_reads_the_dot_product_flags(tmp_path: Path) -> None:
-    info = tmp_path / "cpuinfo"
-    info.write_text("processor\t: 0\nflags\t\t: fpu sse avx2 avx512f\n")
-    ok, why = cpu_int8_support(info)
-    assert not ok and "avx512_vnni" in why
-    info.write_text("processor\t: 0\nflags\t\t: fpu avx2 avx512_vnni amx_int8\n")
-    assert cpu_int8_support(info) == (True, "avx512_vnni")
-    info.write_text("processor\t: 0\nFeatures\t: fp asimd asimddp\n")
-    assert cpu_int8_support(info) == (True, "asimddp")
-    assert not cpu_int8_support(tmp_path / "absent")[0]
 
 
 def test_quantizer_keeps_the_head_in_fp32_and_its_model_runs(

@@ -17,7 +17,6 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from active_vision.backends import cpu_int8_support  # noqa: E402
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
 from benchmarks.real_footage import (  # noqa: E402
     MIN_SILHOUETTE,
@@ -41,10 +40,6 @@ FREE_GT2_MAX = 0.1
 """False heat on the people-free crops, the issue's targets: median hot area <= 0.5 % and at
 most 10 % of crops (1 of 16) over 2 % hot. The shipped network: 0 % median, none over 2 %
 (the network it was fine-tuned from: 3.15 % median, 14 of 16 over 2 %)."""
-
-needs_int8_cpu = pytest.mark.skipif(
-    not cpu_int8_support()[0], reason=f"this CPU: {cpu_int8_support()[1]}"
-)
 
 
 @dataclass
@@ -97,7 +92,7 @@ def test_the_committed_crops_are_what_the_readme_says(crops: Crops) -> None:
     assert sum(p.stat().st_size for p in DATA.iterdir()) < 1_000_000
 
 
-@pytest.mark.parametrize("precision", ["fp32", pytest.param("int8", marks=needs_int8_cpu)])
+@pytest.mark.parametrize("precision", ["fp32", "int8"])
 def test_shipped_perception_on_real_crops(crops: Crops, precision: str) -> None:
     p = Perception(
         PerceptionConfig(threads=1, max_batch=TEST_PEOPLE, backend="onnx", precision=precision)

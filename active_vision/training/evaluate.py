@@ -228,13 +228,15 @@ def _fused_frames(model: AVNet, data: Dataset, batch: int, threads: int | None,
                   ) -> Iterator[tuple[int, np.ndarray]]:
     """(index, fused frame) of every frame of ``data``, through :class:`Perception` as the
     daemon runs it: ``model`` in torch for ``fp32``; for ``int8``, the int8 ONNX model of
-    ``weights`` (default: the shipped ones), which ``model`` must be loaded from."""
+    ``weights`` (default: the shipped ones), which ``model`` must be loaded from, run
+    without the daemon's agreement check (:mod:`active_vision.precision`): this measures
+    it."""
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
     if precision == "int8":
         perception = Perception(PerceptionConfig(
             size=data.rgb.shape[1], threads=threads, max_batch=batch, weights=weights,
-            backend="onnx", precision="int8"))
+            backend="onnx", precision="int8", int8_check=False))
         if perception.precision != "int8":  # the fallback logged why
             raise BackendError(
                 f"no int8 model of {weights or 'the shipped weights'} runs here (see the log "
