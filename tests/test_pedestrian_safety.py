@@ -124,6 +124,7 @@ def test_the_term_is_off_by_default_and_checked() -> None:
         assert cfg is not None and cfg.contact_is_collision
         assert cfg.personal_space_distance == NAV_PERSONAL_SPACE
         assert cfg.personal_space_penalty == NAV_PERSONAL_SPACE_PENALTY
+        assert cfg.heatmap_center_scale == 0.0  # the term in its place on the fused envs
 
 
 # --- the fused and gaze envs, on a real daemon ----------------------------------------------------
@@ -158,6 +159,7 @@ def test_the_fused_envs_charge_the_nav_tasks_personal_space_wherever_the_camera_
             d = info["min_pedestrian_distance"]
             expected = NAV_PERSONAL_SPACE_PENALTY * max(0.0, NAV_PERSONAL_SPACE - d)
             assert info["reward_personal_space"] == pytest.approx(expected)
+            assert info["reward_heatmap"] == 0.0  # the seed's heatmap term is off in the task
             parts = sum(v for k, v in info.items() if k.startswith("reward_"))
             assert parts == pytest.approx(reward)
             charges.append((pan, info["reward_personal_space"]))
