@@ -28,7 +28,7 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 	$(PY) -m pip install -q --upgrade pip
 	# CPU torch first, pinned, so no dependency range can pull a CUDA build.
 	$(PY) -m pip install -q -c constraints.txt torch==2.13.0
-	$(PY) -m pip install -q -c constraints.txt -e '.[train,dev,onnx,ray]'
+	$(PY) -m pip install -q -c constraints.txt -e '.[train,dev,onnx,ray,ros]'
 	@touch $(STAMP)
 
 # The main job: a supervised daemon + trainer pair fine-tunes the zoo's fused-maze navigator

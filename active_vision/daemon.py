@@ -1,9 +1,9 @@
 """av-daemon: camera frames in, fused 96x96x3 observations out, over shared memory.
 
     av-daemon [--name rl_observation] [--slots N] [--size 96] [--depth model|render]
-              [--backend auto|onnx|torch] [--precision int8|fp32] [--threads 1]
+              [--backend auto|onnx|torch] [--precision auto|int8|fp32] [--threads 1]
               [--workers 0] [--spin-wait auto|on|off]
-              [--source camera|video:PATH|device:N] [--preview PATH]
+              [--source camera|video:PATH|device:N|bag:PATH[#TOPIC]] [--preview PATH]
               [--log-every 1000] [--stale-after 2.0] [--weights FILE] [--log-level INFO]
               [--heatmap detect|predict] [--predict-weights FILE]
 
@@ -22,9 +22,11 @@ Then it prints one line starting with ``av-daemon ready`` (``READY_MARKER``, flu
    as one batch, in ONNX Runtime or eager torch (``--backend``: ``auto``, the default, is
    ONNX Runtime when it is installed, else torch with one log line saying so; the ONNX file
    ships with the weights, or is exported once into the user cache for other weights, see
-   :mod:`active_vision.onnx_export`; ``--precision int8``, the default, runs the shipped
-   int8 model where this CPU has int8 dot-product instructions, else the fp32 export with one
-   log line, see :mod:`active_vision.backends`);
+   :mod:`active_vision.onnx_export`; ``--precision auto``, the default, runs the shipped
+   int8 model where it agrees with fp32 on this CPU's committed reference frames and is
+   faster, else the fp32 export, measured once per machine and said in one log line;
+   ``int8`` is refused where the int8 model disagrees; ``fp32`` is never checked; see
+   :mod:`active_vision.precision`);
    with several slots this runs in ``--workers`` threads (default: one per CPU core, at
    most one per slot), each with its own network session, worker ``k`` serving the slots
    ``i`` with ``i % workers == k``: an env's frame is computed while another env renders,
@@ -48,9 +50,12 @@ history ever reaches another slot or survives an episode start.
 
 With ``--source video:PATH`` (or ``device:N``) no camera segment is made: the video plays at
 its frame rate into every slot's fused segment (``source_seq`` counts frames), for trying
-the pipeline without the simulator. ``--preview PATH`` writes slot 0's camera frame and its
-three fused channels side by side (PNG, refreshed twice a second, or an MP4 of every frame);
-in ``predict`` mode the detection heatmap is shown next to the prediction.
+the pipeline without the simulator. ``--source bag:PATH[#TOPIC]`` plays a ROS 2 bag's image
+topic (a robot's recorded camera; MCAP or rosbag2, ``pip install 'roverav[ros]'``) the same
+way, at the bag's timestamps (:mod:`active_vision.bag_source`). ``--preview PATH`` writes
+slot 0's camera frame and its three fused channels side by side (PNG, refreshed twice a
+second, or an MP4 of every frame); in ``predict`` mode the detection heatmap is shown next
+to the prediction.
 
 Start and stop: a live daemon already serving the name (its lock is held, or a fused
 segment's writer is alive with a fresh heartbeat) makes this one refuse with exit status 1.
@@ -136,11 +141,13 @@ class DaemonConfig:
     batch (where batching pays, as on a GPU). A video or device source has one loop."""
     backend: str = "auto"
     """``auto`` (ONNX Runtime when installed, else torch), ``onnx`` or ``torch``."""
-    precision: str = "int8"
-    """``int8`` (the shipped int8 model in ONNX Runtime where it runs here, else fp32 with one
-    log line) or ``fp32``; ``active_vision.backends.DEFAULT_PRECISION``."""
+    precision: str = "auto"
+    """``auto`` (the int8 model in ONNX Runtime where it agrees with fp32 here and is faster,
+    else fp32, one log line saying why), ``int8`` (refused where it disagrees) or ``fp32``;
+    ``active_vision.backends.DEFAULT_PRECISION``."""
     source: str = "camera"
-    """``camera`` (segments written by envs), ``video:PATH`` or ``device:N``."""
+    """``camera`` (segments written by envs), ``video:PATH``, ``device:N`` or
+    ``bag:PATH[#TOPIC]`` (a ROS 2 bag's image topic)."""
     preview: Path | None = None
     """PNG or MP4 preview of slot 0 (camera frame and the fused channels)."""
     log_every: int = 1000
@@ -292,7 +299,13 @@ class Daemon:
             from active_vision.predict import K
 
             self.history = SlotHistory(cfg.slots, K, (cfg.size, cfg.size, 3))
-        from active_vision.sources import CameraSegmentSource, OpenCVSource, SourceError
+        from active_vision.sources import (
+            BAG_KIND,
+            CameraSegmentSource,
+            OpenCVSource,
+            SourceError,
+            source_kind,
+        )
 
         try:
             for i in range(cfg.slots):
@@ -315,7 +328,12 @@ class Daemon:
                 if cfg.depth == "render":
                     raise DaemonError(f"--depth render needs --source camera (frames with a "
                                       f"depth channel); {cfg.source} has RGB only")
-                self.sources.append(OpenCVSource(cfg.source, cfg.slots, cfg.size))
+                if source_kind(cfg.source) == BAG_KIND:
+                    from active_vision.bag_source import BagSource
+
+                    self.sources.append(BagSource(cfg.source, cfg.slots, cfg.size))
+                else:
+                    self.sources.append(OpenCVSource(cfg.source, cfg.slots, cfg.size))
         except (ShmError, SourceError, OSError) as exc:
             self.shutdown()
             raise DaemonError(str(exc)) from exc
@@ -528,14 +546,18 @@ def _size(text: str) -> int:
 
 
 def _source(text: str) -> str:
-    if text == "camera" or text.startswith(("video:", "device:")):
-        return text
-    raise argparse.ArgumentTypeError(f"expected camera, video:PATH or device:N, got {text!r}")
+    from active_vision.sources import SourceError, source_kind
+
+    try:
+        source_kind(text)
+    except SourceError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
     # imports torch, which serving needs anyway
-    from active_vision.backends import BACKENDS, PRECISIONS
+    from active_vision.backends import BACKENDS, PRECISION_CHOICES
 
     d = DaemonConfig()
     p = argparse.ArgumentParser(
@@ -554,10 +576,12 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         "Runtime when onnxruntime is installed, else torch, with one log "
                         "line), onnx (ONNX Runtime; the .onnx file ships with the weights or "
                         "is exported once into ~/.cache/roverav) or torch (eager)")
-    p.add_argument("--precision", choices=PRECISIONS, default=d.precision,
-                   help="int8 (default): the shipped int8 model in ONNX Runtime, where the "
-                        "file is there and the CPU has VNNI/dot-product instructions, else "
-                        "fp32 with one log line; fp32: the fp32 export (torch: always fp32)")
+    p.add_argument("--precision", choices=PRECISION_CHOICES, default=d.precision,
+                   help="auto (default): the shipped int8 model in ONNX Runtime where it "
+                        "agrees with fp32 on this CPU and is faster, else fp32 (measured "
+                        "once, cached in ~/.cache/roverav, one log line says why); int8: the "
+                        "int8 model, refused where it disagrees with fp32 here; fp32: the "
+                        "fp32 export, unchecked (torch: always fp32)")
     p.add_argument("--threads", type=_positive_int, default=d.threads,
                    help="threads of the perception network (torch / ONNX Runtime intra-op)")
     p.add_argument("--workers", type=_count, default=d.workers,
@@ -572,7 +596,11 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         "daemons (one for the env, one for its worker), on, or off (a "
                         "machine shared with other work)")
     p.add_argument("--source", type=_source, default=d.source,
-                   help="camera (segments written by envs), video:PATH or device:N")
+                   help="camera (segments written by envs), video:PATH, device:N or "
+                        "bag:PATH[#TOPIC] (a ROS 2 bag's image topic: an .mcap or .db3 file "
+                        "or a rosbag2 directory, played at its timestamps; the topic "
+                        "defaults to /camera/image_raw, else its image topic; needs "
+                        "pip install 'roverav[ros]')")
     p.add_argument("--preview", type=Path, default=None,
                    help="write a PNG (or .mp4) of slot 0: camera + fused channels")
     p.add_argument("--log-every", type=int, default=d.log_every,

@@ -11,6 +11,11 @@ A source hands the daemon new uint8 frames for its slots through :meth:`FrameSou
   played at its own frame rate (looping at its end; frames are skipped when perception falls
   behind, so playback keeps real time), or a camera device. Every slot gets the same frame,
   and ``seq`` counts frames from 1.
+- :class:`~active_vision.bag_source.BagSource` (``--source bag:PATH[#TOPIC]``, in its own
+  module: it needs ``pip install 'roverav[ros]'``): a ROS 2 bag's image topic, played like a
+  video file.
+
+:func:`source_kind` reads a ``--source`` spec (``SOURCE_SPECS``).
 
 Frames are resized to the fused size (``INTER_AREA``) and converted to RGB by OpenCV sources;
 camera segments already have the fused size (the daemon creates them that way).
@@ -60,6 +65,25 @@ class SourceFrame:
 
 class SourceError(RuntimeError):
     """A frame source cannot be opened or read."""
+
+
+CAMERA_KIND = "camera"
+VIDEO_KIND = "video"
+DEVICE_KIND = "device"
+BAG_KIND = "bag"
+SOURCE_SPECS = "camera, video:PATH, device:N or bag:PATH[#TOPIC]"
+"""The source specs ``av-daemon --source`` takes."""
+
+
+def source_kind(spec: str) -> str:
+    """The kind of a source spec: ``CAMERA_KIND``, ``VIDEO_KIND``, ``DEVICE_KIND`` or
+    ``BAG_KIND``; :class:`SourceError` naming ``SOURCE_SPECS`` for anything else."""
+    if spec == CAMERA_KIND:
+        return CAMERA_KIND
+    kind, sep, arg = spec.partition(":")
+    if sep and arg and kind in (VIDEO_KIND, DEVICE_KIND, BAG_KIND):
+        return kind
+    raise SourceError(f"unknown source {spec!r}: expected {SOURCE_SPECS}")
 
 
 class FrameSource(Protocol):
@@ -335,4 +359,16 @@ def _row_of(frame: SourceFrame) -> int:
     return frame.row
 
 
-__all__ = ["CameraSegmentSource", "FrameSource", "OpenCVSource", "SourceError", "SourceFrame"]
+__all__ = [
+    "BAG_KIND",
+    "CAMERA_KIND",
+    "DEVICE_KIND",
+    "SOURCE_SPECS",
+    "VIDEO_KIND",
+    "CameraSegmentSource",
+    "FrameSource",
+    "OpenCVSource",
+    "SourceError",
+    "SourceFrame",
+    "source_kind",
+]

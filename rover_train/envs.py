@@ -82,8 +82,9 @@ NAV_PERSONAL_SPACE_PENALTY = -1.0
 about what 5 cm of progress pays, so keeping a metre from a person beats brushing past. On
 the fused envs it replaces the seed's heatmap term (``heatmap_center_scale`` 0 under the
 task): that term charges about -2 to -3 a step for a person a metre ahead in the image's
-centre columns, and some whatever their distance, so it dwarfed the progress and the goal (PPO from scratch on the
-fused maze returned -100 to -140 an episode) and it is lowered by looking away."""
+centre columns, and some whatever their distance, so it dwarfed the progress and the goal
+(PPO from scratch on the fused maze returned -100 to -140 an episode), and looking away
+lowers it."""
 DEFAULT_TASK = "seed"
 TASKS = {
     "seed": Task("seed", "the seed's: goal after goal until a failure or the env's length "
