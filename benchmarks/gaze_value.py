@@ -40,7 +40,7 @@ the nearest pedestrian that the fixed one did not.
         --gif docs/gaze_students.gif   # the README's clip
 
 Each row runs RoverEnv with the fused envs' reward constants (``RewardConfig.fused()``, so
-episodes end as in RoverEnvFusedGaze) under :class:`~rover_train.imitation.gaze.WithPanHead`,
+episodes end as in RoverEnvFusedGaze) under :class:`~rover_train.wrappers.WithPanHead`,
 which turns the sim's camera like the gaze env (180 deg/s servo): the teachers need no fused
 image, so no daemon. Episode i of every row is ``reset(seed=--seed + i)`` (default the zoo's
 evaluation seeds, ``EVAL_SEED_BASE``: no training uses them) and ends at the first goal, a
@@ -85,9 +85,8 @@ from rover_env.reward import RewardConfig  # noqa: E402
 from rover_env.scenarios import Scenario, select_scenarios  # noqa: E402
 from rover_train.evaluate import EpisodeResult, run_episode  # noqa: E402
 from rover_train.imitation.expert import MANNERS, ExpertConfig, PlannerExpert  # noqa: E402
-from rover_train.imitation.gaze import WithPanHead  # noqa: E402
-from rover_train.imitation.seed_table import WithSeedTable  # noqa: E402
 from rover_train.suite import wilson_interval  # noqa: E402
+from rover_train.wrappers import WithPanHead, WithSeedTable  # noqa: E402
 from rover_train.zoo import EVAL_MAX_STEPS, EVAL_SEED_BASE  # noqa: E402
 
 DEFAULT_SCENARIOS = "moon-crossing-3,inspect-crowd-3"

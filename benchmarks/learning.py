@@ -15,7 +15,7 @@ clock). It prints a table (steps, wall-clock s of training, success, collisions,
 writes the curves to ``docs/learning_curves.png``.
 
 ``--table WORLD`` is the one table of what each learner reached: every ``--row LABEL=SOURCE``
-is evaluated on the same evaluation episodes (``zoo_eval``'s: seeds from 100000, 600 steps,
+is evaluated on the same evaluation episodes (rover-eval's: seeds from 100000, 600 steps,
 the first goal ends an episode) and shown with the env steps and the wall-clock time its
 training took. A SOURCE is a rover-train run directory (its ``model.zip``, or the newest
 checkpoint of a run stopped early; steps from its ``metrics.json``, time from the parts of the
@@ -46,8 +46,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from active_vision.launcher import spawn_daemon  # noqa: E402
 from rover_train import evaluate  # noqa: E402
+from rover_train.agents import RandomAgent  # noqa: E402
 from rover_train.envs import make_env  # noqa: E402
 from rover_train.train import TrainArgs, train  # noqa: E402
+
+EPISODE_SEED_BASE = 5000  # the seed-comparison table's episodes: reset(seed=5000 + i)
 
 
 def evaluate_policy(
@@ -55,12 +58,9 @@ def evaluate_policy(
 ) -> dict:
     env = make_env(kind, world=world, name=shm)
     try:
-        act = evaluate.load_policy(
-            model, None if model else "random", env, "ppo" if model else None
-        )
-        results = [
-            evaluate.run_episode(env, act, 5000 + i, max_steps, None) for i in range(episodes)
-        ]
+        agent = (evaluate.load_policy(model, env, "ppo") if model
+                 else RandomAgent(env.action_space, EPISODE_SEED_BASE))  # fmt: skip
+        results = evaluate.evaluate_agent(env, agent, episodes, EPISODE_SEED_BASE, max_steps)
     finally:
         env.close()
     return evaluate.summarise(results)
@@ -75,7 +75,8 @@ def evaluate_greedy(world: str, episodes: int, max_steps: int) -> dict:
             return np.array([1.0, obs["target"][1]], np.float32)
 
         results = [
-            evaluate.run_episode(env, act, 5000 + i, max_steps, None) for i in range(episodes)
+            evaluate.run_episode(env, act, EPISODE_SEED_BASE + i, max_steps, None)
+            for i in range(episodes)
         ]
     finally:
         env.close()
@@ -110,7 +111,7 @@ def run(
     return rows
 
 
-def _zoo_eval(env: object, act: object, episodes: int) -> dict:
+def _eval_episodes(env: object, act: object, episodes: int) -> dict:
     from rover_train.zoo import EVAL_MAX_STEPS, EVAL_SEED_BASE
 
     results = [
@@ -140,7 +141,7 @@ def curve_dagger(world: str, budget: int, points: int, episodes: int) -> list[di
         agent = StudentAgent(StudentNet(spec))
 
         def on_round(steps: int, student: StudentAgent) -> None:
-            s = _zoo_eval(eval_env, student.act, episodes)
+            s = _eval_episodes(eval_env, student.act, episodes)
             rows.append({"steps": steps, **s})
 
         cfg = replace(recipe.dagger(), iterations=points, steps=budget // points,
@@ -172,7 +173,7 @@ def curve_ppo(world: str, budget: int, points: int, episodes: int) -> list[dict]
                 t0 = time.perf_counter()
                 model.learn(budget // points, reset_num_timesteps=k == 0)
                 wall += time.perf_counter() - t0
-                s = _zoo_eval(
+                s = _eval_episodes(
                     eval_env, lambda o: model.predict(o, deterministic=True)[0], episodes
                 )
                 rows.append({"steps": model.num_timesteps, "wall_s": wall, **s})
@@ -265,7 +266,6 @@ def table(world: str, rows: list[str], episodes: int, seed: int) -> None:
 
     import rover_env  # noqa: F401  (registers the ids)
     from rover_train.envs import ENV_IDS
-    from rover_train.imitation.zoo_eval import evaluate_agent
     from rover_train.suite import wilson_interval
 
     def pct(k: int, n: int) -> str:
@@ -281,7 +281,7 @@ def table(world: str, rows: list[str], episodes: int, seed: int) -> None:
         kind, agent, steps, clock = table_source(source, world)
         env = gym.make(ENV_IDS[kind], world_n=world)
         try:
-            s = evaluate.summarise(evaluate_agent(env, agent, episodes, seed))
+            s = evaluate.summarise(evaluate.evaluate_agent(env, agent, episodes, seed))
         finally:
             env.close()
         n = s["episodes"]

@@ -4,7 +4,7 @@ would not, and whether it ended stuck.
     python benchmarks/zoo_diagnose.py lidar-inspect --episodes 40
     rover-pair --name diag -- python benchmarks/zoo_diagnose.py fused-inspect --file S.pt
 
-Episodes run as in ``rover_train.imitation.zoo_eval`` but on diagnostic seeds (50000+ by default:
+Episodes run as rover-eval runs a zoo entry but on diagnostic seeds (50000+ by default:
 neither training seeds, which stay below 50000 (``run_dagger`` checks), nor the evaluation seeds at
 100000+), so that a change can be chosen here and reported there. At every step the
 planner expert labels the state beside the student (it only reads the simulator); a
@@ -24,8 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from rover_train import zoo
+from rover_train.evaluate import entry_env
 from rover_train.imitation.expert import PlannerExpert
-from rover_train.imitation.zoo_eval import ExpertAgent, entry_env
+from rover_train.imitation.expert_agent import ExpertAgent
 from rover_train.zoo.registry import DIAGNOSTIC_SEED_BASE
 
 STUCK_WINDOW = 200  # steps (10 s)

@@ -6,9 +6,9 @@ keywords, so any roverav env takes one::
 
     gym.make("roverav/RoverEnv-v0", **SCENARIOS["maze-crowd-6"].env_kwargs())
 
-``rover-eval --suite`` and ``python -m rover_train.imitation.zoo_eval ENTRY --suite``
-evaluate an agent over them (:mod:`rover_train.suite` prints the table). The suite covers
-each world at the default density (3) and at 10, and each crowd mode once:
+``rover-eval AGENT --suite`` evaluates an agent over them (:mod:`rover_train.suite` prints
+the table). The suite covers each world at the default density (3) and at 10, and each crowd
+mode once:
 
 - ``crowd``: walkers who see the rover and make room for it;
 - ``oblivious``: the same walkers, blind to the rover (they walk into a stopped one);

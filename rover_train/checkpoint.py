@@ -304,7 +304,7 @@ def save_checkpoint(model: Any, run_dir: Path, algo: str, extra: dict[str, Any],
                     args: dict[str, Any] | None = None) -> str:
     """Write model, replay buffer (off-policy) and state; returns the checkpoint's stem.
     With ``args`` (the run's arguments) the model .zip holds their recipe
-    (:func:`rover_train.recipe.write_recipe`), so ``zoo_eval --file`` and ``rover-train
+    (:func:`rover_train.recipe.write_recipe`), so ``rover-eval ENTRY --file`` and ``rover-train
     --recipe`` take a checkpoint as they take a finished model.
 
     ``extra`` holds what the trainer adds to the state (episode log, env RNGs, ...). Each file

@@ -61,8 +61,8 @@ class Task:
 
 
 NAV_LENGTH = EVAL_MAX_STEPS
-"""The nav task's episode: the evaluators' (rover_train.imitation.zoo_eval counts success at
-the first goal within 600 steps, 30 s; the planner expert needs about 10 s)."""
+"""The nav task's episode: the evaluator's (rover-eval counts success at the first goal
+within 600 steps, 30 s; the planner expert needs about 10 s)."""
 NAV_PROGRESS_SCALE = 10.0
 """The nav task's progress reward per metre nearer the goal (the seed's: 0.45). With the
 seed's 0.45 a step's progress is worth 0.02 against the goal's 100: PPO from scratch never

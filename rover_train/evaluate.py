@@ -1,13 +1,29 @@
-"""rover-eval: run a saved policy (or a random one) for K seeded episodes and report.
+"""rover-eval: evaluate an agent on seeded episodes and report (a zoo entry, a rover-train
+model, a student file, the planner expert or a random policy).
 
-    rover-eval runs/demo/model.zip --env fused --world maze --episodes 10 --video runs/demo/eval.mp4
-    rover-eval --policy random --env lidar --world maze --episodes 20
+    rover-eval lidar-maze                                  # a zoo entry, 100 episodes
+    rover-pair -- rover-eval fused-maze --suite            # its world's scenarios (the daemon)
+    rover-eval lidar-maze --file runs/x/lidar-maze.pt      # a file made like the entry
+    rover-eval runs/x/lidar-maze.pt                        # the same: the file names its entry
+    rover-eval lidar-maze --expert                         # the planner expert that teaches it
+    rover-eval lidar-maze --random                         # a seeded random policy on its env
+    rover-eval runs/demo/model.zip --env fused --world maze --video runs/demo/eval.mp4
+    rover-eval --random --env lidar --world maze --episodes 20
 
-An evaluation episode ends at the first goal reached (success), at a termination (flip,
-stuck, out of bounds), at the env's length limit, or after ``--max-steps`` (a timeout).
-``--task`` builds the envs as rover-train's does (default: the model's, from metrics.json
-beside it, else ``seed``); ``--task nav`` is the zoo evaluators' episode (600 steps).
-Episode i is reset with seed ``--seed + i``, so two policies meet the same start/goal pairs.
+Episode i is reset with seed ``--seed + i`` (default the zoo's evaluation seeds, from
+``zoo.EVAL_SEED_BASE`` = 100000, which no training episode uses), so every agent meets the
+same start/goal pairs. It ends at the first goal reached (success), at a termination (flip,
+stuck, out of bounds), at the env's length limit, or after ``--max-steps`` (default
+``zoo.EVAL_MAX_STEPS`` = 600 steps, 30 s: a timeout). ``--episodes`` defaults to
+``zoo.EVAL_EPISODES`` (100).
+
+A zoo entry, a file made like it (``--file``), its teacher (``--expert``) and ``--random``
+with it run on the env the entry was made for (:func:`entry_env`; ``--pedestrian-mode`` and
+``--n-pedestrians`` override its crowd). A model runs on ``--env`` in ``--world`` with
+``--task`` (default: the model's, from metrics.json beside it, else ``seed``), seen and
+driven as it was trained (its recipe: ``--camera-scan``, ``--waypoint``, ``--drop-image``,
+``--relative-table``). A bare ``--suite`` is the scenarios of the agent's world: a zoo
+entry's, else ``--world``'s. :func:`evaluate_agent` is the library function behind it.
 
 Metrics (the table, and ``--json``'s last line):
 - success rate: episodes that reached the goal.
@@ -29,10 +45,12 @@ Metrics (the table, and ``--json``'s last line):
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
-from collections.abc import Sequence
+import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -44,16 +62,36 @@ from rover_env.crowd import MAX_PEDESTRIANS
 from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
 from rover_env.reward import STUCK_IN_COLLISION
 from rover_env.worlds import WORLD_CHOICES
+from rover_train import zoo
+from rover_train.agents import (
+    EXPERT_PLUGIN,
+    Agent,
+    AgentSource,
+    PluginMissingError,
+    RandomAgent,
+    agent_plugin,
+)
 from rover_train.algos import ALGOS, RECURRENT, ModelAgent, algo_class
 from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
 from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
+from rover_train.progress import StatusLine
 from rover_train.recipe import RecipeError, read_recipe
 from rover_train.wrappers import agent_io
+from rover_train.zoo.registry import (
+    EVAL_EPISODES,
+    EVAL_MAX_STEPS,
+    EVAL_SEED_BASE,
+    STUDENT_FUSED_KINDS,
+)
 from shm_protocol.names import default_name, default_slots
 
 if TYPE_CHECKING:
+    from rover_env.scenarios import Scenario
     from rover_train.record import EpisodeRecorder
 
+DEFAULT_ENV = "lidar"  # a model's (and --random's without an agent) env kind
+SUITE_OWN_WORLD = "world"  # a bare --suite: the scenarios of the agent's world
+STATUS_EVERY_S = 10.0  # seconds between the status lines of a running evaluation
 VIDEO_PANEL = 256  # pixels per side of each video panel
 VIDEO_PANEL_NAMES = ("chase", "gray", "heatmap", "depth")  # left to right
 OUTCOME_HOLD_S = 1.0  # videos hold an episode's last frame, with its outcome, this long
@@ -86,19 +124,13 @@ class PolicyLoadError(ValueError):
     says which and what to do)."""
 
 
-def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | None) -> Any:
-    """A callable obs -> action: the saved SB3 model, or uniform random actions.
-
-    The random policy samples ``env.action_space``: seed it (``env.action_space.seed(s)``)
-    for a reproducible baseline, as :func:`main` does per episode. A recurrent model
-    (recurrent-ppo) comes as a :class:`~rover_train.algos.ModelAgent`, whose ``reset()``
-    :func:`run_episode` calls at each episode's start. Raises :class:`PolicyLoadError`.
+def load_policy(model: Path, env: Any, algo: str | None = None) -> ModelAgent:
+    """The rover-train model at ``model`` as an agent for ``env``: a
+    :class:`~rover_train.algos.ModelAgent` (``reset()`` per episode, ``act(obs)``, also
+    callable), deterministic, driving ``env`` as the model was trained (its recipe's
+    waypoint, dropped image, relative table; a recurrent model keeps its LSTM state).
+    ``algo``: default from ``metrics.json`` beside it. Raises :class:`PolicyLoadError`.
     """
-    if policy == "random":
-        space = env.action_space
-        return lambda _obs: space.sample()
-    if model is None:
-        raise PolicyLoadError("give a model .zip or --policy random")
     if not model.is_file():
         raise PolicyLoadError(f"no model file at {model} (train one with rover-train)")
     if algo is None:
@@ -115,9 +147,7 @@ def load_policy(model: Path | None, policy: str | None, env: Any, algo: str | No
         recipe = _recipe(model)
         check_spaces(model, loaded, _as_trained(recipe, env))
         observe, act = agent_io(recipe)
-        if name in RECURRENT or observe is not None or act is not None:
-            return ModelAgent(loaded, observe=observe, act=act)
-        return lambda obs: loaded.predict(obs, deterministic=True)[0]
+        return ModelAgent(loaded, observe=observe, act=act)
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
 
 
@@ -391,6 +421,75 @@ def run_episode(
     return result
 
 
+def evaluate_agents(
+    pairs: Sequence[tuple[Any, Agent]],
+    episodes: int,
+    seed: int = EVAL_SEED_BASE,
+    max_steps: int = EVAL_MAX_STEPS,
+    frames: list[np.ndarray] | None = None,
+    video_episodes: int = 0,
+    status: StatusLine | None = None,
+    record_dir: Path | None = None,
+) -> list[EpisodeResult]:
+    """``episodes`` evaluation episodes spread over ``pairs`` of (env, agent): episode i is
+    ``agent.reset()`` then :func:`run_episode` from ``reset(seed=seed + i)`` on pair
+    ``i % len(pairs)``. ``frames`` gets the video frames of the first ``video_episodes``
+    episodes of the first pair; ``status`` hears every step and episode; ``record_dir``
+    gets every episode as a ROS 2 bag (:func:`rover_train.record.episode_path`; the envs
+    render ``rgb_array``)."""
+    results = []
+    for i in range(episodes):
+        k = i % len(pairs)
+        env, agent = pairs[k]
+        agent.reset()
+        act: Callable[[Any], Any] = agent.act
+        if status is not None:
+
+            def act(obs: Any, _act: Callable[[Any], Any] = agent.act) -> Any:
+                status.step()
+                return _act(obs)
+
+        keep = frames if (k == 0 and i < video_episodes * len(pairs)) else None
+        if record_dir is None:
+            result = run_episode(env, act, seed + i, max_steps, keep)
+        else:
+            from rover_train.record import EpisodeRecorder, episode_path
+
+            with EpisodeRecorder(env, episode_path(record_dir, seed + i, i)) as rec:
+                result = run_episode(env, act, seed + i, max_steps, keep, rec)
+        if status is not None:
+            status.episode(result.success)
+        results.append(result)
+    return results
+
+
+def evaluate_agent(
+    env: Any,
+    agent: Agent,
+    episodes: int,
+    seed: int = EVAL_SEED_BASE,
+    max_steps: int = EVAL_MAX_STEPS,
+    frames: list[np.ndarray] | None = None,
+    video_episodes: int = 0,
+    status: StatusLine | None = None,
+) -> list[EpisodeResult]:
+    """Run ``episodes`` evaluation episodes of ``agent`` (``reset()``/``act(obs)``) on
+    ``env``, seeds ``seed``, ``seed + 1``, ... (:func:`evaluate_agents` with one env)."""
+    return evaluate_agents([(env, agent)], episodes, seed, max_steps, frames, video_episodes,
+                           status)  # fmt: skip
+
+
+def entry_env(entry: str, name: str | None = None, slot: int = 0, **overrides: Any) -> Any:
+    """Zoo entry ``entry``'s env (``overrides``: env keywords, e.g. a scenario's); a fused
+    one attaches to slot ``slot`` of daemon ``name`` (default: ``$ROVERAV_SHM_NAME``, which
+    rover-pair sets)."""
+    if zoo.ENTRIES[entry].kind not in STUDENT_FUSED_KINDS:
+        return zoo.make_env(entry, **overrides)
+    if slot:
+        overrides["slot"] = slot
+    return zoo.make_env(entry, rl_obs_name=name or default_name(), **overrides)
+
+
 def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
     n = len(results)
     spl = [
@@ -499,7 +598,7 @@ def write_video(frames: list[np.ndarray], path: Path, fps: float) -> None:
 
     path.parent.mkdir(parents=True, exist_ok=True)
     h, w = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"mp4v"), fps, (w, h))
     if not writer.isOpened():
         raise RuntimeError(f"OpenCV could not open {path} for writing (mp4v codec)")
     try:
@@ -513,41 +612,99 @@ def validate(args: argparse.Namespace) -> str | None:
     """What else is wrong with rover-eval's arguments, and how to fix it; None if nothing."""
     from shm_protocol import InvalidNameError, camera_name, slot_name
 
+    if args.slots < 1 or args.episodes < 1:
+        return f"--slots and --episodes must be at least 1, got {args.slots} and {args.episodes}"
     if args.max_steps < 1:
         return f"--max-steps must be at least 1, got {args.max_steps}"
     if args.slot < 0:
         return f"--slot must be >= 0 (the first daemon slot to use), got {args.slot}"
+    if args.n_pedestrians is not None and not 0 <= args.n_pedestrians <= MAX_PEDESTRIANS:
+        return f"--n-pedestrians must be from 0 to {MAX_PEDESTRIANS}, got {args.n_pedestrians}"
     try:
         camera_name(slot_name(args.name, args.slot + args.slots - 1))
     except InvalidNameError as exc:
         return f"--name: {exc}"
+    if args.manners is not None and not args.expert:
+        return "--manners is the planner expert's: give it with --expert"
+    if args.suite is not None:
+        for flag, what in (("--video", args.video), ("--record", args.record),
+                           ("--dump", args.dump)):  # fmt: skip
+            if what is not None:
+                return f"{flag} keeps one env's episodes: drop it with --suite"
     return None
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="rover-eval", description=__doc__.split("\n")[0])
-    p.add_argument("model", nargs="?", type=Path, help="a model .zip written by rover-train")
-    p.add_argument("--policy", choices=["random"],
-                   help="evaluate uniform random actions instead (seeded: --seed)")
-    p.add_argument("--algo", choices=ALGOS, help="default: from metrics.json beside the model")
+class _EvalError(RuntimeError):
+    """What stops an evaluation (no daemon, a model that does not load), as printed."""
+
+
+@dataclass(frozen=True)
+class _Plan:
+    """What rover-eval's arguments ask for: who is evaluated (``source``), on which env
+    (``entry``: a zoo entry's, else ``--env`` in ``--world``), and a bare ``--suite``'s
+    world."""
+
+    source: AgentSource
+    entry: str | None
+    world: str
+
+    def place(self, env: str) -> str:
+        """Where the episodes run, in a title."""
+        return self.entry if self.entry is not None else f"{ENV_IDS[env]} ({self.world})"
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="rover-eval", description=" ".join(__doc__.split("\n\n")[0].split()),
+        epilog="examples:\n" + "\n".join(_EXAMPLES),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+    p.add_argument("agent", nargs="?", metavar="AGENT",
+                   help="a zoo entry (rover_train.zoo.ENTRIES: "
+                        f"{', '.join(sorted(zoo.ENTRIES))}), a model .zip written by "
+                        "rover-train, or a student .pt (evaluated as the zoo entry it was "
+                        "made like); none with --random")  # fmt: skip
+    who = p.add_mutually_exclusive_group()
+    who.add_argument("--file", type=Path,
+                     help="with a zoo entry: a file made like it instead of the shipped one "
+                          "(a student .pt; for an rl-* entry a rover-train model .zip)")
+    who.add_argument("--expert", action="store_true",
+                     help="with a zoo entry: the planner expert that teaches it, on the same "
+                          "episodes (it sees all round)")
+    who.add_argument("--random", action="store_true",
+                     help="uniform random actions from a generator seeded with --seed: on a "
+                          "zoo entry's env, or without AGENT on --env in --world")
+    p.add_argument("--manners", metavar="MANNERS",
+                   help="with --expert: its pedestrian terms, a name of the lab's "
+                        "rover_train.imitation.expert.MANNERS (default: those of the entry's "
+                        "teacher)")  # fmt: skip
+    p.add_argument("--algo", choices=ALGOS,
+                   help="a model's algorithm (default: from metrics.json beside it)")
     p.add_argument("--task", choices=tuple(TASKS), default=None,
-                   help="what an episode is, as rover-train --task: seed (the env's own "
-                        f"length) or nav ({NAV_LENGTH} steps, the zoo evaluators'); default: "
-                        f"the model's (metrics.json beside it), else {DEFAULT_TASK}")  # fmt: skip
-    p.add_argument("--env", choices=sorted(ENV_IDS), default="lidar")
-    p.add_argument("--world", choices=WORLD_CHOICES, default=DEFAULT_WORLD)
-    p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=DEFAULT_MODE,
-                   help="crowd (social force, to goals, making room for the rover; the "
-                        "default), pacing (out and back), oblivious (blind to the rover), "
-                        "crossing (across the rover's path) or groups")
+                   help="a model's episode, as rover-train --task: seed (the env's own "
+                        f"length) or nav ({NAV_LENGTH} steps); default: the model's "
+                        f"(metrics.json beside it), else {DEFAULT_TASK}")  # fmt: skip
+    p.add_argument("--env", choices=sorted(ENV_IDS), default=None,
+                   help=f"a model's env kind, and --random's without AGENT (default "
+                        f"{DEFAULT_ENV}); a zoo entry runs on the env it was made for")
+    p.add_argument("--world", choices=WORLD_CHOICES, default=None,
+                   help=f"a model's world, and --random's without AGENT (default "
+                        f"{DEFAULT_WORLD}); a zoo entry's is its own")  # fmt: skip
+    p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=None,
+                   help="crowd (social force, to goals, making room for the rover), pacing "
+                        "(out and back), oblivious (blind to the rover), crossing (across "
+                        "the rover's path) or groups (default: a zoo entry's own, else "
+                        f"{DEFAULT_MODE})")  # fmt: skip
     p.add_argument("--n-pedestrians", type=int, default=None,
-                   help="pedestrians per world, 0 to 20 (default: the world's 3)")
-    p.add_argument("--episodes", type=int, default=10)
-    p.add_argument("--seed", type=int, default=1000,
-                   help="episode i uses seed + i (reset, and the random policy's actions)")
-    p.add_argument(
-        "--max-steps", type=int, default=1000, help="steps before an episode is a timeout"
-    )
+                   help="pedestrians per world, 0 to 20 (default: a zoo entry's own, else "
+                        "the world's 3)")
+    p.add_argument("--episodes", type=int, default=EVAL_EPISODES,
+                   help=f"evaluation episodes (default {EVAL_EPISODES})")
+    p.add_argument("--seed", type=int, default=EVAL_SEED_BASE,
+                   help="episode i is reset with seed + i (default the zoo's evaluation "
+                        f"seeds, from {EVAL_SEED_BASE}: no training episode uses them)")
+    p.add_argument("--max-steps", type=int, default=EVAL_MAX_STEPS,
+                   help=f"steps before an episode is a timeout (default {EVAL_MAX_STEPS})")
     name = p.add_argument("--name", default=default_name(),
                           help="daemon segment base name (fused envs; default "
                                "$ROVERAV_SHM_NAME or rl_observation)")
@@ -567,32 +724,127 @@ def main(argv: Sequence[str] | None = None) -> int:
                         "fused channels on sim time; docs/foxglove_layout.json opens it in "
                         "Foxglove; needs pip install 'roverav[ros]')")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on the last line")
+    p.add_argument("--dump", type=Path,
+                   help="write every episode's result to this JSON file (to merge split runs)")
     p.add_argument(
-        "--suite", nargs="?", const="all", default=None, metavar="SCENARIOS",
+        "--suite", nargs="?", const=SUITE_OWN_WORLD, default=None, metavar="SCENARIOS",
         help="evaluate over the scenario suite (rover_env.scenarios) and print one table: "
-             "all scenarios, one world's, or names separated by commas; --world, "
-             "--pedestrian-mode and --n-pedestrians are the scenarios' then",
+             "bare, the scenarios of the agent's world (a zoo entry's, else --world's); "
+             "'all', a world, or names separated by commas; the scenarios set the world "
+             "and the pedestrians",
     )  # fmt: skip
+    return p
+
+
+_EXAMPLES = tuple(f"  {cmd:<58} {what}" for cmd, what in (
+    ("rover-eval lidar-maze", "a zoo entry, 100 episodes"),
+    ("rover-pair -- rover-eval fused-maze --suite", "its world's scenarios (the daemon)"),
+    ("rover-eval lidar-maze --file runs/x/lidar-maze.pt", "a file made like the entry"),
+    ("rover-eval lidar-maze --expert", "the planner expert that teaches it"),
+    ("rover-eval lidar-maze --random", "a seeded random policy on its env"),
+    ("rover-eval runs/x/model.zip --env fused --world maze", "a rover-train model"),
+    ("rover-eval --random --env lidar --world maze", "a seeded random policy"),
+))  # fmt: skip
+
+
+def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
+    """Who rover-eval's arguments evaluate, and where (``p.error`` for what does not fit).
+    Sets ``args.model`` (a model .zip or None), ``args.env``, ``args.world`` and
+    ``args.task``."""
+    args.model = None
+    entry: str | None = None
+    student: Path | None = None
+    random = AgentSource("random policy", lambda env: RandomAgent(env.action_space, args.seed))
+    if args.agent is None:
+        if not args.random:
+            p.error("give an agent: a zoo entry, a model .zip or a student .pt (or --random)")
+    elif args.agent in zoo.ENTRIES:
+        entry = args.agent
+    else:
+        path = Path(args.agent)
+        if path.suffix not in (".zip", ".pt") and not path.exists():
+            p.error(f"{args.agent!r} is neither a zoo entry ({', '.join(sorted(zoo.ENTRIES))}) "
+                    "nor a file: give a model .zip or a student .pt")  # fmt: skip
+        if args.file or args.expert or args.random:
+            p.error("--file, --expert and --random go with a zoo entry (or --random alone), "
+                    f"not with the file {path}")  # fmt: skip
+        if path.suffix == ".pt":
+            student, entry = path, _student_entry(path, p)
+        else:
+            args.model = path
+    if entry is None:
+        args.env = args.env or DEFAULT_ENV
+        args.world = args.world or DEFAULT_WORLD
+        if args.task is None:
+            args.task = run_metrics(args.model).get("task", DEFAULT_TASK)
+        model = args.model
+        source = random if args.random else AgentSource(
+            str(model), lambda env: _model_agent(model, env, args.algo))
+        return _Plan(source, None, args.world)
+    spec = zoo.ENTRIES[entry]
+    given = [f for f, v in (("--env", args.env), ("--world", args.world), ("--task", args.task),
+                            ("--algo", args.algo)) if v is not None]  # fmt: skip
+    if given:
+        p.error(f"{', '.join(given)}: a zoo entry runs on the env it was made for ({entry}: "
+                f"{ENV_IDS[spec.kind]} in {spec.world}); those flags are a model's")
+    if args.expert:
+        if spec.trainer == zoo.RL:
+            p.error(f"--expert: the planner expert drives RoverEnv, and {entry} its discrete "
+                    f"twin; evaluate the expert on the same episodes with: rover-eval "
+                    f"lidar-{spec.world} --expert")
+        try:
+            source = agent_plugin(EXPERT_PLUGIN)(entry, args.manners)
+        except (PluginMissingError, ValueError) as exc:
+            p.error(f"--expert: {exc}")
+    elif args.random:
+        source = random
+    else:
+        file = args.file if args.file is not None else student
+        try:
+            loaded = zoo.load(entry, file)
+        except (FileNotFoundError, RecipeError, zoo.StudentFileError) as exc:
+            p.error(f"--file: {exc}" if args.file is not None else str(exc))
+        source = AgentSource(f"zoo {entry}" if file is None else str(file),
+                             lambda env: loaded)  # fmt: skip
+    return _Plan(source, entry, spec.world)
+
+
+def _student_entry(path: Path, p: argparse.ArgumentParser) -> str:
+    """The zoo entry the student file ``path`` was made like (its ``meta["name"]``)."""
+    try:
+        made_like = zoo.StudentAgent.read_meta(path).get("name")
+    except FileNotFoundError:
+        p.error(f"no student file at {path}")
+    except zoo.StudentFileError as exc:
+        p.error(str(exc))
+    if made_like not in zoo.ENTRIES:
+        p.error(f"{path} does not say which zoo entry it was made like (its name: "
+                f"{made_like!r}); name the entry: rover-eval ENTRY --file {path}")
+    return str(made_like)
+
+
+def _model_agent(model: Path, env: Any, algo: str | None) -> Agent:
+    try:
+        return load_policy(model, env, algo)
+    except PolicyLoadError as exc:
+        raise _EvalError(f"rover-eval: {exc}") from exc
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    p = _parser()
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(name)s %(levelname)s %(message)s")
-    if (args.model is None) == (args.policy is None):
-        p.error("give exactly one of: a model .zip, or --policy random")
-    if args.slots < 1 or args.episodes < 1:
-        p.error(f"--slots and --episodes must be at least 1, got {args.slots} and {args.episodes}")
     problem = validate(args)
     if problem:
         p.error(problem)
-    if args.n_pedestrians is not None and not 0 <= args.n_pedestrians <= MAX_PEDESTRIANS:
-        p.error(f"--n-pedestrians must be from 0 to {MAX_PEDESTRIANS}, got {args.n_pedestrians}")
+    plan = _plan(args, p)
+    scenarios = None
     if args.suite is not None:
         from rover_env.scenarios import select_scenarios
 
-        if args.video is not None:
-            p.error("--video records one env's episodes: drop it with --suite")
-        if args.record is not None:
-            p.error("--record records one env's episodes: drop it with --suite")
         try:
-            select_scenarios(args.suite)
+            scenarios = select_scenarios(plan.world if args.suite == SUITE_OWN_WORLD
+                                         else args.suite)  # fmt: skip
         except ValueError as exc:
             p.error(f"--suite: {exc}")
     if args.record is not None:
@@ -602,30 +854,31 @@ def main(argv: Sequence[str] | None = None) -> int:
             typestore()
         except RosExtraMissingError as exc:
             p.error(f"--record: {exc}")
+    import torch
 
-    if args.task is None:
-        args.task = run_metrics(args.model).get("task", DEFAULT_TASK)
-    if args.suite is not None:
-        return _main_suite(args)
+    torch.set_num_threads(1)  # batch-1 forwards: one thread is the fastest, and reproducible
     try:
-        results, frames, fps = _evaluate(
-            args,
-            {"world_n": args.world, "pedestrian_mode": args.pedestrian_mode,
-             "n_pedestrians": args.n_pedestrians},
-            record=args.video is not None,
-        )  # fmt: skip
+        if scenarios is not None:
+            return _main_suite(args, plan, scenarios)
+        return _main_one(args, plan)
     except _EvalError as exc:
         print(exc, file=sys.stderr)
         return 1
+
+
+def _main_one(args: argparse.Namespace, plan: _Plan) -> int:
+    """rover-eval without --suite: one env's episodes, one table."""
+    overrides = {k: v for k, v in (("pedestrian_mode", args.pedestrian_mode),
+                                   ("n_pedestrians", args.n_pedestrians)) if v is not None}
+    t0 = time.monotonic()
+    results, frames, fps = _evaluate(args, plan, overrides, "", video=args.video is not None)
     summary = summarise(results)
-    who = "random policy" if args.policy else str(args.model)
-    print(
-        format_table(
-            summary,
-            f"{who} on {ENV_IDS[args.env]} ({args.world}), "
-            f"seeds {args.seed}..{args.seed + args.episodes - 1}",
-        )
-    )
+    summary["wall_s"] = time.monotonic() - t0
+    last = args.seed + args.episodes - 1
+    print(format_table(summary, f"{plan.source.label} on {plan.place(args.env)}, "
+                                f"seeds {args.seed}..{last}"))  # fmt: skip
+    if args.dump is not None:
+        args.dump.write_text(json.dumps([dataclasses.asdict(r) for r in results]))
     if args.video is not None and frames:
         write_video(frames, args.video, fps)
         print(f"wrote {args.video} ({len(frames)} frames)")
@@ -636,54 +889,56 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-class _EvalError(RuntimeError):
-    """What stops an evaluation (no daemon, a model that does not load), as printed."""
+def _main_suite(args: argparse.Namespace, plan: _Plan, scenarios: list[Scenario]) -> int:
+    """rover-eval --suite: the agent over the scenarios, one table (each row also on stderr
+    as it is done)."""
+    from rover_train.suite import format_suite_row, format_suite_table, run_suite, suite_json
+
+    rows = run_suite(
+        scenarios,
+        lambda sc: summarise_scenario(
+            _evaluate(args, plan, sc.env_kwargs(), f" {sc.name}", video=False)[0]),
+        progress=lambda sc, s: print("| " + " | ".join(format_suite_row(sc, s)) + " |",
+                                     file=sys.stderr, flush=True),
+    )  # fmt: skip
+    where = f"{plan.entry}'s suite" if plan.entry is not None else ENV_IDS[args.env]
+    last = args.seed + args.episodes - 1
+    print(format_suite_table(rows, f"{plan.source.label} on {where}, "
+                                   f"seeds {args.seed}..{last}"))  # fmt: skip
+    if args.json:
+        print(json.dumps(suite_json(rows)))
+    return 0
 
 
 def _evaluate(
-    args: argparse.Namespace, env_kwargs: dict[str, Any], record: bool
+    args: argparse.Namespace, plan: _Plan, env_kwargs: dict[str, Any], label: str, video: bool
 ) -> tuple[list[EpisodeResult], list[np.ndarray], float]:
-    """``args.episodes`` episodes of the model or policy on ``args.env`` made with
-    ``env_kwargs``, spread over ``args.slots`` envs: (results, video frames, fps)."""
+    """``args.episodes`` episodes of ``plan``'s agent, spread over ``args.slots`` envs made
+    with ``env_kwargs`` (a scenario's, or the pedestrians asked for): (results, video
+    frames, fps)."""
     from shm_protocol.errors import ShmError
 
-    bag_dir = getattr(args, "record", None)  # rover-eval --record DIR
     envs: list[Any] = []
     try:
         try:
             for k in range(min(args.slots, args.episodes)):
-                envs.append(make_env(
-                    args.env, world=env_kwargs["world_n"], slot=args.slot + k, name=args.name,
-                    task=args.task, camera_scan=trained_with_scan(args.model),
-                    pedestrian_mode=env_kwargs["pedestrian_mode"],
-                    n_pedestrians=env_kwargs["n_pedestrians"],
-                    render_mode=("rgb_array" if (record and k == 0) or bag_dir is not None
-                                 else None),
-                ))  # fmt: skip
+                envs.append(_make_env(args, plan, args.slot + k, env_kwargs,
+                                      render=(video and k == 0) or args.record is not None))
         except ShmError as exc:
+            kind = zoo.ENTRIES[plan.entry].kind if plan.entry is not None else args.env
             raise _EvalError(
-                f"{exc}\n\nrover-eval --env {args.env} needs the daemon: "
-                f"av-daemon --name {args.name} --slots {args.slot + args.slots}"
+                f"{exc}\n\nrover-eval on {ENV_IDS[kind]} needs the daemon: "
+                f"av-daemon --name {args.name} --slots {args.slot + args.slots}, or run it "
+                f"under rover-pair --slots {args.slot + args.slots} -- rover-eval ..."
             ) from exc
-        try:
-            policies = [load_policy(args.model, args.policy, env, args.algo) for env in envs]
-        except PolicyLoadError as exc:
-            raise _EvalError(f"rover-eval: {exc}") from exc
-        results: list[EpisodeResult] = []
+        status = StatusLine(f"eval {plan.source.label}{label}", args.episodes * args.max_steps,
+                            every=STATUS_EVERY_S, stream=sys.stderr)  # fmt: skip
         frames: list[np.ndarray] = []
-        for i in range(args.episodes):
-            k = i % len(envs)
-            keep = record and k == 0 and i < args.video_episodes * len(envs)
-            envs[k].action_space.seed(args.seed + i)  # the random policy's draws, reproducible
-            if bag_dir is None:
-                results.append(run_episode(envs[k], policies[k], args.seed + i, args.max_steps,
-                                           frames if keep else None))  # fmt: skip
-                continue
-            from rover_train.record import EpisodeRecorder, episode_path
-
-            with EpisodeRecorder(envs[k], episode_path(bag_dir, args.seed + i, i)) as rec:
-                results.append(run_episode(envs[k], policies[k], args.seed + i,
-                                           args.max_steps, frames if keep else None, rec))
+        results = evaluate_agents(
+            [(env, plan.source.agent(env)) for env in envs], args.episodes, args.seed,
+            args.max_steps, frames if video else None, args.video_episodes, status,
+            args.record,
+        )  # fmt: skip
         fps = 1.0 / float(getattr(envs[0].unwrapped, "control_dt", 0.05))
     finally:
         for env in envs:
@@ -691,29 +946,20 @@ def _evaluate(
     return results, frames, fps
 
 
-def _main_suite(args: argparse.Namespace) -> int:
-    """rover-eval --suite: the agent over the scenario suite, one table."""
-    from rover_env.scenarios import select_scenarios
-    from rover_train.suite import format_suite_table, run_suite, suite_json
-
-    scenarios = select_scenarios(args.suite)
-    try:
-        rows = run_suite(
-            scenarios,
-            lambda sc: summarise_scenario(_evaluate(args, sc.env_kwargs(), record=False)[0]),
-            progress=lambda sc, s: logging.getLogger("rover-eval").info(
-                "%s: success %.0f%%", sc.name, 100 * s["success_rate"]
-            ),
-        )
-    except _EvalError as exc:
-        print(exc, file=sys.stderr)
-        return 1
-    who = "random policy" if args.policy else str(args.model)
-    last = args.seed + args.episodes - 1
-    print(format_suite_table(rows, f"{who} on {ENV_IDS[args.env]}, seeds {args.seed}..{last}"))
-    if args.json:
-        print(json.dumps(suite_json(rows)))
-    return 0
+def _make_env(args: argparse.Namespace, plan: _Plan, slot: int, env_kwargs: dict[str, Any],
+              render: bool) -> Any:  # fmt: skip
+    """One env of the evaluation: the zoo entry's (``env_kwargs`` override its keywords), or
+    ``args.env`` in ``env_kwargs``' world (default ``args.world``) as the model was trained."""
+    if plan.entry is not None:
+        render_mode = {"render_mode": "rgb_array"} if render else {}
+        return entry_env(plan.entry, args.name, slot, **env_kwargs, **render_mode)
+    return make_env(
+        args.env, world=env_kwargs.get("world_n", args.world), slot=slot, name=args.name,
+        task=args.task, camera_scan=trained_with_scan(args.model),
+        pedestrian_mode=env_kwargs.get("pedestrian_mode", DEFAULT_MODE),
+        n_pedestrians=env_kwargs.get("n_pedestrians"),
+        render_mode="rgb_array" if render else None,
+    )  # fmt: skip
 
 
 if __name__ == "__main__":

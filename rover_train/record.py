@@ -1,7 +1,7 @@
 """Episodes as ROS 2 bags: one MCAP file per episode, in the seed's topics, on sim time.
 
-    rover-eval --policy random --env lidar --episodes 2 --record runs/rec
-    # then open runs/rec/episode_1000.mcap in Foxglove with docs/foxglove_layout.json
+    rover-eval --random --env lidar --episodes 2 --record runs/rec
+    # then open runs/rec/episode_100000.mcap in Foxglove with docs/foxglove_layout.json
 
 :class:`EpisodeRecorder` writes one episode of any roverav env (the LIDAR envs, the fused
 envs, their discrete and gaze variants) to an MCAP file (:class:`RecordEpisodes` does it for

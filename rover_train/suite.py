@@ -1,10 +1,10 @@
 """The scenario suite's table: one agent over every scenario of :mod:`rover_env.scenarios`.
 
-``rover-eval --suite`` (SB3 models, the random policy) and ``zoo_eval ENTRY --suite`` (zoo
-entries, the planner expert) both end here: for each scenario an env is made with the
-scenario's keywords, the same evaluation episodes are run (episode i: ``reset(seed=seed +
-i)``, ended at the first goal, a termination, the env's length or ``max_steps``), and one
-row is printed per scenario:
+``rover-eval AGENT --suite`` (any agent: a zoo entry, a model, the planner expert, the
+random policy) ends here: for each scenario an env is made with the scenario's keywords, the
+same evaluation episodes are run (episode i: ``reset(seed=seed + i)``, ended at the first
+goal, a termination, the env's length or ``max_steps``), and one row is printed per
+scenario:
 
 - success: share of episodes that reached the goal, with its 95 % Wilson interval;
 - collisions: episodes in which the rover collided: a collision step in the seed's sense

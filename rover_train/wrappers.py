@@ -10,6 +10,14 @@ drives the plain env.
 - :class:`DropImage` (``rover-train --drop-image``): the observation without
   ``fused_image``, so the policy reads the camera scan and the state (an MLP) and not the
   pixels (a CNN): the daemon still perceives every frame, and the scan is made from it.
+
+And what gives RoverEnv (no daemon) the action interface of the gaze and discrete envs, so
+that an agent or teacher made for those drives it (the lab's DAgger stage 1, benchmarks):
+
+- :class:`WithPanHead`: RoverEnvFusedGaze's ``[speed, relative heading, pan target]``, the
+  sim's camera turned by the gaze env's servo;
+- :class:`WithSeedTable`: the seed's table of the fused discrete envs, ``Discrete(60)``, or
+  ``Discrete(180)`` over :class:`WithPanHead`.
 """
 
 from __future__ import annotations
@@ -21,7 +29,24 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from rover_env.discrete_env import N_DIRECTIONS, N_SEED_ACTIONS, SPEED_LEVELS, decode_action
+from rover_env import constants as c
+from rover_env.controller import wrap_angle
+from rover_env.core import float_box
+from rover_env.discrete_env import (
+    DIRECTION_ANGLES,
+    N_DIRECTIONS,
+    N_SEED_ACTIONS,
+    SPEED_LEVELS,
+    decode_action,
+)
+from rover_env.gaze_discrete_env import (
+    CENTRE_WINDOW,
+    N_GAZE_ACTIONS,
+    PAN_WINDOWS,
+    decode_gaze_action,
+    moved_window,
+)
+from rover_env.gaze_env import servo_step
 
 IMAGE_KEY = "fused_image"
 RELATIVE_ANGLES = np.linspace(-np.pi, np.pi, N_DIRECTIONS, endpoint=False)
@@ -96,3 +121,119 @@ def agent_io(recipe: dict[str, Any]) -> tuple[Callable[[Any], Any] | None,
 
     return (observe if steps else None,
             relative_action if recipe.get("relative_table") else None)  # fmt: skip
+
+
+def takes_pan(env: object) -> bool:
+    """Whether ``env``'s actions are the gaze env's ``[speed, heading, pan target]`` (a
+    ``Box`` of 3)."""
+    space = getattr(env, "action_space", None)
+    return isinstance(space, spaces.Box) and space.shape == (3,)
+
+
+class WithPanHead(gym.Wrapper):
+    """An env without a pan action (RoverEnv) driven as RoverEnvFusedGaze is: the action is
+    ``[speed, relative heading, pan target]``, after each step the sim's camera head turns
+    towards the target at ``pan_rate`` (:func:`rover_env.gaze_env.servo_step`, the gaze env's
+    servo), and it faces ahead again at every reset. The observation gains ``gaze`` (the pan,
+    rad) and ``info`` the gaze env's ``pan``, ``pan_target``, ``pedestrian_in_view`` and
+    ``nearest_pedestrian_in_view``. The episode's counts are :attr:`steps` and
+    :attr:`nearest_in_view_steps`.
+
+    The inner env must render nothing in ``step`` (RoverEnv): a fused env would render its
+    frame before the head turns. For a fused image of the turned camera the lab wraps this
+    one in ``rover_train.imitation.dagger.WithFusedView``.
+    """
+
+    def __init__(self, env: gym.Env, pan_rate: float | None = c.PAN_RATE) -> None:
+        super().__init__(env)
+        self.pan_rate = pan_rate
+        self.pan_limit = c.PAN_LIMIT
+        self.action_space = float_box(c.GAZE_ACTION_LOW, c.GAZE_ACTION_HIGH)
+        self.observation_space = spaces.Dict(
+            {**env.observation_space.spaces,  # type: ignore[attr-defined]
+             "gaze": spaces.Box(-self.pan_limit, self.pan_limit, shape=(1,), dtype=np.float32)}
+        )  # fmt: skip
+        self.pan_target = 0.0
+        self.steps = 0
+        self.nearest_in_view_steps = 0
+
+    def reset(self, **kwargs: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        base = self.env.unwrapped
+        base.sim.set_camera_pan(0.0)  # type: ignore[attr-defined]
+        self.pan_target = 0.0
+        self.steps = self.nearest_in_view_steps = 0
+        obs, info = self.env.reset(**kwargs)
+        return self._observation(obs), self._info(info)
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (3,) or not np.all(np.isfinite(a)):
+            raise ValueError(
+                f"action {action!r}: expected 3 finite numbers [speed m/s, relative heading "
+                "rad, pan target rad]"
+            )
+        obs, reward, terminated, truncated, info = self.env.step(a[:2].astype(np.float32))
+        self.pan_target = min(max(float(a[2]), -self.pan_limit), self.pan_limit)
+        sim = self.env.unwrapped.sim  # type: ignore[attr-defined]
+        sim.set_camera_pan(servo_step(sim.camera_pan, self.pan_target, self.pan_rate,
+                                      self.env.unwrapped.control_dt))  # type: ignore[attr-defined]  # fmt: skip
+        info = self._info(info)
+        self.steps += 1
+        self.nearest_in_view_steps += info["nearest_pedestrian_in_view"]
+        return self._observation(obs), float(reward), terminated, truncated, info
+
+    def _observation(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        pan = self.env.unwrapped.sim.camera_pan  # type: ignore[attr-defined]
+        return {**obs, "gaze": np.array([pan], dtype=np.float32)}
+
+    def _info(self, info: dict[str, Any]) -> dict[str, Any]:
+        base: Any = self.env.unwrapped
+        in_view = base.sim.pedestrians_in_view()
+        nearest = base.nearest_pedestrian_index()
+        return {
+            **info,
+            "pan": base.sim.camera_pan,
+            "pan_target": self.pan_target,
+            "pedestrian_in_view": bool(in_view.any()),
+            "nearest_pedestrian_in_view": bool(nearest >= 0 and in_view[nearest]),
+        }
+
+
+class WithSeedTable(gym.Wrapper):
+    """``env`` driven through the seed's table: ``Discrete(60)`` (5 speeds x 12 absolute
+    compass headings, RoverEnvFusedDiscrete's) over an env of ``[speed, relative heading]``,
+    ``Discrete(180)`` (with the 3 pan moves, RoverEnvFusedGazeDiscrete's) over one of
+    ``[speed, relative heading, pan target]``. A pan move steps :attr:`pan_window` (centre at
+    every reset), whose angle is the pan target the inner env's servo turns to; ``info``
+    gains ``pan_window``. Everything else is the inner env's."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.gaze = takes_pan(env)
+        if not self.gaze and getattr(env.action_space, "shape", None) != (2,):
+            raise ValueError(f"the seed's table drives an env of [speed, relative heading] "
+                             f"(or with a pan target); this one takes {env.action_space}")
+        self.action_space = spaces.Discrete(N_GAZE_ACTIONS if self.gaze else N_SEED_ACTIONS)
+        self.pan_window = CENTRE_WINDOW
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        self.pan_window = CENTRE_WINDOW
+        obs, info = self.env.reset(**kwargs)
+        return obs, self._info(info)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        if self.gaze:
+            speed_idx, direction_idx, pan_move = decode_gaze_action(action)
+            self.pan_window = moved_window(self.pan_window, pan_move)
+            pan = [PAN_WINDOWS[self.pan_window]]
+        else:
+            speed_idx, direction_idx = decode_action(action)
+            pan = []
+        yaw = float(self.env.unwrapped.orientation[2])  # type: ignore[attr-defined]
+        heading = wrap_angle(float(DIRECTION_ANGLES[direction_idx]) - yaw)
+        command = np.array([SPEED_LEVELS[speed_idx], heading, *pan], dtype=np.float32)
+        obs, reward, terminated, truncated, info = self.env.step(command)
+        return obs, float(reward), terminated, truncated, self._info(info)
+
+    def _info(self, info: dict[str, Any]) -> dict[str, Any]:
+        return {**info, "pan_window": self.pan_window} if self.gaze else info

@@ -269,7 +269,7 @@ def test_a_camera_agent_trains_on_the_scan_and_is_evaluated_with_it(
     env = make_env("fused", world="maze", name=daemon.name, task="nav")
     try:
         with pytest.raises(evaluate.PolicyLoadError, match="camera_scan=True"):
-            evaluate.load_policy(model, None, env, "ppo")
+            evaluate.load_policy(model, env, "ppo")
     finally:
         env.close()
     with pytest.raises(SystemExit):

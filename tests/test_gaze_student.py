@@ -25,7 +25,7 @@ from rover_train.imitation.dagger import (
 )
 from rover_train.imitation.distill import RECIPES
 from rover_train.imitation.expert import PlannerExpert
-from rover_train.imitation.gaze import WithPanHead
+from rover_train.wrappers import WithPanHead
 from rover_train.zoo.agent import (
     PAN_BINS,
     FeatureSpec,

@@ -18,7 +18,8 @@ from rover_env.gaze_env import RoverEnvFusedGaze
 from rover_env.reward import RewardConfig, heading_center_sum, heatmap_center_sum
 from rover_env.simulation import RoverSim
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert, in_camera_view
-from rover_train.imitation.gaze import GazeConfig, WithPanHead
+from rover_train.imitation.gaze import GazeConfig
+from rover_train.wrappers import WithPanHead
 
 DEG = math.pi / 180.0
 # the maze's open south corridor, facing east; the plan runs straight for 2.5 m from here

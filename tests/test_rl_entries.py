@@ -1,5 +1,5 @@
 """RL models as zoo entries: the recipe rover-train stores in every model.zip, ``rover-train
---recipe FILE``, and ``zoo.load`` / ``zoo_eval`` on an ``rl-*`` entry (issue 38)."""
+--recipe FILE``, and ``zoo.load`` / ``rover-eval`` on an ``rl-*`` entry (issue 38)."""
 
 from __future__ import annotations
 
@@ -9,9 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from rover_train import zoo
+from rover_train import evaluate, zoo
 from rover_train.algos import ModelAgent
-from rover_train.imitation import zoo_eval
 from rover_train.recipe import RECIPE_MEMBER, RecipeError, read_recipe
 from rover_train.train import parse_args, train
 
@@ -101,21 +100,21 @@ def test_zoo_loads_an_rl_model_as_an_agent_that_drives_its_env(run_dir: Path) ->
         zoo.load("rl-lidar-maze", run_dir / "nothing.zip")
 
 
-def test_zoo_eval_scores_an_rl_model_and_refuses_the_expert_for_it(
+def test_rover_eval_scores_an_rl_model_and_refuses_the_expert_for_it(
     run_dir: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    code = zoo_eval.main(["rl-lidar-inspect", "--file", str(run_dir / "model.zip"),
+    code = evaluate.main(["rl-lidar-inspect", "--file", str(run_dir / "model.zip"),
                           "--episodes", "1", "--json"])  # fmt: skip
     assert code == 0
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert summary["episodes"] == 1 and 0.0 <= summary["success_rate"] <= 1.0
     with pytest.raises(SystemExit) as exc:
-        zoo_eval.main(["rl-lidar-inspect", "--expert"])
+        evaluate.main(["rl-lidar-inspect", "--expert"])
     assert exc.value.code == 2
-    assert "zoo_eval lidar-inspect --expert" in capsys.readouterr().err
+    assert "rover-eval lidar-inspect --expert" in capsys.readouterr().err
     not_a_model = run_dir / "run.json"
     with pytest.raises(SystemExit) as exc:
-        zoo_eval.main(["rl-lidar-inspect", "--file", str(not_a_model), "--episodes", "1"])
+        evaluate.main(["rl-lidar-inspect", "--file", str(not_a_model), "--episodes", "1"])
     assert exc.value.code == 2
     assert f"--file: {not_a_model} is not a model .zip" in capsys.readouterr().err
 

@@ -240,7 +240,7 @@ def test_rover_eval_record_writes_an_mcap_per_episode(tmp_path: Path,
     from rover_train.evaluate import main
 
     out = tmp_path / "rec"
-    assert main(["--policy", "random", "--env", "lidar", "--world", "maze", "--episodes", "2",
+    assert main(["--random", "--env", "lidar", "--world", "maze", "--episodes", "2",
                  "--max-steps", "6", "--seed", "40", "--record", str(out)]) == 0
     assert "recorded 2 episodes" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["episode_40.mcap", "episode_41.mcap"]
@@ -590,7 +590,7 @@ import active_vision.daemon, rover_train.record, rover_train.evaluate
 from active_vision.daemon import parse_args
 assert parse_args(["--source", "bag:x.mcap#/cam"]).source == "bag:x.mcap#/cam"
 try:
-    rover_train.evaluate.main(["--policy", "random", "--record", "out"])
+    rover_train.evaluate.main(["--random", "--record", "out"])
 except SystemExit as exc:
     print("EXIT", exc.code)
 """

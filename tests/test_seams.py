@@ -319,9 +319,9 @@ def test_rover_train_bad_input(args: list[str], words: list[str], tmp_path: Path
     "args, status, words",
     [
         (["{tmp}/missing.zip"], 1, ["no model file at", "missing.zip"]),
-        (["--policy", "random", "--world", "mars"], 2, ["--world", "mars", "maze"]),
-        (["--policy", "random", "--episodes", "0"], 2, ["--episodes", "at least 1"]),
-        (["--policy", "random", "--slot", "-1"], 2, ["--slot", ">= 0"]),
+        (["--random", "--world", "mars"], 2, ["--world", "mars", "maze"]),
+        (["--random", "--episodes", "0"], 2, ["--episodes", "at least 1"]),
+        (["--random", "--slot", "-1"], 2, ["--slot", ">= 0"]),
     ],
     ids=["missing_model", "world", "episodes0", "slot"],
 )

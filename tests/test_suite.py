@@ -1,4 +1,4 @@
-"""The scenario suite: presets, selection, the contact split, and rover-eval/zoo_eval --suite."""
+"""The scenario suite: presets, selection, the contact split, and rover-eval --suite."""
 
 from __future__ import annotations
 
@@ -12,7 +12,6 @@ from rover_env import RoverEnv
 from rover_env.scenarios import SCENARIOS, Scenario, select_scenarios
 from rover_train import evaluate
 from rover_train.evaluate import run_episode
-from rover_train.imitation import zoo_eval
 from rover_train.suite import SUITE_COLUMNS, wilson_interval
 
 FORWARD = np.array([1.0, 0.0], dtype=np.float32)  # full speed, straight on
@@ -81,7 +80,7 @@ def test_run_episode_splits_scenery_contact_from_pedestrian_contact() -> None:
 
 def test_rover_eval_suite_prints_one_row_per_scenario(capsys: pytest.CaptureFixture) -> None:
     names = "maze-crowd-3,moon-oblivious-10"
-    code = evaluate.main(["--policy", "random", "--suite", names, "--episodes", "2",
+    code = evaluate.main(["--random", "--suite", names, "--episodes", "2",
                           "--max-steps", "30", "--json"])  # fmt: skip
     assert code == 0
     out = capsys.readouterr().out.strip().splitlines()
@@ -99,12 +98,12 @@ def test_rover_eval_suite_prints_one_row_per_scenario(capsys: pytest.CaptureFixt
 
 def test_rover_eval_suite_refuses_unknown_names(capsys: pytest.CaptureFixture) -> None:
     with pytest.raises(SystemExit):
-        evaluate.main(["--policy", "random", "--suite", "maze-riot-3"])
+        evaluate.main(["--random", "--suite", "maze-riot-3"])
     assert "--suite: unknown scenario" in capsys.readouterr().err
 
 
-def test_zoo_eval_suite_defaults_to_the_entrys_world(capsys: pytest.CaptureFixture) -> None:
-    code = zoo_eval.main(["lidar-maze", "--random", "--suite", "--episodes", "1", "--json"])
+def test_a_bare_suite_is_the_entrys_world(capsys: pytest.CaptureFixture) -> None:
+    code = evaluate.main(["lidar-maze", "--random", "--suite", "--episodes", "1", "--json"])
     assert code == 0
     data = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert list(data) == [s.name for s in SCENARIOS.values() if s.world == "maze"]

@@ -31,8 +31,7 @@ from rover_train.imitation.dagger import DAggerConfig, Dataset, feature_spec, fi
 from rover_train.imitation.distill import RECIPES
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert
 from rover_train.imitation.finetune import STARTS
-from rover_train.imitation.gaze import WithPanHead
-from rover_train.imitation.seed_table import WithSeedTable
+from rover_train.wrappers import WithPanHead, WithSeedTable
 from rover_train.zoo import agent as student
 from rover_train.zoo.agent import (
     FeatureSpec,

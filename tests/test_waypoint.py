@@ -106,7 +106,7 @@ def test_a_model_trained_with_the_waypoint_drives_the_plain_env(tmp_path: Path) 
     assert WAYPOINT_KEY not in env.observation_space.spaces
     obs, _ = env.reset(seed=1)
     agent = zoo.load("rl-lidar-maze", path=model)
-    policy = load_policy(model, None, env, None)
+    policy = load_policy(model, env)
     for _ in range(5):
         assert env.action_space.contains(int(agent.act(obs)))
         assert env.action_space.contains(int(policy(obs)))

@@ -6,6 +6,7 @@ import io
 import math
 import uuid
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +15,8 @@ from helpers.daemon import Daemon
 from fused_image import FUSED_SIZE
 from rover_env import FORWARD_CAMERA
 from rover_train import zoo
+from rover_train.agents import RandomAgent
+from rover_train.evaluate import evaluate_agent
 from rover_train.imitation.dagger import (
     DAggerConfig,
     Dataset,
@@ -29,7 +32,6 @@ from rover_train.imitation.dagger import (
 )
 from rover_train.imitation.distill import RECIPES, DistillRun, read_recipe
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert, in_camera_view
-from rover_train.imitation.zoo_eval import RandomAgent, evaluate_agent
 from rover_train.progress import StatusLine
 from rover_train.zoo.agent import (
     HEADING_BINS,
@@ -298,6 +300,23 @@ def test_a_student_file_of_a_head_that_is_gone_is_refused_with_the_fix() -> None
     for key, value in (("head", "regress"), ("pedestrian_scan", True)):
         with pytest.raises(ValueError, match=f"{key}=.*rover_train.zoo.command"):
             zoo.StudentAgent.from_state_dict({**blob, "spec": {**blob["spec"], key: value}})
+
+
+def test_a_truncated_student_file_is_a_named_error_with_the_command_that_remakes_it(
+    tmp_path: Path,
+) -> None:
+    shipped = zoo.ENTRIES["lidar-maze"].path
+    cut = tmp_path / "lidar-maze.pt"
+    data = shipped.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(zoo.StudentFileError) as err:
+        zoo.load("lidar-maze", cut)
+    text = str(err.value)
+    assert str(cut) in text and "cut short" in text
+    assert zoo.ENTRIES["lidar-maze"].command in text
+    cut.write_bytes(b"")  # nothing at all: torch's bare EOFError
+    with pytest.raises(zoo.StudentFileError, match="lidar-maze.pt"):
+        zoo.load("lidar-maze", cut)
 
 
 def test_random_agent_is_reproducible_from_its_seed() -> None:

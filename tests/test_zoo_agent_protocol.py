@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 
 from rover_train import zoo
-from rover_train.imitation.zoo_eval import RandomAgent
+from rover_train.agents import RandomAgent
 
 
 def _student() -> zoo.StudentAgent:

@@ -35,7 +35,14 @@ from pathlib import Path
 from typing import Any
 
 from rover_train import zoo
-from rover_train.evaluate import VIDEO_PANEL, format_comparison, summarise, write_video
+from rover_train.agents import RandomAgent
+from rover_train.evaluate import (
+    VIDEO_PANEL,
+    evaluate_agent,
+    format_comparison,
+    summarise,
+    write_video,
+)
 from rover_train.imitation.dagger import (
     DAggerConfig,
     make_training_env,
@@ -43,7 +50,6 @@ from rover_train.imitation.dagger import (
     stage2_config,
 )
 from rover_train.imitation.distill import RECIPES
-from rover_train.imitation.zoo_eval import RandomAgent, evaluate_agent
 from rover_train.progress import StatusLine
 from shm_protocol import default_name
 

@@ -57,8 +57,7 @@ from rover_train.imitation.dagger import (
     stage2_config,
 )
 from rover_train.imitation.expert import GAZES, MANNERS, SEES
-from rover_train.imitation.gaze import WithPanHead
-from rover_train.imitation.seed_table import WithSeedTable
+from rover_train.wrappers import WithPanHead, WithSeedTable
 from rover_train.zoo.agent import StudentAgent, StudentNet
 from rover_train.zoo.registry import (
     DIAGNOSTIC_SEED_BASE,

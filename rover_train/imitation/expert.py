@@ -59,6 +59,7 @@ from rover_train.navgrid import (
     OccupancyGrid,
     goal_key,
 )
+from rover_train.wrappers import takes_pan
 
 LOOKAHEAD = 1.2  # m of planned path the pursuit point may be taken from
 SIGHT_CLEARANCE = 0.3  # m: the straight segment to the pursuit point keeps this clearance
@@ -411,10 +412,3 @@ def table_action(action: np.ndarray, yaw: float, window: int | None = None) -> n
         return np.asarray(nearest_action(speed, heading), dtype=np.int64)
     return np.asarray(nearest_gaze_action(speed, heading, float(action[2]), window),
                       dtype=np.int64)  # fmt: skip
-
-
-def takes_pan(env: object) -> bool:
-    """Whether ``env``'s actions are the gaze env's ``[speed, heading, pan target]`` (a
-    ``Box`` of 3)."""
-    space = getattr(env, "action_space", None)
-    return isinstance(space, spaces.Box) and space.shape == (3,)

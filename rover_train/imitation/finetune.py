@@ -9,7 +9,7 @@ speed and heading). A fused student's observation also carries its pooled fused 
 computed in the worker from the env's own camera by the daemon's network
 (:class:`~rover_train.imitation.dagger.WithFusedView`, as in stage 1 of its distillation: no
 daemon is needed); a gaze student's action is a pair, its driving class and its pan class
-(:class:`~rover_train.imitation.gaze.WithPanHead` turns the camera), and both heads learn.
+(:class:`~rover_train.wrappers.WithPanHead` turns the camera), and both heads learn.
 PPO then trains the student's own network as the actor, beside a new critic on the state
 features, with one more loss term: ``beta`` times KL(start || actor) on each minibatch's
 states (summed over the heads), ``beta`` falling from ``kl_start`` to ``kl_end``, so the
@@ -242,7 +242,7 @@ def _make_env(recipe: FineTuneRecipe, spec: FeatureSpec) -> gym.Env:
     size = {"size": tuple(FUSED_SIZE)} if spec.image else {}
     env = make_env("lidar", env_checker=False, task=recipe.task, **size, **recipe.env_kwargs())
     if spec.gaze:
-        from rover_train.imitation.gaze import WithPanHead
+        from rover_train.wrappers import WithPanHead
 
         env = WithPanHead(env)
     if spec.image:
@@ -545,7 +545,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     torch.set_num_threads(run.threads)
     out = finetune(recipe, run)
     start = ENTRIES[recipe.start]
-    cmd = f"python -m rover_train.imitation.zoo_eval {start.name} --file {shown_path(out)}"
+    cmd = f"rover-eval {start.name} --file {shown_path(out)}"
     if recipe.pedestrian_mode is not None:
         cmd += f" --pedestrian-mode {recipe.pedestrian_mode}"
     if start.kind in STUDENT_FUSED_KINDS:

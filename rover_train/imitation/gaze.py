@@ -21,26 +21,21 @@ gaze env's +-60 deg) from the true state, in this order:
 
 The camera's servo (180 deg/s, :data:`rover_env.constants.PAN_RATE`) limits how fast the
 pan follows: 9 deg per 0.05 s step, so the policy's target is where the head is going, not
-where it is. :class:`WithPanHead` gives an env without a pan action (RoverEnv) the gaze
-env's action, ``gaze`` observation and view readouts, turning the sim's camera with the
-same servo (:func:`rover_env.gaze_env.servo_step`): the teachers are evaluated on it with
-no daemon (they do not need the fused image).
+where it is. :class:`rover_train.wrappers.WithPanHead` gives an env without a pan action
+(RoverEnv) the gaze env's action, ``gaze`` observation and view readouts, turning the sim's
+camera with the same servo: the teachers are evaluated on it with no daemon (they do not
+need the fused image).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
 
-import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 
 from rover_env import constants as c
 from rover_env.controller import wrap_angle
-from rover_env.core import float_box
-from rover_env.gaze_env import servo_step
 from rover_env.rover import CAMERA_FOVY, CAMERA_X
 
 RISK_HORIZON = 3.0  # s of predicted motion in which an intrusion makes a pedestrian at risk
@@ -218,72 +213,3 @@ class GazePolicy:
     def _clip(self, angle: float) -> float:
         limit = self.config.pan_limit
         return float(min(max(angle, -limit), limit))
-
-
-class WithPanHead(gym.Wrapper):
-    """An env without a pan action (RoverEnv) driven as RoverEnvFusedGaze is: the action is
-    ``[speed, relative heading, pan target]``, after each step the sim's camera head turns
-    towards the target at ``pan_rate`` (:func:`rover_env.gaze_env.servo_step`, the gaze env's
-    servo), and it faces ahead again at every reset. The observation gains ``gaze`` (the pan,
-    rad) and ``info`` the gaze env's ``pan``, ``pan_target``, ``pedestrian_in_view`` and
-    ``nearest_pedestrian_in_view``. The episode's counts are :attr:`steps` and
-    :attr:`nearest_in_view_steps`.
-
-    The inner env must render nothing in ``step`` (RoverEnv): a fused env would render its
-    frame before the head turns. For a fused image of the turned camera wrap this one in
-    :class:`~rover_train.imitation.dagger.WithFusedView`.
-    """
-
-    def __init__(self, env: gym.Env, pan_rate: float | None = c.PAN_RATE) -> None:
-        super().__init__(env)
-        self.pan_rate = pan_rate
-        self.pan_limit = c.PAN_LIMIT
-        self.action_space = float_box(c.GAZE_ACTION_LOW, c.GAZE_ACTION_HIGH)
-        self.observation_space = spaces.Dict(
-            {**env.observation_space.spaces,  # type: ignore[attr-defined]
-             "gaze": spaces.Box(-self.pan_limit, self.pan_limit, shape=(1,), dtype=np.float32)}
-        )  # fmt: skip
-        self.pan_target = 0.0
-        self.steps = 0
-        self.nearest_in_view_steps = 0
-
-    def reset(self, **kwargs: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
-        base = self.env.unwrapped
-        base.sim.set_camera_pan(0.0)  # type: ignore[attr-defined]
-        self.pan_target = 0.0
-        self.steps = self.nearest_in_view_steps = 0
-        obs, info = self.env.reset(**kwargs)
-        return self._observation(obs), self._info(info)
-
-    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != (3,) or not np.all(np.isfinite(a)):
-            raise ValueError(
-                f"action {action!r}: expected 3 finite numbers [speed m/s, relative heading "
-                "rad, pan target rad]"
-            )
-        obs, reward, terminated, truncated, info = self.env.step(a[:2].astype(np.float32))
-        self.pan_target = min(max(float(a[2]), -self.pan_limit), self.pan_limit)
-        sim = self.env.unwrapped.sim  # type: ignore[attr-defined]
-        sim.set_camera_pan(servo_step(sim.camera_pan, self.pan_target, self.pan_rate,
-                                      self.env.unwrapped.control_dt))  # type: ignore[attr-defined]  # fmt: skip
-        info = self._info(info)
-        self.steps += 1
-        self.nearest_in_view_steps += info["nearest_pedestrian_in_view"]
-        return self._observation(obs), float(reward), terminated, truncated, info
-
-    def _observation(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        pan = self.env.unwrapped.sim.camera_pan  # type: ignore[attr-defined]
-        return {**obs, "gaze": np.array([pan], dtype=np.float32)}
-
-    def _info(self, info: dict[str, Any]) -> dict[str, Any]:
-        base: Any = self.env.unwrapped
-        in_view = base.sim.pedestrians_in_view()
-        nearest = base.nearest_pedestrian_index()
-        return {
-            **info,
-            "pan": base.sim.camera_pan,
-            "pan_target": self.pan_target,
-            "pedestrian_in_view": bool(in_view.any()),
-            "nearest_pedestrian_in_view": bool(nearest >= 0 and in_view[nearest]),
-        }

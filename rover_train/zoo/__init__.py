@@ -23,10 +23,17 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
-from rover_train.zoo.agent import Agent, FeatureSpec, StudentAgent, StudentNet
+from rover_train.zoo.agent import (
+    Agent,
+    FeatureSpec,
+    StudentAgent,
+    StudentFileError,
+    StudentNet,
+)
 from rover_train.zoo.registry import (
     DAGGER,
     ENTRIES,
+    EVAL_EPISODES,
     EVAL_MAX_STEPS,
     EVAL_SEED_BASE,
     FINETUNE,
@@ -68,7 +75,10 @@ def command(name: str) -> str:
     spec = _spec(name)
     if not spec.path.is_file() or spec.trainer != DAGGER:
         return spec.command
-    recipe = StudentAgent.read_meta(spec.path).get("recipe")
+    try:
+        recipe = StudentAgent.read_meta(spec.path).get("recipe")
+    except StudentFileError:  # a damaged file: remade from the lab's table
+        return spec.command
     if recipe is None:
         return spec.command
     return spec.distill_command(f"--recipe {shown_path(spec.path)}")
@@ -90,6 +100,8 @@ def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent 
     and says what it is in ``meta``; an RL entry as a :class:`rover_train.algos.ModelAgent`.
 
     :param path: another file made like the entry (a candidate) instead of the shipped one.
+    :raises FileNotFoundError: no file; :class:`StudentFileError`: a student file that does
+        not read (cut short, say). Both name the file and the command that remakes it.
     """
     spec = _spec(name)
     file = spec.path if path is None else Path(path)
@@ -98,7 +110,12 @@ def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent 
             f"zoo entry {name!r} has no file at {file}; make it with: {spec.command}"
         )
     if spec.trainer != RL:
-        return StudentAgent.load(file)
+        try:
+            return StudentAgent.load(file)
+        except StudentFileError as exc:
+            raise StudentFileError(
+                f"{exc}. Remake it with zoo entry {name}'s command: {spec.command}"
+            ) from exc
     from rover_train.algos import ModelAgent, algo_class
     from rover_train.recipe import read_recipe
     from rover_train.wrappers import agent_io
@@ -114,12 +131,14 @@ __all__ = [
     "ENTRIES",
     "FINETUNE",
     "RL",
+    "EVAL_EPISODES",
     "EVAL_MAX_STEPS",
     "EVAL_SEED_BASE",
     "Agent",
     "EntrySpec",
     "FeatureSpec",
     "StudentAgent",
+    "StudentFileError",
     "StudentNet",
     "UnknownEntryError",
     "command",

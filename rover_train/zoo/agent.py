@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import functools
 import math
+import pickle
 from collections import deque
 from dataclasses import asdict, dataclass
 from typing import Any, Protocol, cast, runtime_checkable
@@ -550,9 +551,10 @@ class EnsembleNet(nn.Module):
 class Agent(Protocol):
     """What drives an env episode: ``reset()`` at each episode start, then ``act(obs)`` ->
     the env's action for each observation. :class:`StudentAgent` (what ``zoo.load``
-    returns) is one; so are ``rover_train.imitation.zoo_eval``'s expert and random agents,
-    and anything ``zoo_eval.evaluate_agent`` runs. ``isinstance(x, Agent)`` checks that the
-    two methods exist, not their signatures (mypy checks those)."""
+    returns) is one; so are ``rover_train.agents.RandomAgent``, the lab's planner expert,
+    and anything ``rover_train.evaluate.evaluate_agent`` (rover-eval) runs.
+    ``isinstance(x, Agent)`` checks that the two methods exist, not their signatures (mypy
+    checks those)."""
 
     def reset(self) -> None: ...
 
@@ -630,11 +632,37 @@ class StudentAgent:
 
     @classmethod
     def load(cls, path: Any) -> StudentAgent:
-        return cls.from_state_dict(torch.load(path, map_location="cpu", weights_only=True))
+        """The student saved at ``path``; :class:`StudentFileError` when the file does not
+        read as one (cut short, say)."""
+        return cls.from_state_dict(read_student_file(path))
 
     @staticmethod
     def read_meta(path: Any) -> dict[str, Any]:
         """The ``meta`` of the student file ``path`` (its name, kind, world and recipe),
         read without building the network."""
+        return dict(read_student_file(path).get("meta") or {})
+
+
+class StudentFileError(ValueError):
+    """A student file that does not read as one: cut short (an interrupted copy or
+    download), or not a student file at all. The message names the file."""
+
+
+def read_student_file(path: Any) -> dict[str, Any]:
+    """The dict :meth:`StudentAgent.save` wrote to ``path``. Raises FileNotFoundError for a
+    missing file and :class:`StudentFileError`, naming the file, for one torch cannot read
+    (torch's own errors say neither which file nor why: "failed finding central directory",
+    ``OSError: [Errno 22]``, an empty ``EOFError``)."""
+    try:
         blob = torch.load(path, map_location="cpu", weights_only=True)
-        return dict(blob.get("meta") or {})
+    except FileNotFoundError:
+        raise
+    except (OSError, RuntimeError, EOFError, pickle.UnpicklingError) as exc:
+        raise StudentFileError(
+            f"{path} is not a readable student file ({type(exc).__name__}: "
+            f"{str(exc).split('. ')[0] or 'the file ends early'}); it may be cut short, by "
+            "an interrupted copy or download"
+        ) from exc
+    if not isinstance(blob, dict) or "weights" not in blob or "spec" not in blob:
+        raise StudentFileError(f"{path} is not a student file: it holds no weights and spec")
+    return blob

@@ -17,6 +17,8 @@ DIAGNOSTIC_SEED_BASE = 50_000
 and reported on the evaluation seeds; training episodes stay below them."""
 EVAL_MAX_STEPS = 600
 """An evaluation episode ends at the first goal, a termination or 600 steps (30 s)."""
+EVAL_EPISODES = 100
+"""Episodes of an evaluation (``rover-eval``'s default)."""
 
 
 def shown_path(path: Path) -> str:
