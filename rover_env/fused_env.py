@@ -151,6 +151,9 @@ class RoverEnvFused(RoverEnvBase):
     | progress (``reward_progress``) | (metres closer to the goal) x 0.9 |
     | heatmap (``reward_heatmap``) | -0.1 x sum of the heatmap's 4 centre columns (of 96) |
     | personal space (``reward_personal_space``) | not in the seed (0): as in ``RoverEnv`` |
+    | clearance (``reward_clearance``) | not in the seed (0): as in ``RoverEnv``, from a |
+    | | LIDAR scan the simulator casts for the reward alone (``lidar_points``, |
+    | | ``max_lidar_range``); the agent never sees it |
 
     The centre columns scale with the width: ``round(4 * W / 96)`` columns. With
     ``RewardConfig(pedestrian_penalty_frame="heading")`` the heatmap term charges the sum
@@ -217,8 +220,9 @@ class RoverEnvFused(RoverEnvBase):
     ``"fixed"`` (default, the seed's figures) or ``"random"`` (clothing colours, height,
     girth and gait phase drawn per episode from the reset seed), ``goal_ends_episode``
     (False, the seed's: a new goal after each; True: the first goal ends the episode).
-    ``scan_topic``, ``imu_topic``, ``cmd_vel_topic``, ``lidar_points`` and
-    ``max_lidar_range`` are accepted for compatibility with the seed and have no effect.
+    ``scan_topic``, ``imu_topic`` and ``cmd_vel_topic`` are accepted for compatibility with
+    the seed and have no effect; ``lidar_points`` and ``max_lidar_range`` shape only the
+    LIDAR scan of the clearance term, when ``reward_config`` turns it on.
 
     ## Version history
 
@@ -268,12 +272,6 @@ class RoverEnvFused(RoverEnvBase):
                 f"got {camera_scan!r}"
             )
         self.spin_wait = spin_wait
-        cfg = options.get("reward_config")
-        if cfg is not None and cfg.clearance_penalty:
-            raise ValueError(
-                "reward_config.clearance_penalty is a LIDAR term: the fused envs count "
-                "collisions by contact and never pay it; leave it 0 (use RoverEnv for it)"
-            )
         self._base = rl_obs_name
         self._set_slot(0 if auto else int(slot))
         self.frame_timeout = float(frame_timeout)
@@ -550,7 +548,11 @@ class RoverEnvFused(RoverEnvBase):
         heat = self._add_reward_term("heatmap", rw.heatmap_center_penalty(charged, cfg))
         near = self._add_reward_term(
             "personal_space", rw.personal_space_penalty(self.nearest_pedestrian, cfg))
-        return progress + heat + near
+        clear = 0.0
+        if cfg.clearance_penalty:  # the simulator's LIDAR: the trainer's signal, not an input
+            nearest = float(self.sim.lidar(self.lidar_points, self.max_lidar_range).min())
+            clear = rw.clearance_penalty(nearest, cfg)
+        return progress + heat + near + self._add_reward_term("clearance", clear)
 
     def _info(self, reward: float, reason: str) -> dict[str, Any]:
         info = super()._info(reward, reason)

@@ -105,7 +105,7 @@ def test_tasks_set_the_env_keywords() -> None:
     f_reward = fused["reward_config"]  # the fused envs' own constants under the task's
     assert f_reward.stuck_window == RewardConfig.fused().stuck_window
     assert f_reward.collision_limit == 0 and f_reward.distance_delta_scale == NAV_PROGRESS_SCALE
-    assert f_reward.clearance_penalty == 0  # a LIDAR term: the fused envs count contacts
+    assert f_reward.clearance_penalty == NAV_CLEARANCE_PENALTY  # from the sim's LIDAR there
     with pytest.raises(ValueError, match="unknown task 'navigate'.*seed.*nav"):
         get_task("navigate")
 
@@ -166,11 +166,7 @@ def test_clearance_config_is_checked() -> None:
     with pytest.raises(ValueError, match="clearance_distance must be >= 0"):
         RewardConfig(clearance_distance=-0.1)
     assert RewardConfig().clearance_penalty == 0.0  # the seed's reward has no such term
-    from rover_env import RoverEnvFused
-
-    with pytest.raises(ValueError, match="clearance_penalty is a LIDAR term.*leave it 0"):
-        RoverEnvFused(reward_config=RewardConfig.fused(clearance_distance=0.6,
-                                                       clearance_penalty=-2.0))
+    assert RewardConfig.fused().clearance_penalty == 0.0
 
 
 def test_cli_task_flag_builds_envs_that_end_at_the_goal() -> None:

@@ -18,6 +18,8 @@ from rover_env import RoverEnv, RoverEnvFused
 from rover_env.gaze_env import RoverEnvFusedGaze
 from rover_env.reward import STUCK_IN_COLLISION, RewardConfig, personal_space_penalty
 from rover_train.envs import (
+    NAV_CLEARANCE,
+    NAV_CLEARANCE_PENALTY,
     NAV_PERSONAL_SPACE,
     NAV_PERSONAL_SPACE_PENALTY,
     env_kwargs,
@@ -149,7 +151,8 @@ def test_the_fused_envs_charge_the_nav_tasks_personal_space_wherever_the_camera_
         rx, ry, _ = ROVER_AT
         env.reset(seed=1, options={"rover_pose": (rx, ry, 0.0), "goal": (3.0, 3.0)})
         charges = []
-        for ahead, pan in ((0.9, 0.0), (0.9, 1.0), (0.8, -1.0), (3.0, 0.0)):
+        clearances: list[float] = []
+        for ahead, pan in ((0.9, 0.0), (0.9, 1.0), (0.7, -1.0), (3.0, 0.0)):
             env.sim.place_pedestrian(0, rx + ahead, ry, math.pi)
             action = [0.0, 0.0, pan] if cls is RoverEnvFusedGaze else [0.0, 0.0]
             if cls is not RoverEnvFusedGaze and pan:
@@ -160,10 +163,16 @@ def test_the_fused_envs_charge_the_nav_tasks_personal_space_wherever_the_camera_
             expected = NAV_PERSONAL_SPACE_PENALTY * max(0.0, NAV_PERSONAL_SPACE - d)
             assert info["reward_personal_space"] == pytest.approx(expected)
             assert info["reward_heatmap"] == 0.0  # the seed's heatmap term is off in the task
+            lidar_min = float(env.sim.lidar(32, 12.0).min())  # the reward's, not the agent's
+            assert info["reward_clearance"] == pytest.approx(
+                NAV_CLEARANCE_PENALTY * max(0.0, NAV_CLEARANCE - lidar_min))
+            assert "lidar" not in env.observation_space.spaces
             parts = sum(v for k, v in info.items() if k.startswith("reward_"))
             assert parts == pytest.approx(reward)
             charges.append((pan, info["reward_personal_space"]))
+            clearances.append(info["reward_clearance"])
         assert charges[0][1] < 0 and charges[-1][1] == 0.0  # inside 1.2 m, then out of it
+        assert min(clearances) < 0 and clearances[-1] == 0.0  # the person 0.7 m ahead
         if cls is RoverEnvFusedGaze:  # looking away does not lower it
             assert charges[1][1] == pytest.approx(charges[0][1], abs=0.02)
     finally:
