@@ -15,9 +15,8 @@ import pytest
 from helpers.daemon import Daemon
 
 from rover_train import zoo
-from rover_train.evaluate import summarise
+from rover_train.evaluate import evaluate_agent, summarise
 from rover_train.imitation import demo
-from rover_train.imitation.zoo_eval import evaluate_agent
 from shm_protocol.names import NAME_ENV_VAR
 
 EPISODES = 2

@@ -127,7 +127,11 @@ def test_shipped_rl_entries_carry_the_recipe_their_command_trains() -> None:
         spec = zoo.ENTRIES[name]
         recipe = read_recipe(spec.path)
         assert (recipe["env"], recipe["world"], recipe["task"]) == (spec.kind, spec.world, "nav")
-        again = parse_args(zoo.command(name).split()[1:])  # rover-train --recipe <file> ...
+        command = zoo.command(name).split()
+        if spec.kind in ("fused", "fused-gaze"):  # under rover-pair, a slot for each env
+            assert command[:2] == ["rover-pair", "--name"] and command[4] == str(recipe["slots"])
+            command = command[command.index("--") + 1 :]
+        again = parse_args(command[1:])  # rover-train --recipe <file> ...
         assert (again.env, again.world, again.timesteps) == (spec.kind, spec.world,
                                                               recipe["timesteps"])  # fmt: skip
         assert again.logdir == Path(f"runs/{name}")

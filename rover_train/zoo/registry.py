@@ -35,6 +35,8 @@ TABLE_KINDS = ("discrete", "fused-gaze-discrete")
 """Kinds of student that drive the seed's discrete table (``Discrete(60)``, ``(180)``)."""
 DAGGER = "dagger"
 RL = "rl"
+RL_FUSED_SLOTS = 4
+"""Envs (daemon slots) the fused RL entries train on: their recipes' ``--slots``."""
 FINETUNE = "finetune"
 
 
@@ -73,7 +75,11 @@ class EntrySpec:
         """The command that makes the entry from its recipe in the lab's table (an RL entry:
         from the recipe in its file)."""
         if self.trainer == RL:
-            return f"rover-train --recipe {shown_path(self.path)} --logdir runs/{self.name}"
+            cmd = f"rover-train --recipe {shown_path(self.path)} --logdir runs/{self.name}"
+            if self.kind in STUDENT_FUSED_KINDS:  # a daemon slot for each of its envs
+                name = f"rl_{self.name.replace('-', '_')}"
+                return f"rover-pair --name {name} --slots {RL_FUSED_SLOTS} -- {cmd}"
+            return cmd
         if self.trainer == FINETUNE:
             cmd = "python -m rover_train.imitation.finetune"
             if self.path.is_file():
