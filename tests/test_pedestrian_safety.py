@@ -4,6 +4,7 @@ term works the same on the LIDAR, fused and gaze envs."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import uuid
 from collections.abc import Iterator
@@ -144,8 +145,11 @@ def test_the_fused_envs_charge_the_nav_tasks_personal_space_wherever_the_camera_
     daemon: Daemon, cls: type[RoverEnvFused]
 ) -> None:
     kwargs = env_kwargs("fused", "moon", task="nav")
+    assert kwargs["reward_config"].clearance_penalty == 0.0  # off on the fused envs' nav task
+    reward = dataclasses.replace(kwargs["reward_config"], clearance_distance=NAV_CLEARANCE,
+                                 clearance_penalty=NAV_CLEARANCE_PENALTY)  # the env can pay it
     env = cls(rl_obs_name=daemon.name, connection_check_timeout=5, slot=0, world_n="moon",
-              reward_config=kwargs["reward_config"], n_pedestrians=1,
+              reward_config=reward, n_pedestrians=1,
               pedestrian_mode="pacing")  # fmt: skip
     try:
         rx, ry, _ = ROVER_AT
