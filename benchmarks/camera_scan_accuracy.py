@@ -26,13 +26,12 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import platform
-import subprocess
 import time
 import uuid
 from dataclasses import dataclass, field
 
 import numpy as np
+from machine import cpu_name
 
 from active_vision import spawn_daemon
 from rover_env import RoverEnvFused
@@ -154,17 +153,6 @@ def time_updates(scan, obs: dict, env: RoverEnvFused, n: int = 2000) -> list[flo
     return out
 
 
-def cpu_model() -> str:
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=True).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name:"):
-                return line.split(":", 1)[1].strip()
-    except (OSError, subprocess.CalledProcessError):
-        pass
-    return platform.processor() or "unknown"
-
-
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--episodes", type=int, default=4)
@@ -186,7 +174,7 @@ def main() -> None:
                        "steps_per_s_without": off, "steps_per_s_with": on}
                 rows.append(row)
                 print(json.dumps(row), flush=True)
-    print(f"\nCPU: {cpu_model()}; {args.episodes} episodes x {args.steps} steps, seeds "
+    print(f"\nCPU: {cpu_name()}; {args.episodes} episodes x {args.steps} steps, seeds "
           f"{args.seed}..; planner expert driving\n")
     print("| world | people | range err. now, median / p90 (m) | kept, median / p90 (m) | "
           "missed / phantom (sectors in view) | people found ≤ 0.5 m | false people | "

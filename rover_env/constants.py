@@ -15,7 +15,7 @@ LENGTH = 2000  # seed: RoverEnv(length=2000), maximum steps per episode
 FUSED_LENGTH = 6000  # seed: RoverEnvFused(length=6000)
 SIZE = (64, 64)  # seed: RoverEnv(size=(64, 64)), reserved image buffer (unused by RoverEnv)
 CONNECTION_CHECK_TIMEOUT = 30  # seed: connection_check_timeout (no effect without ROS)
-CONTROL_DT = 0.05  # s of simulated time per env step (DESIGN 4; the seed ran at wall clock)
+CONTROL_DT = 0.05  # s of simulated time per env step (the seed ran at wall clock)
 
 # --- sensors ---------------------------------------------------------------------------
 LIDAR_POINTS = 32  # seed: lidar_points

@@ -1,7 +1,7 @@
 """FrameWriter: the single writer of a segment (the daemon for fused frames, the env for
 camera frames).
 
-Publishing is a seqlock, in the order DESIGN.md section 3 fixes::
+Publishing is a seqlock, in the order docs/protocol.md fixes::
 
     seq += 1 (odd) -> valid = 0 -> timestamp -> payload -> [checksum] -> source_seq
     -> seq += 1 (even) -> valid = 1 -> heartbeat -> wake word += 1, FUTEX_WAKE

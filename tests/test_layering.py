@@ -1,5 +1,5 @@
 """The house's rules, checked by import: the product runs without the lab, packages import
-only the rooms DESIGN.md lets them, and no modules import each other in a circle."""
+only the rooms docs/architecture.md lets them, and no modules import each other in a circle."""
 
 from __future__ import annotations
 
@@ -81,7 +81,7 @@ def test_no_runtime_module_imports_a_lab_wing() -> None:
     ("launch", ("rover_env", "rover_train")),
 ])  # fmt: skip
 def test_each_room_imports_only_what_it_may(package: str, forbidden: tuple[str, ...]) -> None:
-    """DESIGN.md's table, for the product (the lab wings import the product)."""
+    """docs/architecture.md's import table, for the product (the lab wings import the product)."""
     graph = _imports()
     bad = sorted(f"{m} -> {d}" for m, deps in graph.items()
                  if (m == package or m.startswith(package + ".")) and not m.startswith(LAB)
