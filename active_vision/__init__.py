@@ -23,10 +23,10 @@ The torch-backed names load on first use, so ``from active_vision import spawn_d
 import os as _os
 
 # torch's OpenMP worker threads spin while they wait. On a machine shared with other work
-# (2 cores, another busy process) a 2-thread training step measured 10x slower than a
-# 1-thread one because of that spinning; with passive waiting 2 threads were as fast as 1
-# or faster. Only a default: an OMP_WAIT_POLICY set by the user wins. It must be set before
-# OpenMP starts, hence here, before torch is imported through the modules below.
+# that spinning makes a 2-thread training step many times slower than a 1-thread one; with
+# passive waiting 2 threads are as fast as 1 or faster. Only a default: an OMP_WAIT_POLICY
+# set by the user wins. It must be set before OpenMP starts, hence here, before torch is
+# imported through the modules below.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import importlib as _importlib

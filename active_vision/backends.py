@@ -14,8 +14,8 @@ so a frame costs no new array:
 with the conversions around it in torch. ``onnx`` (:class:`OnnxNetwork`) runs the ONNX
 export (:mod:`active_vision.onnx_export`), which holds the conversions as graph nodes, in
 ONNX Runtime's CPU provider with I/O bound to the buffers (``run_with_iobinding``): one
-call a batch and no other array operation (0.1 ms a frame less than the same conversions
-in torch around the network, benchmarks/RESULTS.md);
+call a batch and no other array operation (cheaper than the same conversions in torch
+around the network: benchmarks/RESULTS.md, "Precision: int8 against fp32");
 ``intra_op_num_threads`` is the thread count, and the pool waits passively (no spinning),
 for the same reason ``active_vision`` sets ``OMP_WAIT_POLICY=PASSIVE`` for torch.
 ``auto`` (:func:`resolve_backend`) is ``onnx`` when ``onnxruntime`` imports and the export is
@@ -56,8 +56,9 @@ PRECISIONS: tuple[str, ...] = ("fp32", "int8")
 PRECISION_CHOICES: tuple[str, ...] = ("auto", "fp32", "int8")
 """What may be asked for: a precision, or ``auto`` (the faster one that agrees with fp32)."""
 DEFAULT_PRECISION = "auto"
-"""int8 where the int8 model agrees with fp32 on this CPU and is faster (1.4x on an AVX2
-CPU, about 2x with VNNI), else fp32 (:mod:`active_vision.precision`)."""
+"""int8 where the int8 model agrees with fp32 on this CPU and is faster, else fp32
+(:mod:`active_vision.precision`; the ratios: benchmarks/RESULTS.md, "Precision: int8
+against fp32")."""
 _INT8_DISABLED_OPTIMIZERS = ("NchwcTransformer",)
 """ONNX Runtime graph passes left out for the int8 model (see :class:`OnnxNetwork`)."""
 
@@ -180,7 +181,7 @@ class OnnxNetwork:
         opts.log_severity_level = 3
         # The int8 model runs its quantized convolutions in ORT's NHWC int8 kernels; the
         # NCHWc layout pass only re-lays out the fp32 head and the Resizes around them, with
-        # a reorder each way, and costs 10-30 % of the int8 model's time (RESULTS.md).
+        # a reorder each way, a cost the int8 model runs faster without (fp32 keeps it).
         disabled = list(_INT8_DISABLED_OPTIMIZERS) if precision == "int8" else []
         try:
             self.session = ort.InferenceSession(str(path), opts,

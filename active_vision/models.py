@@ -90,12 +90,11 @@ class AVNetConfig:
     """Shape of the network (stored inside the weights file)."""
 
     widths: tuple[int, int, int, int] = (24, 48, 96, 128)
-    """Channels at 1/2, 1/4, 1/8 and 1/16 of the input resolution. 24/48/96/128 since
-    2026-11-26 (16/32/64/96 before, which files made then still say): trained the same way,
-    it found more of inspect's pedestrians on the validation split (0.953 against
-    0.913-0.935 for four seeds at 16/32/64/96) and read the moon's depth better (delta1 0.905
-    against 0.879-0.889), for 1.16 ms a frame instead of 0.57 (batch 1, one thread, ONNX
-    Runtime; benchmarks/RESULTS.md)."""
+    """Channels at 1/2, 1/4, 1/8 and 1/16 of the input resolution (a weights file stores its
+    own, so files made at 16/32/64/96 load as such). 24/48/96/128 finds more of inspect's
+    pedestrians and reads the moon's depth better than 16/32/64/96, at about twice the cost
+    a frame, within the daemon's 2 ms budget (docs/decisions.md, "Perception network and
+    int8"; benchmarks/RESULTS.md, "Perception speed")."""
     full_res: int = 0
     """Channels of the full-resolution stage (0: none, the heads run at 1/2 resolution)."""
 

@@ -2,9 +2,9 @@
 
 :class:`rover_env.camera_scan.CameraScan` keeps the state and the constants; this function
 does a step's arithmetic (every pixel of the image once, then at most one point per sector
-and per column), which as numpy array operations cost about 0.4 ms a step, more than the
-render. Compiled by numba (``cache=True``: once per machine, then loaded from
-``__pycache__``), it costs microseconds. The method is documented in
+and per column), which as numpy array operations costs more than the render. Compiled by
+numba (``cache=True``: once per machine, then loaded from ``__pycache__``), it costs a
+small fraction of a step (benchmarks/RESULTS.md, "The camera scan"). The method is documented in
 :mod:`rover_env.camera_scan`.
 """
 

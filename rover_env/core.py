@@ -80,8 +80,8 @@ class EnvOptions:
     pedestrian_mode: str = DEFAULT_MODE
     """How the pedestrians walk: ``crowd`` (the default: a social-force crowd walking to
     goals, routing around the scenery, keeping apart and making room for the rover),
-    ``pacing`` (straight out-and-back paths, waiting when the rover is in the way; the
-    figures the shipped perception networks and zoo entries were made on), ``oblivious``
+    ``pacing`` (straight out-and-back paths, waiting when the rover is in the way),
+    ``oblivious``
     (the same crowd, blind to the rover), ``crossing`` (the crowd walking across the line
     from the rover's start to its first goal, from the side: see
     ``Pedestrians.lay_crossings``) or ``groups`` (the crowd in groups of 2-3). ``walk``, the

@@ -4,8 +4,8 @@ headings relative to the rover's yaw (the RL baselines' action space, issue 38).
 Why relative, when the seed's discrete fused env steers to absolute compass headings: the
 LIDAR observation gives the goal's bearing relative to the heading, so with relative
 headings "drive at the goal" is the same class at every yaw. PPO from scratch learns this
-space where the continuous box, explored by per-step Gaussian noise that the rover's inertia
-filters out, did not (docs/journal.md).
+space where it does not learn the continuous box, explored by per-step Gaussian noise that
+the rover's inertia filters out (docs/decisions.md, "RL").
 """
 
 from __future__ import annotations

@@ -161,14 +161,13 @@ class RoverEnv(RoverEnvBase):
     chase camera), ``render_size`` ((480, 360), width x height), ``n_pedestrians`` (0-20;
     default the world's 3), ``pedestrian_mode`` (``"crowd"``, the default: a social-force
     crowd walking to goals around the scenery, making room for the rover; ``"pacing"``:
-    out-and-back walkers who wait for the rover, what the shipped perception networks were
-    trained on; ``"oblivious"``: the same crowd, blind to the rover; ``"crossing"``: the
-    crowd walking across the line from the start to the first goal, from the side;
-    ``"groups"``: the crowd in groups of 2-3; ``"walk"`` is the deprecated name of
-    ``"pacing"``), ``pedestrian_appearance`` (``"fixed"``, or ``"random"``: clothing
+    out-and-back walkers who wait for the rover; ``"oblivious"``: the same crowd, blind to the
+    rover; ``"crossing"``: the crowd walking across the line from the start to the first goal,
+    from the side; ``"groups"``: the crowd in groups of 2-3; ``"walk"`` is the deprecated name
+    of ``"pacing"``), ``pedestrian_appearance`` (``"fixed"``, or ``"random"``: clothing
     colours, height, girth and gait phase drawn per episode from the reset seed),
-    ``goal_ends_episode`` (False, the seed's: a new goal after each; True: the first goal
-    ends the episode, ``terminated`` with ``termination_reason`` ``"goal"``).
+    ``goal_ends_episode`` (False, the seed's: a new goal after each; True: the first goal ends
+    the episode, ``terminated`` with ``termination_reason`` ``"goal"``).
 
     ## Version history
 

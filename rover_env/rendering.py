@@ -19,8 +19,8 @@ from rover_env.worlds.spec import GROUP_MARKER
 # Mesa's llvmpipe (the headless EGL renderer) rasterises on a pool of one thread per core by
 # default. A 96x96 camera frame is too small to split: the pool's hand-offs cost more than
 # they save, and on a 2-core machine its threads compete with the av-daemon and the other
-# envs. 0 renders in the calling thread (maze camera, one process: 0.49-0.51 ms instead of
-# 0.62-0.69 ms; see benchmarks/RESULTS.md). Read when the GL context is first made (lazily,
+# envs. 0 renders in the calling thread, which is faster for these frames
+# (benchmarks/RESULTS.md, "RoverEnv speed"). Read when the GL context is first made (lazily,
 # after this import); an LP_NUM_THREADS set by the user wins.
 os.environ.setdefault("LP_NUM_THREADS", "0")
 

@@ -64,17 +64,17 @@ NAV_LENGTH = EVAL_MAX_STEPS
 """The nav task's episode: the evaluator's (rover-eval counts success at the first goal
 within 600 steps, 30 s; the planner expert needs about 10 s)."""
 NAV_PROGRESS_SCALE = 10.0
-"""The nav task's progress reward per metre nearer the goal (the seed's: 0.45). With the
-seed's 0.45 a step's progress is worth 0.02 against the goal's 100: PPO from scratch never
-learned to drive at the goal (docs/journal.md)."""
+"""The nav task's progress reward per metre nearer the goal (the seed's: 0.45). At the seed's
+0.45 a step's progress is worth 0.02 against the goal's 100, too little for PPO from scratch
+to learn to drive at the goal (docs/decisions.md, "RL")."""
 NAV_CLEARANCE = 0.6
 """Metres: inside this LIDAR minimum the nav task charges ``NAV_CLEARANCE_PENALTY`` per metre
-per step (a collision is below 0.3 m). Ending at the first collision alone left 44 % of
-evaluation episodes with one: the policy grazed the panels (benchmarks/RESULTS.md). The fused
+per step (a collision is below 0.3 m), so that a policy learns to keep off the scenery
+before it touches it, which ending at the first collision alone does not teach. The fused
 envs can pay it from a LIDAR scan the simulator casts for the reward alone
-(``RewardConfig.clearance_penalty``), but the task leaves it off there: PPO on the camera scan
-in the maze with it reached 5 % training success at 200k steps, standing still in 82 % of its
-episodes (a camera agent cannot see most walls that charge it), against 36 % without it."""
+(``RewardConfig.clearance_penalty``), but the task leaves it off there: a camera agent cannot
+see most of the walls that would charge it, and with the term it learns to stand still
+(docs/decisions.md, "RL"; benchmarks/RESULTS.md, "Learning: a camera agent from the reward")."""
 NAV_CLEARANCE_PENALTY = -2.0
 NAV_PERSONAL_SPACE = 1.2
 """Metres (rover centre to person centre, ``rover_env.constants.PERSONAL_SPACE_M``): inside
@@ -109,8 +109,8 @@ TASKS = {
                 lidar_reward={"clearance_distance": NAV_CLEARANCE,
                               "clearance_penalty": NAV_CLEARANCE_PENALTY}),
 }  # fmt: skip
-"""The tasks by name: ``seed`` (the default, today's behaviour) and ``nav`` (the RL task that
-matches the evaluation episodes)."""
+"""The tasks by name: ``seed`` (the default, the seed env's behaviour) and ``nav`` (the RL
+task that matches the evaluation episodes)."""
 
 
 def get_task(name: str) -> Task:

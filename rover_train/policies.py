@@ -6,8 +6,8 @@ through a scaling to [-1, 1] (from the space's own bounds) and an MLP, then conc
 
 Scaled by its bounds alone, a LIDAR range of 0.3 m (a collision) and one of 0.5 m lie 0.03
 apart over the 12 m reach, and a goal 1 m away and one 10 m away 0.18 apart over the
-target's 100 m: PPO's policies drove into panels they could not tell from open ground
-(docs/journal.md). So the MLP also sees each LIDAR range as ``exp(-range / PROXIMITY_M)``
+target's 100 m: too close for a policy to tell a panel from open ground (docs/decisions.md,
+"RL"). So the MLP also sees each LIDAR range as ``exp(-range / PROXIMITY_M)``
 and the target as (distance within ``GOAL_NEAR_M``, cos and sin of its bearing), and the
 map planner's waypoint, where the observation has one (``rover-train --waypoint``), also as
 the cos and sin of its bearing. The camera scan (``rover-train --camera-scan``) is a vector

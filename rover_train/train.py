@@ -163,7 +163,7 @@ class TrainArgs:
     update_threads: int = 1
     """PPO and recurrent-ppo: torch threads for the gradient epochs, while envs and daemon
     are idle (0: every core this process may use). More than 1 pays only on an otherwise
-    idle machine: with other work on the cores a 2-thread update measured slower. Rollouts
+    idle machine: with other work on the cores a 2-thread update is slower. Rollouts
     keep --threads."""
     log_level: str = field(
         default_factory=default_log_level, metadata={"choices": LOG_LEVELS, "parse": str.upper}

@@ -37,8 +37,8 @@ from rover_train.navgrid import FieldCache, OccupancyGrid
 
 WAYPOINT_KEY = "waypoint"
 WAYPOINT_RES = 0.2
-"""Metres per cell of the waypoint's map (the expert's 0.1 m costs 0.1-0.17 s a goal in the
-maze, this 13-23 ms)."""
+"""Metres per cell of the waypoint's map: coarser than the expert's 0.1 m grid, so a goal's
+field costs about a tenth as much."""
 WAYPOINT_LOOKAHEAD = 2.0
 """Metres of planned path the waypoint may be taken from."""
 WAYPOINT_SIGHT_CLEARANCE = 0.45

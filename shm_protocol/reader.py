@@ -58,8 +58,9 @@ MAX_TEAR_RETRIES = 1000
 """Copies retried in one read before giving up on it for now (a writer flat out)."""
 SPIN_S = 0.003
 """The spin (``FrameReader(spin=...)``) of an env and a daemon worker waiting on each other
-where :func:`spin_for` allows it: longer than a frame's round trip on the project's VMs
-(0.5 ms int8, 1.2-3.5 ms fp32) and than an env's step between frames."""
+where :func:`spin_for` allows it: longer than a frame's round trip through the daemon at
+either precision and than an env's step between frames (benchmarks/RESULTS.md, "RoverEnvFused
+and fused training speed")."""
 
 
 SPIN_PAUSE_S = 1.0

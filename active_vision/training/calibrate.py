@@ -3,38 +3,34 @@
     python -m active_vision.training.calibrate --weights runs/x/avnet.pt [--out FILE]
 
 The evaluation counts a pixel as a pedestrian at 0.5 (``THRESHOLD``), and the fused envs'
-reward and the predictor read the heatmap's values as they are, so a network's operating
-point is wherever its 0.5 lies. A network's best operating point is often elsewhere: the
-network of 2026-11-26 met every heatmap target on the validation split at 0.3 and missed
-inspect's recall at 0.5. Calibration sweeps the detection threshold
-on the **validation** split (never the held-out one, which reports) and picks the threshold
-``t`` with the highest worst-world recall among those whose worst-world false-positive
-frames stay within ``FP_BUDGET`` and whose worst-world IoU meets its target (ties: the higher
-threshold). A network trained among several pedestrian scenes (``train --crowds``) is
-calibrated on the validation split of each, every world of every scene counting as a world:
-calibrated on the pacers' split alone, a network trained among crowds chose 0.35 and read
-2.7 % false-positive frames in inspect among 3 people held out (docs/journal.md,
-2026-11-28). It then folds ``-logit(t)`` into the heatmap head's bias, so that the calibrated
-network's 0.5 is the old network's ``t`` for every pixel: ``sigmoid(z - logit(t)) >= 0.5``
-exactly where ``sigmoid(z) >= t``. The depth head is untouched.
+reward and the predictor read the heatmap's values as they are, so a network's operating point
+is wherever its 0.5 lies. A network's best operating point can lie elsewhere: one that misses
+inspect's recall at 0.5 may meet every heatmap target at 0.3. Calibration sweeps the detection
+threshold on the **validation** split (never the held-out one, which reports) and picks the
+threshold ``t`` with the highest worst-world recall among those whose worst-world
+false-positive frames stay within ``FP_BUDGET`` and whose worst-world IoU meets its target
+(ties: the higher threshold). A network trained among several pedestrian scenes (``train
+--crowds``) is calibrated on the validation split of each, every world of every scene counting
+as a world (a threshold chosen on the pacers' split alone can break the false-positive target
+among crowds: docs/decisions.md, "Perception network and int8"). It then folds ``-logit(t)``
+into the heatmap head's bias, so that the calibrated network's 0.5 is the old network's ``t``
+for every pixel: ``sigmoid(z - logit(t)) >= 0.5`` exactly where ``sigmoid(z) >= t``. The depth
+head is untouched.
 
 ``python -m active_vision.training.train --calibrate`` calibrates the network it trains this way
 before its held-out evaluation; this command calibrates an existing weights file (and
 writes its ONNX export beside the result). The shift is stored in the weights' ``meta`` as
 ``heat_logit_shift`` (summed over calibrations) with the chosen ``heat_threshold``.
 
-The shipped network (24/48/96/128, 2026-11-26) is calibrated: this rule chose 0.35 for
-it, and its held-out recall in inspect rose from 0.942 to 0.962 with false-positive frames
-from 0.75 % to 1.26 % (every target met). A calibrated heatmap costs in two places, both
-measured for it (benchmarks/RESULTS.md, 2026-11-26):
+The shipped network is not calibrated: its recipe does not ask for it, and its weights'
+``meta`` has no ``heat_logit_shift``, so its threshold is 0.5. A calibrated heatmap costs in
+two places (docs/decisions.md, "Perception network and int8"):
 
 - a lower threshold makes detection itself a better guess of where people will be, so the
-  predictive heatmap's margin over detection shrinks (inspect +0.112 -> +0.107, still over
-  the +0.10 target; for the network before it, calibrated to 0.3, it fell to +0.0997);
-- the fused students read channel 1's values, and they were distilled on the heatmaps of an
-  uncalibrated detector: a hotter channel 1 changes what they do (fused-inspect's collisions
-  rose to 15 % of episodes with a calibrated from-scratch network; 9 % uncalibrated). A
-  calibrated detector calls for students distilled again on its heatmaps.
+  predictive heatmap's margin over detection shrinks;
+- the fused students read channel 1's values as they were distilled on them: a hotter
+  channel 1 changes what they do. A calibrated detector calls for students distilled again
+  on its heatmaps.
 """
 
 from __future__ import annotations

@@ -80,8 +80,7 @@ SPLIT_SEEDS = {"heldout": HELDOUT_SEED, "validation": VALIDATION_SEED}
 """The evaluation splits by name: the figures reported, and the one to choose on."""
 DATASET_VERSION = 6
 """Part of the cache file name: bump it when rendering changes, so stale files are not reused
-(5: the moon's ground texture, 2026-11-25; 6: the moon's gentler metre-scale roughness,
-2026-11-26)."""
+(5: the moon's ground texture; 6: the moon's gentler metre-scale roughness)."""
 KIND_EMPTY, KIND_WALKING, KIND_PLACED, KIND_DRIVING = 0, 1, 2, 3
 _GROUND_CHECK_M = 3.0
 _GROUND_MIN_M = 0.12
@@ -120,9 +119,10 @@ class DatasetConfig:
     appearance: str = "random"
     """Pedestrian appearance (``RoverSim(pedestrian_appearance=...)``)."""
     pedestrian_mode: str = "pacing"
-    """How the pedestrians walk (``RoverSim(pedestrian_mode=...)``): the shipped networks'
-    frames were rendered with the out-and-back pacers, which stay the data's mode until
-    the perception is retrained on the crowd, although the envs' default is now ``crowd``."""
+    """How the pedestrians walk (``RoverSim(pedestrian_mode=...)``). ``pacing`` (the
+    out-and-back pacers) here, whatever the envs' default, so that the held-out and validation
+    splits stay the same frames; ``train --crowds`` renders its training scenes among other
+    modes through its own configs."""
     n_pedestrians: int | None = None
     """Pedestrians in each world (``RoverSim(n_pedestrians=...)``; None: the world's own, 3).
     With ``pedestrian_mode``, what ``evaluate --pedestrian-mode crowd --pedestrians 10``

@@ -86,10 +86,9 @@ MIN_PEDESTRIAN_PX = 30
 MIN_BLOB_PX = 5
 NEAR_DEPTH_M = 0.3
 HELDOUT_FRAMES = 2700
-"""Frames of the held-out (and validation) split: 37-38 driving episodes a world. With 900
-(until 2026-11-25 21:00 UTC) a world's figures rested on 12-13 episodes, and one episode
-(a dark figure against a wall, the camera pressed against a pedestrian) moved a figure by
-several points."""
+"""Frames of the held-out (and validation) split: 37-38 driving episodes a world, enough that
+no single episode (a dark figure against a wall, the camera pressed against a pedestrian)
+moves a world's figure by several points, as it does at 12-13 episodes."""
 BOOTSTRAP_RESAMPLES = 2000
 """Bootstrap draws of episodes behind ``Metrics.intervals``."""
 _LOWER_IS_BETTER = ("false_positive_rate", "abs_rel")

@@ -70,10 +70,9 @@ logger = logging.getLogger(__name__)
 PRED_DATA_VERSION = 3  # 2: the moon's ground texture (DATASET_VERSION 5); 3: its roughness (6)
 THRESHOLD = 0.5
 HELDOUT_EPISODES = 180
-"""Held-out (and validation) episodes: 60 per world, 24 targets each at most. With 20 per
-world (the first 60, until 2026-11-25) the maze's predict - detect margin read +0.069 on the
-held-out episodes and -0.011 on the validation ones, +0.198 and +0.110 with 60 per world: a
-few episodes of a pedestrian standing in front of the rover decided the figure."""
+"""Held-out (and validation) episodes: 60 per world, 24 targets each at most. At 20 per world
+a few episodes of a pedestrian standing in front of the rover decide the maze's predict -
+detect margin (docs/decisions.md, "Perception network and int8")."""
 BOOTSTRAP_RESAMPLES = 2000
 """Bootstrap draws of episodes behind ``margin_interval``."""
 
@@ -224,12 +223,10 @@ class PredictRecipe:
 
     episodes: int = 900
     """Training driving episodes (split evenly over ``crowds``, scene k from seed
-    ``TRAIN_SEED + k``): 900 give 20,373 targets, rendered in
-    10 min on one core beside a training run; training on them takes about 10 min with 2
-    threads, and the command peaks at 6.8 GB of memory (11.5 GB while every target's
-    window was held at once; now they are gathered per batch, :func:`window_rows`). Twice the
-    450 used until 2026-11-26, which scored 0.02 / 0.01 / 0.01 lower IoU in inspect / moon /
-    maze on the validation episodes (benchmarks/RESULTS.md)."""
+    ``TRAIN_SEED + k``): 900 give about 20,000 targets. Each batch's windows are gathered
+    from the fused frames as it is drawn (:func:`window_rows`), so memory holds the frames,
+    not every target's window. 900 episodes beat 450 in every world on the validation
+    episodes (docs/decisions.md, "Perception network and int8")."""
     crowds: tuple[str, ...] = field(default=("pacing",), metadata={"parse": parse_crowds})
     """Pedestrian scenes the training episodes are rendered among, comma-separated, as
     ``active_vision.training.train --crowds`` (e.g. ``pacing,crowd:3,crowd:10``)."""

@@ -10,30 +10,25 @@ stem and side there. The daemon runs it with ``--precision int8``
 (:mod:`active_vision.backends`).
 
 The recipe (:class:`QuantizeRecipe`, stored in the int8 file's ONNX metadata under
-``RECIPE_KEY``; ``--recipe FILE`` remakes a file from it), chosen on the validation split on
-a 2-core Xeon with AVX-512 VNNI and AMX (machine shared, ratios in one run):
+``RECIPE_KEY``; ``--recipe FILE`` remakes a file from it), each choice made on the
+validation split (the figures: benchmarks/RESULTS.md, "Precision: int8 against fp32"):
 
 - **QDQ format**, uint8 activations, int8 weights **per output channel**: ONNX Runtime fuses
   the QuantizeLinear/DequantizeLinear pairs into its int8 convolution kernels. The QOperator
-  format ran 1.8x fp32 against QDQ's 2.3x; int8 activations ran slower than fp32 (0.7x: the
-  CPU's u8s8 kernels want uint8 activations); per-tensor weights doubled the depth error.
+  format is slower; int8 activations are slower than fp32 (the CPU's u8s8 kernels want
+  uint8 activations); per-tensor weights double the depth error.
 - **the head stays fp32**: the last convolution (the heatmap logit and the log depth) and
-  what follows it up to the output. Quantizing the log-depth output to 8 bits added 0.02-0.04
-  to AbsRel in every world; in fp32 it adds at most 0.003, at no measurable cost in speed (a
-  1x1 convolution to 2 channels).
+  what follows it up to the output. An 8-bit log-depth output costs AbsRel in every world;
+  in fp32 the head costs no measurable speed (a 1x1 convolution to 2 channels).
 - **Percentile calibration** (99.999) on ``calibration_frames`` validation frames: against
-  MinMax, the same heatmap figures and AbsRel nearer fp32's; Entropy gave MinMax's model.
-- **7-bit weights** (``reduce_range``), chosen on an AMD EPYC (Zen 3) with AVX2 and no VNNI:
-  there ONNX Runtime's u8s8 kernels add pairs of products in 16 bits, which saturates with
-  full 8-bit weights: the 8-bit model read held-out IoU 0.02-0.62 and AbsRel 0.27-0.53
-  there, the 7-bit one within 0.006 IoU and 0.003 AbsRel of fp32 in every world, at the
-  same speed (1.4x fp32). On the Xeon with VNNI 7-bit weights had cost the network before
-  some AbsRel for no speed; on the shipped network the 8-bit model was within 0.004 AbsRel
-  and 0.003 IoU of fp32 there, about as close as the 7-bit one is. With VNNI both run the
-  same kernels (the 7-bit one not timed on such a CPU). The daemon checks the model
-  against fp32 on each CPU (:mod:`active_vision.precision`).
+  MinMax, the same heatmap figures and AbsRel nearer fp32's; Entropy gives MinMax's model.
+- **7-bit weights** (``reduce_range``): on a CPU with AVX2 and no VNNI, ONNX Runtime's u8s8
+  kernels add pairs of products in 16 bits, which saturates with full 8-bit weights and
+  wrecks the model; with 7-bit weights it stays near fp32 in every world. With VNNI both
+  run the same kernels. The daemon checks the model against fp32 on each CPU
+  (:mod:`active_vision.precision`).
 - No ``quant_pre_process``: ORT's symbolic shape inference does not complete on this graph,
-  and with ONNX shape inference alone it changed neither speed nor quality.
+  and with ONNX shape inference alone it changes neither speed nor quality.
 
 Calibration frames come from the validation split (``evaluate.heldout(split="validation")``,
 rendered on first use), never from the held-out split the figures are reported on.

@@ -11,18 +11,16 @@ needs both heads from one file), so it is trained on the sum of the two losses.
 Without ``--data`` the training split (``dataset.TRAIN_SEED``, 40,000 frames, 70 % recorded
 while driving, random pedestrian appearance, half of them in inspect) is rendered into
 ``--data-dir`` on first use (about two minutes) and reused afterwards. On the CPU by
-default, ``--threads`` torch threads (default 2): the default network (24/48/96/128) for the
-default 15 epochs took 65 min on a 2-core machine with two runs side by side on one thread
-each (255-265 s an epoch, 2026-11-26; the 16/32/64/96 network before it: 125-150 s).
-``--device cuda`` trains on a GPU with the same batches (the random draws stay on the CPU
-generator); the step is bound by the augmentation's per-frame work, so an H200 with 16 CPU
-cores took about 25 s an epoch for the 16/32/64/96 network with two runs sharing it. The
-training state is written after every epoch (``--checkpoint``, default ``OUT.ckpt``);
-``--resume`` continues an interrupted run. With ``--calibrate`` the heatmap head is then
-calibrated on the validation split (:mod:`active_vision.training.calibrate`: the detection
-threshold that serves recall best within the false-positive budget becomes the head's
-0.5). Writes ``active_vision/weights/avnet.pt`` (or ``--out``)
-with the held-out figures (driving split) of the result stored in its ``meta``.
+default, ``--threads`` torch threads (default 2); a from-scratch run of the default recipe is
+about an hour on two CPU cores. ``--device cuda`` trains on a GPU with the same batches (the
+random draws stay on the CPU generator); there the step is bound by the augmentation's
+per-frame work on the CPU, not by the network. The training state is written after every epoch
+(``--checkpoint``, default ``OUT.ckpt``); ``--resume`` continues an interrupted run. With
+``--calibrate`` the heatmap head is then calibrated on the validation split
+(:mod:`active_vision.training.calibrate`: the detection threshold that serves recall best
+within the false-positive budget becomes the head's 0.5). Writes
+``active_vision/weights/avnet.pt`` (or ``--out``) with the held-out figures (driving split) of
+the result stored in its ``meta``.
 
 Losses:
 
@@ -92,23 +90,19 @@ HARD_NEGATIVES = 32
 HARD_NEGATIVE_WEIGHT = 0.2
 POSITIVE_WEIGHT = 3.0
 """Weight of pedestrian pixels in the heatmap's cross-entropy: a pedestrian of 30-60 px
-among 9,216 background pixels otherwise costs too little to miss (recall on driving frames
-was 0.59 in inspect without it)."""
+among 9,216 background pixels otherwise costs too little to miss."""
 PEDESTRIAN_DEPTH_WEIGHT = 4.0
 SMALL_FIGURE_PX = 200
 """A pedestrian (8-connected mask component) smaller than this gets its pixels' heatmap weight
-raised by ``sqrt(SMALL_FIGURE_PX / pixels)``, at most ``SMALL_FIGURE_MAX_BOOST`` times.
-(400 with a cap of 4, together with edge pastes, did not raise inspect's recall on the
-validation split: 0.935 against 0.941 at 0.5; benchmarks/RESULTS.md, 2026-11-26.)"""
+raised by ``sqrt(SMALL_FIGURE_PX / pixels)``, at most ``SMALL_FIGURE_MAX_BOOST`` times
+(400 with a cap of 4, tried with edge pastes, did not raise inspect's recall on the
+validation split: docs/decisions.md, "Perception network and int8")."""
 SMALL_FIGURE_MAX_BOOST = 3.0
 DEPTH_WORLD_WEIGHTS: dict[str, float] = {}
-"""Depth-loss weight of a world's frames by name (a world not named: 1). None by default. On
-the moon's old rough ground, weighting its frames 3 times moved its delta1 by less than
-run-to-run noise in a fine-tune. On the gentler ground of 2026-11-26, fine-tunes with the
-moon weighted 2 and then 4 times gained +0.010 and +0.016 on validation, and the shipped
-weights were made so (``--depth-world-weight moon=4``). Four trainings from scratch with it
-(seeds 0-3) read the moon's delta1 at 0.879-0.889 on validation. None was run without it,
-so its share in that is not known, and the default stays (benchmarks/RESULTS.md)."""
+"""Depth-loss weight of a world's frames by name (a world not named: 1). None by default; the
+shipped recipe weights the moon's frames 4 times (``--depth-world-weight moon=4``), which
+raised the moon's delta1 on validation in fine-tunes. No from-scratch run without it was
+made, so the default stays (docs/decisions.md, "Perception network and int8")."""
 PASTE_PROB = 0.5
 """Share of training frames that receive another frame's pedestrians (:func:`paste_figures`)."""
 PASTE_MAX_SHIFT = 40
@@ -141,8 +135,8 @@ def parse_worlds(text: str) -> tuple[str, ...]:
 
 def training_split(cfg: AVNetRecipe, data_dir: Path) -> Dataset:
     """The training frames of recipe ``cfg``: ``cfg.frames`` split evenly over ``cfg.crowds``,
-    scene k rendered (and cached in ``data_dir``) from seed ``TRAIN_SEED + k``, so a recipe with
-    only ``pacing`` reads the same file as before crowds were a recipe field."""
+    scene k rendered (and cached in ``data_dir``) from seed ``TRAIN_SEED + k``; a recipe with
+    only ``pacing`` reads the pacers' split of seed ``TRAIN_SEED``."""
     parts = [Dataset.load(build(data_dir, DatasetConfig(
         frames=frames, seed=seed, worlds=cfg.worlds, pedestrian_mode=mode, n_pedestrians=count)))
         for seed, mode, count, frames in crowd_shares(cfg.frames, cfg.crowds)]
@@ -170,9 +164,8 @@ class AVNetRecipe:
 
     frames: int = 40000
     """Training frames to render (70 % driving, 30 % posed) when no ``--data`` file is given.
-    Twice the 20,000 of the network before, in half the epochs (the same optimiser steps): on
-    the validation split inspect's recall rose 0.915 -> 0.941 and its false-positive frames
-    fell 2.05 -> 0 % (docs/journal.md)."""
+    40,000 frames for 15 epochs beat 20,000 for 30 (the same optimiser steps) and 60,000 for
+    10 on the validation split (docs/decisions.md, "Perception network and int8")."""
     worlds: tuple[str, ...] = field(default=TRAIN_WORLDS, metadata={"parse": parse_worlds})
     """Worlds to render the training split from, cycled episode by episode and frame by
     frame (a name twice gets twice the frames), comma-separated."""

@@ -32,9 +32,9 @@ _FLAT_HALF = 5.0  # |x|, |y| below this stay gentle
 _ROUGHNESS = 0.05
 """Standard deviation (m) of each 1 m cell's random height beyond the spawn square. Lunar
 regolith slopes a few degrees at a 1 m baseline; with 0.05 m neighbouring cells differ by 5
-degrees in the median over the height field (13 with the 0.25 m used until 2026-11-26:
-facets each tilted its own way, which no camera at 96 pixels can read depth from;
-benchmarks/RESULTS.md, "What limits the moon's depth"). The hills and crater rims keep
+degrees in the median over the height field (13 at 0.25 m: facets each tilted its own way,
+which no camera at 96 pixels can read depth from; benchmarks/RESULTS.md, "Moon depth
+harness"). The hills and crater rims keep
 their steep faces, up to 46 degrees between cells."""
 _ROCK_RGBA = "0.42 0.41 0.39 1"
 # Hills (x, y, height m, sigma m) and craters (x, y, rim radius m, rim height m).

@@ -6,7 +6,7 @@ groups 0 and 1 only):
 - 0: scenery standing on the ground (walls, rocks, panels): collides, scanned, rendered
 - 1: pedestrians: collide with the rover, scanned, rendered
 - 2: rendered, not scanned: the ground (plane or height field: a level 2D scan never
-  meets flat ground, and ray casting a height field costs ~7 us a ray), the rover's
+  meets flat ground, and ray casting a height field is costly), the rover's
   visuals, and visual-only scenery (panel frames)
 - 3: rover collision shapes: invisible
 - 4: markers (goal): drawn in the chase view only

@@ -56,8 +56,8 @@ SCAN_BANDS = 16
 """Bands of a fused student's depth scan (``FeatureSpec.depth_scan``; 5.6 degrees each)."""
 TRAINING_FRAME_TIMEOUT = 30.0
 """Seconds a training run's fused env waits for a frame (the env's default is 2 s). A run
-is long and shares the machine: on 2026-11-25 a fused distillation at load 6 died 25 minutes
-in when its daemon, alive, went 3 s without publishing. A dead daemon is still reported at
+is long and shares the machine, where a live daemon can go several seconds without
+publishing under load; a 2 s timeout would end the run. A dead daemon is still reported at
 once: the reader's liveness checks do not wait for the timeout."""
 SEED_STRIDE = 10_000
 """Episode seeds of DAgger seed ``s`` start at ``s * SEED_STRIDE``, ..."""

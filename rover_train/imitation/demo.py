@@ -9,10 +9,9 @@ privileged planner expert, see ``rover_train.imitation.distill``), fine-tunes it
 env steps of DAgger on RoverEnvFused with the daemon's fused images, then evaluates the
 zoo entry as shipped, the fine-tuned student and a seeded random policy on the same
 ``--episodes`` evaluation episodes (reset seeds from 100000, never used in training; each
-ends at the first goal, a termination or ``--max-steps``). One evaluation of the zoo entry
-drove ~11 ms a step on two busy cores (882 steps in 10 s; 20 episodes of at most 600 steps:
-under 2.5 min, about 1 min at its ~300 steps an episode); the recorded episodes cost 3-4x
-that a step for the chase render and the labels.
+ends at the first goal, a termination or ``--max-steps``). The recorded episodes cost
+several times an evaluation step for the chase render and the labels (the main job's
+time: benchmarks/RESULTS.md, "The main job").
 
 Leaves under ``--out`` (default ``runs/demo``): ``student.pt`` (the fine-tuned agent,
 loadable with ``rover_train.zoo.StudentAgent.load``), ``metrics.json``,

@@ -196,10 +196,10 @@ class DAggerRecipe:
 def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
     kind = ENTRIES[entry].kind
     # The labelling expert by kind: a fused student learns from a teacher that sees only
-    # what the camera shows (fused-inspect 58 -> 70 %, fused-maze 45 -> 61 % success on 100
-    # diagnostic episodes) and keeps personal space (polite); a LIDAR student, whose scan
-    # sees all round, from the firm teacher, which passes people in corridors (its
-    # ensembles: 89 and 92 % of 200 diagnostic episodes against 86 and 87 % polite).
+    # what the camera shows (a yield it cannot see teaches it to back off from nothing) and
+    # keeps personal space (polite); a LIDAR student, whose scan sees all round, from the
+    # firm teacher, which passes people in corridors and teaches students that reach more
+    # goals (docs/decisions.md, "Imitation and the zoo").
     teacher = ({"teacher_sees": "camera", "teacher_manners": "polite"}
                if kind in STUDENT_FUSED_KINDS
                else {"teacher_sees": "all", "teacher_manners": "firm"})  # fmt: skip
@@ -231,14 +231,13 @@ RECIPES: dict[str, DAggerRecipe] = {
 """The recipe each zoo entry is made with. The four main entries are made among the crowd of 3
 (the default). Ensembles (members): the LIDAR pair's and fused-maze's were chosen on the
 diagnostic seeds (among the crowd two LIDAR members meet every target at 3 and 10 people;
-fused-maze's three were chosen among the pacers and kept); the table pair's two after two
-draws of the Discrete(180) recipe reached 90 and 81 % of the same evaluation episodes
-(RESULTS.md, "On the seed's tables"). lidar-maze's students see the unmapped scan (34
-collided diagnostic episodes of 200 against 40 without; docs/journal.md). fused-moon and
-fused-gaze-moon (moon crossings), and fused-inspect-10 and fused-gaze-inspect-10 (inspect
-among a crowd of 10, where looking changes what the teacher hits), are pairs of one recipe:
-the camera fixed ahead, or turned by the student as the gaze teacher turns it (issue 37's
-comparison)."""
+fused-maze's three were chosen among the pacers and kept); the table pair's two because single
+draws of the Discrete(180) recipe differ widely (docs/decisions.md, "Imitation and the zoo";
+benchmarks/RESULTS.md, "Looking, for the students"). lidar-maze's students see the unmapped
+scan (why: docs/decisions.md, "Imitation and the zoo"). fused-moon and fused-gaze-moon (moon
+crossings), and fused-inspect-10 and fused-gaze-inspect-10 (inspect among a crowd of 10, where
+looking changes what the teacher hits), are pairs of one recipe: the camera fixed ahead, or
+turned by the student as the gaze teacher turns it (issue 37's comparison)."""
 
 
 @dataclass(frozen=True)

@@ -83,11 +83,10 @@ MANNERS = {
 keeps 1.35 m from everyone and pays dearly for intrusion; ``firm`` keeps 1 m, pays a third
 as much for intrusion and three times as much for a predicted near-contact, counted from
 0.7 m. In corridors the polite expert dithers: it cannot pass a pedestrian without
-intruding, so it waits, detours and times out. On the diagnostic seeds (maze 50000-50399,
-inspect 50000-50199) firm reaches 357 of 400 maze goals to polite's 344 with 2 collided
-episodes to 7, and 186 of 200 in inspect to 172 (2 to 4); it intrudes more (steps within
-1.2 m of a pedestrian: 24-27 % against 18-19 %). Counting near-contacts from 0.65 m instead
-gave 363 and 188 goals but 7 and 5 collided episodes (benchmarks/RESULTS.md)."""
+intruding, so it waits, detours and times out. Firm reaches more goals with fewer collided
+episodes on the diagnostic seeds and intrudes more; the terms were chosen there
+(docs/decisions.md, "Imitation and the zoo"; benchmarks/RESULTS.md, "The planner
+expert")."""
 
 _SIGHT_SAMPLES = 14  # points checked along a line of sight (every <= 0.1 m at LOOKAHEAD)
 _CANDIDATE_HEADINGS = np.linspace(-math.pi, math.pi, 16, endpoint=False)

@@ -10,7 +10,7 @@ and its weights. Its features:
   routing);
 - yaw (cos, sin), pitch, roll, the target's distance and bearing (cos, sin), odometry;
 - ``lidar`` (LIDAR students): ranges clipped to ``LIDAR_CLIP`` m, scaled to [0, 1];
-- ``unmapped_scan`` (lidar-maze since 2026-11-25): the same ranges kept only where a return
+- ``unmapped_scan`` (lidar-maze's students): the same ranges kept only where a return
   falls short of the world's map (:func:`unmapped_scan`), so that a pedestrian standing
   still does not look like the scenery;
 - with ``FeatureSpec.history`` (the current entries), what one observation cannot show,
@@ -20,7 +20,7 @@ and its weights. Its features:
   progress for 2 s beside a pedestrian; a memoryless student stood in such deadlocks), and
   for LIDAR students the change of every range over the last ``LIDAR_LAG`` steps (how the
   pedestrians move);
-- ``depth_scan`` (fused students since 2026-11-25): a forward range scan read off the fused
+- ``depth_scan`` (the fused students): a forward range scan read off the fused
   image's depth channel, the LIDAR the fused env does not have: each pixel is lifted to 3D
   with the camera's pose on the rover, the ground and anything above ``SCAN_TOP`` dropped,
   and the nearest horizontal range kept per column band (:func:`depth_scan`); with history,
@@ -38,12 +38,12 @@ and its weights. Its features:
 The output head: a softmax over joint (speed level, heading bin) classes, ``SPEED_LEVELS`` x
 ``HEADING_BINS``, trained with cross-entropy on the expert's action's nearest class. The
 expert's labels are multimodal (turn left or right round a panel, wait or back off for a
-pedestrian); a regression averages the modes into an action that does neither (the first
-students regressed and were left stuck against obstacles). Decoding takes the most likely
-class and refines it with the probabilities of its neighbours (a circular mean over the
-adjacent heading bins, a mean over the adjacent speed levels). A gaze student has a second
-head, a softmax over ``PAN_BINS`` pan targets across the gaze env's +-60 degrees, decoded the
-same way; its action is ``[speed, relative heading, pan target]``.
+pedestrian); a regression averages the modes into an action that does neither, and leaves a
+student stuck against obstacles (docs/decisions.md, "Imitation and the zoo"). Decoding takes
+the most likely class and refines it with the probabilities of its neighbours (a circular mean
+over the adjacent heading bins, a mean over the adjacent speed levels). A gaze student has a
+second head, a softmax over ``PAN_BINS`` pan targets across the gaze env's +-60 degrees,
+decoded the same way; its action is ``[speed, relative heading, pan target]``.
 """
 
 from __future__ import annotations
@@ -226,9 +226,9 @@ def unmapped_scan(obs: dict[str, np.ndarray], world: str) -> np.ndarray:
     the pose MuJoCo's kinematics computed at the start of the last physics step,
     ``rover_env.LIDAR_SCAN_LAG`` before ``obs["pose"]`` (up to 0.1 rad behind when turning fast), so
     the map is cast from there, dead-reckoned back with the odometry, and at
-    ``UNMAPPED_YAW_SPREAD`` either side (the nearest kept): on random driving 0.4 % of the
-    scenery's returns within ``LIDAR_CLIP`` are then marked in the maze (8.9 % cast from
-    ``obs["pose"]`` as it is), and 97 % of the pedestrians' (benchmarks/unmapped_scan_check.py).
+    ``UNMAPPED_YAW_SPREAD`` either side (the nearest kept): that marks few of the scenery's
+    returns and nearly all the pedestrians' (benchmarks/unmapped_scan_check.py; the figures
+    in benchmarks/RESULTS.md, "Unmapped scan check").
     Assumes a level rover (the flat worlds).
     """
     lidar = np.asarray(obs["lidar"], dtype=np.float32)
@@ -524,8 +524,8 @@ class EnsembleNet(nn.Module):
     Output: the mean of the members' log-probabilities (the decoding's softmax of it is
     their normalised geometric mean, so a class wins only where the members agree on it).
     One run of the recipe is one
-    draw of a noisy process (two runs of lidar-inspect's recipe reached 82 and 89 % of the
-    same 100 episodes); averaging draws cuts the variance that one draw carries.
+    draw of a noisy process (two runs of one recipe can differ by several points of success
+    on the same episodes); averaging draws cuts the variance that one draw carries.
     """
 
     def __init__(self, members: list[StudentNet]) -> None:
