@@ -49,7 +49,7 @@ typecheck: setup
 	$(PY) -m mypy
 
 bench: setup
-	$(PY) benchmarks/ipc_latency.py
-	$(PY) benchmarks/env_speed.py
-	$(PY) benchmarks/perception_speed.py
-	$(PY) benchmarks/fused_speed.py
+	$(PY) -m benchmarks.ipc_latency
+	$(PY) -m benchmarks.env_speed
+	$(PY) -m benchmarks.perception_speed
+	$(PY) -m benchmarks.fused_speed

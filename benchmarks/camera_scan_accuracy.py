@@ -1,6 +1,6 @@
 """How well the camera scan knows the world, and what it costs a fused step.
 
-    MUJOCO_GL=egl .venv/bin/python benchmarks/camera_scan_accuracy.py --episodes 4 --steps 300
+    MUJOCO_GL=egl .venv/bin/python -m benchmarks.camera_scan_accuracy --episodes 4 --steps 300
 
 For each world and crowd size, the planner expert drives a ``RoverEnvFused(camera_scan=True)``
 on a real av-daemon (the shipped network, the daemon's default precision) over seeded
@@ -31,9 +31,9 @@ import uuid
 from dataclasses import dataclass, field
 
 import numpy as np
-from machine import cpu_name
 
 from active_vision import spawn_daemon
+from benchmarks.machine import cpu_name
 from rover_env import RoverEnvFused
 from rover_env.camera_scan import sector_centres
 from rover_train.imitation.expert import PlannerExpert

@@ -8,10 +8,12 @@ compared bit for bit. Licence: the wheel's metadata.
 Candidates from the package lists: ``pyrvo`` (ORCA, RVO2 bindings), ``jupedsim`` (its
 collision-free speed model and its social force model), ``PySocialForce`` (numba) and
 ``ir-sim`` (a whole robot simulator; its ORCA behaviour is ``pyrvo``). None is a dependency
-of roverav: install them in a scratch venv and point this script at it,
+of roverav: install them into a folder of their own without their dependencies (so that
+roverav's numpy stays the one imported; add any other dependency a candidate asks for, e.g.
+shapely for jupedsim) and put that folder on ``PYTHONPATH``,
 
-    python -m venv /tmp/crowdvenv && /tmp/crowdvenv/bin/pip install pyrvo jupedsim pysocialforce
-    python benchmarks/crowd_step.py --site /tmp/crowdvenv/lib/python3.11/site-packages
+    .venv/bin/pip install --no-deps --target /tmp/crowdsite pyrvo jupedsim pysocialforce shapely
+    PYTHONPATH=/tmp/crowdsite .venv/bin/python -m benchmarks.crowd_step
 
 Packages that do not import are reported as such; roverav's own ``rover_env.crowd`` (numba,
 with routes on a grid, solid bodies and the rover) always runs.
@@ -22,16 +24,11 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import sys
 import tempfile
 import time
 from collections.abc import Callable
-from pathlib import Path
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-import numpy as np  # noqa: E402
+import numpy as np
 
 N, DT, STEPS = 20, 0.05, 200
 WALLS = ((-2.5, -1.5, -2.5, 2.5), (1.5, 2.5, -2.5, 2.5))  # x0, x1, y0, y1
@@ -161,11 +158,7 @@ CANDIDATES: dict[str, tuple[str, Callable[[], Result], str, str]] = {
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--site", action="append", default=[],
-                        help="a site-packages folder holding the candidates (appended to "
-                             "sys.path, so roverav's own numpy comes first)")  # fmt: skip
-    args = parser.parse_args(argv)
-    sys.path.extend(args.site)
+    parser.parse_args(argv)
     print(f"# {N} agents, {STEPS} steps; us per step; deterministic = two runs bit-identical")
     print()
     print("| model | us / step | deterministic | obstacles | licence |")

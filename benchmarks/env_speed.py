@@ -26,8 +26,8 @@ now), in interleaved rounds (medians), and the ratios crowd 10 / pacing 3 (the t
 >= 80 %) and crowd 10 / crowd 3, taken within each round (median, quartiles in brackets):
 this VM's speed drifts 2x within minutes, the ratio of rows run a second apart far less.
 
-    python benchmarks/env_speed.py            # about 30 s
-    python benchmarks/env_speed.py --quick    # about 8 s
+    python -m benchmarks.env_speed            # about 30 s
+    python -m benchmarks.env_speed --quick    # about 8 s
 """
 
 from __future__ import annotations
@@ -35,20 +35,15 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import gymnasium as gym
+import numpy as np
 
-import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
-
-from benchmarks.machine import cpu_name  # noqa: E402
-from fused_image import FUSED_SIZE  # noqa: E402
-from rover_env import WORLD_NAMES, RoverEnv  # noqa: E402  (sets MUJOCO_GL=egl first)
+from benchmarks.machine import cpu_name
+from fused_image import FUSED_SIZE
+from rover_env import WORLD_NAMES, RoverEnv  # sets MUJOCO_GL=egl first
 
 SEED_RESET_S = 100 * 0.1 + 1.0  # the seed's reset: 100 spins of 0.1 s, then sleep(1)
 SEED_REAL_TIME = 1.0  # the seed's steps run at wall-clock speed

@@ -1,12 +1,12 @@
 """End-to-end speed of RoverEnvFused with a live av-daemon, and where the time goes,
 for each perception backend (torch and onnx) side by side in one run.
 
-    python benchmarks/fused_speed.py                     # both backends, 1 and 2 envs, training
-    python benchmarks/fused_speed.py --steps 500 --train-steps 0   # shorter, no training rows
-    python benchmarks/fused_speed.py --backends onnx     # one backend
-    python benchmarks/fused_speed.py --backends onnx --precision fp32,int8 --repeats 3 \
+    python -m benchmarks.fused_speed                     # both backends, 1 and 2 envs, training
+    python -m benchmarks.fused_speed --steps 500 --train-steps 0   # shorter, no training rows
+    python -m benchmarks.fused_speed --backends onnx     # one backend
+    python -m benchmarks.fused_speed --backends onnx --precision fp32,int8 --repeats 3 \
         --train-steps 0                           # both precisions, interleaved
-    python benchmarks/fused_speed.py --backends onnx --spin-wait auto,off --envs 1 \
+    python -m benchmarks.fused_speed --backends onnx --spin-wait auto,off --envs 1 \
         --repeats 3 --train-steps 0               # env and daemon spinning, and not
 
 Every env row is one (backend, precision) combination: the daemon runs with ``--backend B
@@ -51,11 +51,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from active_vision.launcher import spawn_daemon
+from fused_image import FUSED_SHAPE, FUSED_SIZE
 
-from active_vision.launcher import spawn_daemon  # noqa: E402
-from fused_image import FUSED_SHAPE, FUSED_SIZE  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 SEED_STEPS_PER_S = 20.0  # the seed steps in real time at 0.05 s control
 
@@ -157,7 +156,6 @@ def ipc_handoff(n: int = 2000) -> float:
 
 
 def _ipc_child(name: str, n: int, q: mp.Queue) -> None:
-    sys.path.insert(0, str(ROOT))
     from shm_protocol import FrameReader, FrameTimeoutError
 
     r = FrameReader(name)

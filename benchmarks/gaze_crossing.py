@@ -1,7 +1,7 @@
 """Does looking help? Fixed-camera vs gaze agents in the crossing scenario (issue 13).
 
-    python benchmarks/gaze_crossing.py --fixed runs/fixed/model.zip --gaze runs/gaze/model.zip \\
-        --episodes 30 --gif docs/gaze_crossing.gif
+    .venv/bin/python -m benchmarks.gaze_crossing --fixed runs/fixed/model.zip \\
+        --gaze runs/gaze/model.zip --episodes 30 --gif docs/gaze_crossing.gif
 
 Both agents meet the same episodes: episode i is reset with seed ``--seed + i`` in
 ``--world`` with ``pedestrian_mode="crossing"`` (pedestrians walk across the line from the
@@ -35,11 +35,9 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from fused_image import DEPTH_MAX_M as VIEW_RANGE_M  # noqa: E402  (in view: within depth range)
-from rover_env.constants import INTIMATE_SPACE_M, PERSONAL_SPACE_M  # noqa: E402
+from fused_image import DEPTH_MAX_M as VIEW_RANGE_M  # in view: within depth range
+from rover_env.constants import INTIMATE_SPACE_M, PERSONAL_SPACE_M
+from rover_train.imitation.gaze_value import video_frame, write_gif
 
 FIXED_HALF_FOV = math.radians(45.0)  # the forward camera's half field of view, unpanned
 
@@ -123,31 +121,6 @@ def run_episode(
     tally.pedestrian_collision_episodes += collided
     tally.per_episode_pan_only.append(sum(pan_only))
     return pan_only
-
-
-def video_frame(env: Any, obs: dict[str, np.ndarray], panel: int = 192) -> np.ndarray:
-    import cv2
-
-    chase = cv2.resize(env.render(), (panel * 4 // 3, panel), interpolation=cv2.INTER_AREA)
-    fused = obs["fused_image"]
-    gray = (np.clip(fused[:, :, 0], 0, 1) * 255).astype(np.uint8)
-    heat = (np.clip(fused[:, :, 1], 0, 1) * 255).astype(np.uint8)
-    gray = np.repeat(cv2.resize(gray, (panel, panel))[:, :, None], 3, 2)
-    heat = cv2.applyColorMap(cv2.resize(heat, (panel, panel)), cv2.COLORMAP_INFERNO)[:, :, ::-1]
-    frame = np.concatenate([chase, gray, heat], axis=1)
-    pan = math.degrees(float(obs.get("gaze", np.zeros(1))[0]))
-    cv2.putText(frame, f"pan {pan:+.0f} deg", (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5,
-                (255, 255, 255), 1, cv2.LINE_AA)  # fmt: skip
-    return frame
-
-
-def write_gif(frames: list[np.ndarray], path: Path, fps: float) -> None:
-    from PIL import Image
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    images = [Image.fromarray(f).convert("P", palette=Image.Palette.ADAPTIVE) for f in frames]
-    images[0].save(path, save_all=True, append_images=images[1:],
-                   duration=int(1000 / fps), loop=0, optimize=True)  # fmt: skip
 
 
 def load_agent(path: Path) -> Callable[[Any], Any]:

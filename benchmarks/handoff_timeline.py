@@ -11,7 +11,7 @@ perception are timed per frame. For every frame (wall clock, one clock for both 
 and prints the medians of each gap, per daemon precision, interleaved over ``--repeats``
 rounds::
 
-    python benchmarks/handoff_timeline.py --precision fp32,int8 --frames 400 --repeats 3
+    python -m benchmarks.handoff_timeline --precision fp32,int8 --frames 400 --repeats 3
 """
 
 from __future__ import annotations
@@ -21,20 +21,15 @@ import multiprocessing as mp
 import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from fused_image import FUSED_SIZE  # noqa: E402
+from fused_image import FUSED_SIZE
 
 STAGES = ("wake+read", "gather", "perception", "publish", "env wake+read")
 
 
 def _daemon_child(name: str, precision: str, times, ready, stop) -> None:
-    sys.path.insert(0, str(ROOT))
     from active_vision.daemon import Daemon, DaemonConfig
 
     d = Daemon(DaemonConfig(name=name, precision=precision, log_every=0,

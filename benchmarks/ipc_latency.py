@@ -20,8 +20,8 @@ Measured per reader:
 - idle CPU: CPU seconds per second the reader burns while waiting for frames that do not
   come (the writer alive, heartbeating).
 
-    python benchmarks/ipc_latency.py            # about 50 s
-    python benchmarks/ipc_latency.py --quick    # about 12 s
+    python -m benchmarks.ipc_latency            # about 50 s
+    python -m benchmarks.ipc_latency --quick    # about 12 s
 """
 
 from __future__ import annotations
@@ -37,15 +37,11 @@ import struct
 import sys
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-from fused_image import FUSED_SHAPE  # noqa: E402
-from shm_protocol import FrameReader, FrameTimeoutError, FrameWriter  # noqa: E402
+from fused_image import FUSED_SHAPE
+from shm_protocol import FrameReader, FrameTimeoutError, FrameWriter
 
 SHAPE = FUSED_SHAPE
 READERS = ("FrameReader", "seed 1 ms poll", "spin", "FrameReader, checksum mode")

@@ -1,10 +1,10 @@
 """Does it learn? The learners side by side, PPO against the random policy, and learning
 curves of the zoo's recipe.
 
-    python benchmarks/learning.py --table maze --row PPO=runs/rl-maze --row DAgger=zoo:lidar-maze
-    python benchmarks/learning.py                      # lidar: 3 seeds x 100k steps; fused: 2 x 20k
-    python benchmarks/learning.py --lidar-steps 30000 --seeds 1 --fused-steps 0   # quick look
-    python benchmarks/learning.py --curves --world maze --budget 160000 --points 8 --episodes 30
+    python -m benchmarks.learning --table maze --row PPO=runs/rl-maze --row DAgger=zoo:lidar-maze
+    python -m benchmarks.learning                      # lidar: 3 seeds x 100k steps; fused: 2 x 20k
+    python -m benchmarks.learning --lidar-steps 30000 --seeds 1 --fused-steps 0   # quick look
+    python -m benchmarks.learning --curves --world maze --budget 160000 --points 8 --episodes 30
 
 ``--curves`` trains, in one run and with the same env-step budget on RoverEnv, the zoo's
 recipe (DAgger from the planner expert, ``rover_train.imitation.distill``) and rover-train's PPO
@@ -42,13 +42,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from active_vision.launcher import spawn_daemon  # noqa: E402
-from rover_train import evaluate  # noqa: E402
-from rover_train.agents import RandomAgent  # noqa: E402
-from rover_train.envs import make_env  # noqa: E402
-from rover_train.train import TrainArgs, train  # noqa: E402
+from active_vision.launcher import spawn_daemon
+from rover_train import evaluate
+from rover_train.agents import RandomAgent
+from rover_train.envs import make_env
+from rover_train.train import TrainArgs, train
 
 EPISODE_SEED_BASE = 5000  # the seed-comparison table's episodes: reset(seed=5000 + i)
 

@@ -1,7 +1,7 @@
 """Perception speed: ms/frame per stage, batch 1 and 8, 1 and 2 torch threads; daemon fps;
 and the original pipeline's detector (YOLO11n at 640x640, five frames per output).
 
-    PYTHONPATH=. .venv/bin/python benchmarks/perception_speed.py [--quick] [--no-daemon]
+    .venv/bin/python -m benchmarks.perception_speed [--quick] [--no-daemon]
         [--weights OTHER.pt ...]
 
 What runs:
@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import sys
 import time
 import uuid
 from dataclasses import dataclass
@@ -49,12 +48,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from active_vision.launcher import spawn_daemon  # noqa: E402
-from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
-from fused_image import FUSED_SHAPE, FUSED_SIZE  # noqa: E402
+from active_vision.launcher import spawn_daemon
+from active_vision.perception import Perception, PerceptionConfig
+from fused_image import FUSED_SHAPE, FUSED_SIZE
 
 YOLO11N_PARAMS = 2_624_080  # ultralytics yolo11.yaml, scale n (80 classes)
 

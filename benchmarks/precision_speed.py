@@ -1,7 +1,7 @@
 """fp32 against int8 perception, side by side in one run: speed at batch 1 and 8 on one
 thread, and the held-out figures per world of each precision.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/precision_speed.py [--precision fp32,int8]
+    .venv/bin/python -m benchmarks.precision_speed [--precision fp32,int8]
         [--repeats 7] [--iters 200] [--no-quality]
 
 What runs:
@@ -29,18 +29,13 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from active_vision.backends import PRECISIONS  # noqa: E402
-from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
-from benchmarks.machine import cpu_name  # noqa: E402
+from active_vision.backends import PRECISIONS
+from active_vision.perception import Perception, PerceptionConfig
+from benchmarks.machine import cpu_name
 
 BATCHES = (1, 8)
 FIGURES = ("iou", "recall", "false_positive_rate", "abs_rel", "delta1")
@@ -112,7 +107,7 @@ def quality(precisions: list[str]) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="benchmarks/precision_speed.py", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m benchmarks.precision_speed", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--precision", default="fp32,int8",
                    help="comma-separated precisions, the first is the baseline")

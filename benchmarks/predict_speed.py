@@ -1,6 +1,6 @@
 """Cost of ``--heatmap predict`` next to ``detect``: ms/frame at batch 1, one torch thread.
 
-    PYTHONPATH=. .venv/bin/python benchmarks/predict_speed.py [--iters 300] [--repeats 5]
+    .venv/bin/python -m benchmarks.predict_speed [--iters 300] [--repeats 5]
 
 Both rows run what the daemon runs per camera frame, on the shipped weights:
 
@@ -18,20 +18,15 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from active_vision.history import SlotHistory  # noqa: E402
-from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
-from active_vision.predict import K, Predictor  # noqa: E402
-from fused_image import FUSED_SHAPE, FUSED_SIZE  # noqa: E402
+from active_vision.history import SlotHistory
+from active_vision.perception import Perception, PerceptionConfig
+from active_vision.predict import K, Predictor
+from fused_image import FUSED_SHAPE, FUSED_SIZE
 
 
 def _run(perception: Perception, predictor: Predictor | None, frames: np.ndarray) -> float:

@@ -1,7 +1,7 @@
 """Ray overhead and scaling of fused env stepping: rover-pair's local pipeline against RayVecEnv.
 
-    python benchmarks/ray_scaling.py              # the full table (about 4 minutes)
-    python benchmarks/ray_scaling.py --quick      # fewer seconds per row
+    python -m benchmarks.ray_scaling              # the full table (about 4 minutes)
+    python -m benchmarks.ray_scaling --quick      # fewer seconds per row
 
 Rows, all RoverEnvFused (maze) with constant actions, each env served by an av-daemon
 with one torch thread:
@@ -36,8 +36,6 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 CLK = os.sysconf("SC_CLK_TCK")

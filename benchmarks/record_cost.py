@@ -16,15 +16,14 @@ Each row also gives the file's size per 1,000 steps. Each recording is one
 :class:`rover_train.record.EpisodeRecorder` over the round's steps, written to a temporary
 folder.
 
-    python benchmarks/record_cost.py            # about 2 minutes on 2 vCPUs
-    python benchmarks/record_cost.py --quick    # about 30 s
+    python -m benchmarks.record_cost            # about 2 minutes on 2 vCPUs
+    python -m benchmarks.record_cost --quick    # about 30 s
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import sys
 import tempfile
 import time
 import uuid
@@ -32,17 +31,14 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-if __package__ in (None, ""):
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
+import gymnasium as gym
+import numpy as np
 
-import rover_env  # noqa: E402,F401  (registers the ids)
-from benchmarks.machine import cpu_name  # noqa: E402
-from rover_train.record import EpisodeRecorder, RecordConfig  # noqa: E402
+import rover_env  # noqa: F401  (registers the ids)
+from benchmarks.machine import cpu_name
+from rover_train.record import EpisodeRecorder, RecordConfig
 
 WORLD = "inspect"
 SEED = 0

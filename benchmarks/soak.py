@@ -1,6 +1,6 @@
 """Chaos soak: a fused training run under rover-pair with a seeded schedule of faults.
 
-    python benchmarks/soak.py --minutes 15 --seed 0
+    python -m benchmarks.soak --minutes 15 --seed 0
 
 Runs ``rover-pair --slots S -- rover-train --env fused --timesteps N`` and, while it trains,
 applies faults at times drawn from ``--seed``:
@@ -38,11 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from shm_protocol import SHM_DIR, FrameReader, existing_segments, slot_name
+from shm_protocol.errors import ShmError
 
-from shm_protocol import SHM_DIR, FrameReader, existing_segments, slot_name  # noqa: E402
-from shm_protocol.errors import ShmError  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 KILL_GAP_S = (20.0, 90.0)
 STOP_S = 5.0

@@ -2,9 +2,9 @@
 of its own students, alternated in one run; with ``--against FILE``, the entry against
 another file of it (say the version before, to see what a new feature costs).
 
-    MUJOCO_GL=egl python benchmarks/zoo_act_speed.py --threads 1 --acts 2000
+    MUJOCO_GL=egl python -m benchmarks.zoo_act_speed --threads 1 --acts 2000
     git show REV:rover_train/zoo/entries/lidar-maze.pt > /tmp/old.pt
-    MUJOCO_GL=egl python benchmarks/zoo_act_speed.py --against /tmp/old.pt
+    MUJOCO_GL=egl python -m benchmarks.zoo_act_speed --against /tmp/old.pt
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Why a zoo student fails: each episode's ending, how often it reverses where its teacher
 would not, and whether it ended stuck.
 
-    python benchmarks/zoo_diagnose.py lidar-inspect --episodes 40
-    rover-pair --name diag -- python benchmarks/zoo_diagnose.py fused-inspect --file S.pt
+    python -m benchmarks.zoo_diagnose lidar-inspect --episodes 40
+    rover-pair --name diag -- python -m benchmarks.zoo_diagnose fused-inspect --file S.pt
 
 Episodes run as rover-eval runs a zoo entry but on diagnostic seeds (50000+ by default:
 neither training seeds, which stay below 50000 (``run_dagger`` checks), nor the evaluation seeds at

@@ -213,15 +213,17 @@ def test_looking_away_lowers_the_seed_penalty_but_not_the_heading_one() -> None:
     assert 0.2 < heading[0.0] / image[0.0] < 5.0
 
 
-def test_gaze_value_benchmark_reports_every_teacher_with_intervals(tmp_path: Path) -> None:
-    """benchmarks/gaze_value.py, shortened: one row per teacher, each figure inside its
-    interval, and the paired difference of the same episodes."""
-    from benchmarks.gaze_value import TEACHERS, main
+def test_gaze_value_reports_every_teacher_with_intervals() -> None:
+    """rover_train.imitation.gaze_value (benchmarks/gaze_value.py's rows), shortened: one row
+    per teacher, each figure inside its interval, and the paired difference of the same
+    episodes."""
+    from rover_env.scenarios import select_scenarios
+    from rover_train.imitation.gaze_value import TEACHERS, compare
+    from rover_train.zoo import EVAL_SEED_BASE
 
-    out = tmp_path / "gaze_value.json"
-    assert main(["--episodes", "2", "--max-steps", "40", "--scenarios", "inspect-crowd-3",
-                 "--json", str(out)]) == 0  # fmt: skip
-    report = json.loads(out.read_text())["scenarios"]["inspect-crowd-3"]
+    c = compare(select_scenarios("inspect-crowd-3")[0], episodes=2, seed=EVAL_SEED_BASE,
+                max_steps=40)  # fmt: skip
+    report = json.loads(json.dumps(c.report(), default=float))
     assert list(report["rows"]) == list(TEACHERS)
     for row in report["rows"].values():
         assert row["episodes"] == 2 and 0 < row["steps"] <= 80
@@ -230,13 +232,14 @@ def test_gaze_value_benchmark_reports_every_teacher_with_intervals(tmp_path: Pat
             assert lo - 1e-9 <= value <= hi + 1e-9 and 0.0 <= lo and hi <= 1.0
     assert set(report["gaze_minus_fixed"]) == {"success", "pedestrian_collisions",
                                                "nearest_in_view"}  # fmt: skip
+    assert report["gaze_student_minus_fixed_student"] is None
 
 
 def test_gaze_value_holds_a_gaze_students_camera_ahead_only_when_asked() -> None:
-    """--hold-camera overrules the gaze student's pan target (0: ahead) and nothing else;
+    """hold_camera overrules the gaze student's pan target (0: ahead) and nothing else;
     without a gaze student it is refused with the fix."""
-    from benchmarks.gaze_value import main, make_env, student_act, student_path
     from rover_env.scenarios import select_scenarios
+    from rover_train.imitation.gaze_value import compare, make_env, student_act, student_path
 
     path = student_path("fused-gaze-moon")
     env = make_env(select_scenarios("moon-crossing-3")[0], 40, fused_view=True)
@@ -250,20 +253,19 @@ def test_gaze_value_holds_a_gaze_students_camera_ahead_only_when_asked() -> None
             obs = env.step(a)[0]
     finally:
         env.close()
-    with pytest.raises(SystemExit) as exc:
-        main(["--hold-camera", "--episodes", "2"])
-    assert exc.value.code == 2
+    with pytest.raises(ValueError, match="give student_gaze"):
+        compare(select_scenarios("moon-crossing-3")[0], 2, 0, 40, hold_camera=True)
 
 
 def test_gaze_value_clips_both_students_where_the_gaze_one_sees_more(tmp_path: Path) -> None:
-    """--gif: the episode picked is the one the gaze student finished seeing the nearest
-    pedestrian most more often; the clip stacks both students' frames; without both students
-    it is refused."""
+    """The clip's episode is the one the gaze student finished seeing the nearest pedestrian
+    most more often; the clip stacks both students' frames; without both students it is
+    refused."""
     from PIL import Image
 
-    from benchmarks.gaze_value import Episode, clip_episode, main, student_path, write_clip
     from rover_env.scenarios import select_scenarios
     from rover_train.evaluate import EpisodeResult
+    from rover_train.imitation.gaze_value import Episode, clip_episode, student_path, write_clip
 
     def episode(success: bool, steps: int, seen: int) -> Episode:
         result = EpisodeResult(success=success, collided=False, timeout=not success,
@@ -289,6 +291,5 @@ def test_gaze_value_clips_both_students_where_the_gaze_one_sees_more(tmp_path: P
     with Image.open(out) as gif:
         # 8 steps, every other one (Pillow may merge identical frames); two 128-px strips
         assert 2 <= gif.n_frames <= 4 and gif.size[1] == 2 * 128
-    with pytest.raises(SystemExit) as exc:
-        main(["--gif", str(out), "--student-gaze", "fused-gaze-moon", "--episodes", "2"])
-    assert exc.value.code == 2
+    with pytest.raises(ValueError, match="both students: no fixed student"):
+        clip_episode({"g": results["g"]}, {"gaze student": "g"})

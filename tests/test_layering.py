@@ -116,3 +116,27 @@ def test_no_import_circle() -> None:
         if m not in seen:
             circle = visit(m)
             assert circle is None, " -> ".join(circle)
+
+
+def test_no_test_imports_a_benchmark() -> None:
+    """Benchmarks are benchmarks: what a test checks lives in the package it measures."""
+    bad = []
+    for path in sorted((ROOT / "tests").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])  # fmt: skip
+            bad += [f"{path.relative_to(ROOT)}: {n}" for n in names
+                    if n == "benchmarks" or n.startswith("benchmarks.")]  # fmt: skip
+    assert not bad, bad
+
+
+def test_no_benchmark_edits_sys_path() -> None:
+    """Benchmarks run from the repository root as ``python -m benchmarks.NAME`` against the
+    installed packages: none reaches for ``sys.path``."""
+    bad = []
+    for path in sorted((ROOT / "benchmarks").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Attribute) and node.attr == "path"
+                    and isinstance(node.value, ast.Name) and node.value.id == "sys"):  # fmt: skip
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not bad, bad

@@ -1,8 +1,8 @@
 """The shipped perception on real pedestrian footage (issue 41): committed crops of OpenCV's
-``vtest.avi`` (``tests/data/real_footage/``, made by ``benchmarks/real_footage.py
+``vtest.avi`` (``tests/data/real_footage/``, made by ``python -m benchmarks.real_footage
 --write-test-data``; no download, no HOG here) through the daemon's ``Perception``, measured
-with the benchmark's rules: people found and box cover on the person crops, false heat on the
-people-free crops, against the bounds below."""
+with the benchmark's rules (``active_vision.training.real_footage``): people found and box
+cover on the person crops, false heat on the people-free crops, against the bounds below."""
 
 from __future__ import annotations
 
@@ -17,8 +17,9 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
+from active_vision.models import WeightsError  # noqa: E402
 from active_vision.perception import Perception, PerceptionConfig  # noqa: E402
-from benchmarks.real_footage import (  # noqa: E402
+from active_vision.training.real_footage import (  # noqa: E402
     MIN_SILHOUETTE,
     TEST_FREE,
     TEST_PEOPLE,
@@ -117,12 +118,11 @@ def test_the_bounds_fail_an_all_hot_and_an_all_cold_heatmap(crops: Crops) -> Non
     assert problems(exact, crops.boxes, cold) == []
 
 
-def test_the_benchmark_names_a_missing_weights_file(capsys) -> None:
-    from benchmarks.real_footage import main
-
-    with pytest.raises(SystemExit):
-        main(["--weights", "/nonexistent/avnet.pt"])
-    assert "--weights /nonexistent/avnet.pt: no such weights file" in capsys.readouterr().err
+def test_a_missing_weights_file_is_named() -> None:
+    """The benchmark's ``--weights`` runs this perception: a missing file is named."""
+    with pytest.raises(WeightsError, match="/nonexistent/avnet.pt"):
+        Perception(PerceptionConfig(threads=1, backend="onnx",
+                                    weights=Path("/nonexistent/avnet.pt")))  # fmt: skip
 
 
 def test_silhouette_figures_score_a_heatmap_against_the_person_inside_the_box() -> None:

@@ -210,7 +210,7 @@ def test_a_table_gaze_entry_is_distilled_in_two_stages_and_drives_the_discrete_e
 
 
 def test_gaze_value_drives_discrete_students_only_through_the_table(tmp_path) -> None:
-    from benchmarks.gaze_value import student_act
+    from rover_train.imitation.gaze_value import student_act
 
     fixed = tmp_path / "fixed.pt"
     StudentAgent(StudentNet(replace(TABLE, gaze=False, history=False))).save(fixed)

@@ -123,7 +123,7 @@ def test_moon_has_terrain_steep_enough_to_flip() -> None:
 def test_moon_ground_between_its_hills_is_gentle_at_the_metre_scale() -> None:
     """Regolith slopes a few degrees from one metre to the next; a ground of facets each
     tilted differently (13 degrees median at 0.25 m of random height per cell) left the
-    camera's depth nothing to read (benchmarks/RESULTS.md, "What limits the moon's depth")."""
+    camera's depth nothing to read (docs/decisions.md, "The moon's roughness")."""
     hf = make_world("moon").heightfield
     assert hf is not None
     cell = 2 * hf.radius_x / (hf.elevation.shape[1] - 1)

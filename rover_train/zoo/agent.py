@@ -227,8 +227,8 @@ def unmapped_scan(obs: dict[str, np.ndarray], world: str) -> np.ndarray:
     ``rover_env.LIDAR_SCAN_LAG`` before ``obs["pose"]`` (up to 0.1 rad behind when turning fast), so
     the map is cast from there, dead-reckoned back with the odometry, and at
     ``UNMAPPED_YAW_SPREAD`` either side (the nearest kept): that marks few of the scenery's
-    returns and nearly all the pedestrians' (benchmarks/unmapped_scan_check.py; the figures
-    in benchmarks/RESULTS.md, "Unmapped scan check").
+    returns and nearly all the pedestrians' (the figures: docs/decisions.md, "The unmapped
+    scan").
     Assumes a level rover (the flat worlds).
     """
     lidar = np.asarray(obs["lidar"], dtype=np.float32)
