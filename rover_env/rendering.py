@@ -7,6 +7,8 @@ The context is made on first use, in the process that renders: EGL state does no
 
 from __future__ import annotations
 
+import logging
+import multiprocessing
 import os
 from collections.abc import Callable
 from typing import NamedTuple
@@ -41,7 +43,27 @@ class CameraFrame(NamedTuple):
 
 
 
+logger = logging.getLogger(__name__)
+
 _GL_PID: int | None = None  # the process that created this module's first GL context
+
+
+def _prefer_forkserver_children() -> None:
+    """Make ``forkserver`` this process's default start method, unless one was chosen.
+
+    Once this process holds an EGL context, a child made by ``fork()`` cannot render (see
+    :func:`_check_not_forked_after_gl`). Subprocess envs started afterwards with the default
+    context (``gym.make_vec(id, vectorization_mode="async")`` after a ``gym.make`` that
+    rendered, as in a notebook) then work. A start method set by the program
+    (``multiprocessing.set_start_method``) or a context passed explicitly is left alone.
+    """
+    if multiprocessing.get_start_method(allow_none=True) is not None:
+        return
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return
+    multiprocessing.set_start_method("forkserver")
+    logger.info("OpenGL started in this process: new subprocesses default to 'forkserver' "
+                "(a forked child could not render)")  # fmt: skip
 
 
 def _check_not_forked_after_gl() -> None:
@@ -82,6 +104,8 @@ class GLRenderer:
         global _GL_PID
         _check_not_forked_after_gl()
         self._gl = _gl_context_class()(width, height)
+        if _GL_PID is None:
+            _prefer_forkserver_children()
         _GL_PID = os.getpid()
         self._gl.make_current()
         self._ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)

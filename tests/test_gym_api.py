@@ -65,11 +65,9 @@ def test_served_slots_counts_the_daemons_slots(daemon: Daemon) -> None:
 
 @pytest.mark.parametrize("mode", ["sync", "async"])
 def test_make_vec_takes_one_slot_per_env(daemon: Daemon, mode: str) -> None:
-    # This process has rendered already (the tests above), so its async workers must not be
-    # forked from it (rendering.py refuses); a fresh script may use the default context.
-    vector_kwargs = {"context": "forkserver"} if mode == "async" else {}
+    # This process has rendered already (the tests above), and the async workers start with
+    # the default context: rendering made it forkserver, as a forked child could not render.
     envs = gym.make_vec("roverav/RoverEnvFused-v0", num_envs=SLOTS, vectorization_mode=mode,
-                        vector_kwargs=vector_kwargs,
                         **_kwargs("roverav/RoverEnvFused-v0", daemon))  # fmt: skip
     try:
         assert sorted(envs.get_attr("slot")) == list(range(SLOTS))

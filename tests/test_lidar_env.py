@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -326,6 +330,37 @@ def test_async_vector_env_with_two_workers() -> None:
         assert len(frames) == 2 and frames[0].shape == (48, 64, 3)
     finally:
         envs.close()
+
+
+_NOTEBOOK = """
+import multiprocessing
+import gymnasium as gym
+from rover_env import RoverEnv
+
+def maze():
+    return RoverEnv(world_n="maze", render_mode="rgb_array", render_size=(64, 48))
+
+if __name__ == "__main__":
+    env = gym.make("roverav/RoverEnv-v0", world_n="maze", render_mode="rgb_array")
+    env.reset(seed=0)
+    env.render()  # OpenGL now lives in this process
+    env.close()
+    envs = gym.vector.AsyncVectorEnv([maze, maze])  # the default context, as make_vec's
+    envs.reset(seed=0)
+    frames = envs.render()
+    envs.close()
+    print(multiprocessing.get_start_method(), frames[0].shape, bool(frames[1].any()))
+"""
+
+
+def test_async_vector_env_after_rendering_in_process_works_by_default(tmp_path: Path) -> None:
+    # a notebook's order: render in-process first, then subprocess envs with no context given
+    script = tmp_path / "notebook.py"
+    script.write_text(_NOTEBOOK)
+    res = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                         timeout=240, env=dict(os.environ, MUJOCO_GL="egl"))  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.split("\n")[-2] == "forkserver (48, 64, 3) True"
 
 
 def test_forked_after_rendering_raises_instead_of_hanging() -> None:
