@@ -11,14 +11,14 @@ import pytest
 # --- shared memory: unique segment names, and no segment left behind ---------------------
 #
 # Tests that create segments name them with the prefix "test_" (the `shm_name` fixture does).
-# `_shm_no_leftover_segments` snapshots /dev/shm at the start of the session and fails the
+# The session hooks below snapshot /dev/shm at the start of the session and fail the
 # session if a "test_..." segment (or a hidden ".test_..." creation temporary) that was not
 # there before is still there at the end. A segment whose writer is a live process that is
 # neither this one nor its child belongs to another test session running beside this one
 # (several people share the machine): it is neither removed nor reported.
 
 _SHM_DIR = "/dev/shm"
-_shm_leaks: list[str] = []
+_SHM_BEFORE = pytest.StashKey[set[str]]()
 
 
 def _shm_test_entries() -> set[str]:
@@ -53,10 +53,21 @@ def _shm_held_by_another_session(name: str) -> bool:
     return ppid != os.getpid()
 
 
-@pytest.fixture(scope="session", autouse=True)
-def _shm_no_leftover_segments() -> Iterator[None]:
-    before = _shm_test_entries()
-    yield
+def _is_xdist_worker(config: pytest.Config) -> bool:
+    return hasattr(config, "workerinput")
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    # Under pytest-xdist the controller runs this before any worker starts and checks after
+    # every worker has finished, so one worker never mistakes another's segments for leaks.
+    if not _is_xdist_worker(session.config):
+        session.config.stash[_SHM_BEFORE] = _shm_test_entries()
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    if _is_xdist_worker(session.config) or _SHM_BEFORE not in session.config.stash:
+        return
+    before = session.config.stash[_SHM_BEFORE]
     left = sorted(
         n for n in _shm_test_entries() - before
         if n.startswith(".") or not _shm_held_by_another_session(n)
@@ -66,18 +77,22 @@ def _shm_no_leftover_segments() -> Iterator[None]:
             os.unlink(os.path.join(_SHM_DIR, name))
         except FileNotFoundError:
             pass
-    problems = left + [n for n in _shm_leaks if n not in left]
-    assert not problems, f"the test suite left segments in {_SHM_DIR}: {problems}"
+    if left:
+        reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+        message = f"the test suite left segments in {_SHM_DIR}: {left}"
+        if reporter is not None:
+            reporter.write_line(message, red=True, bold=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 @pytest.fixture
 def shm_name() -> Iterator[str]:
     """A unique segment name (``test_<pid>_<hex>``). A segment still there after the test
-    is removed and reported as a leak at the end of the session."""
+    is removed, and the test errors at teardown naming it."""
     name = f"test_{os.getpid()}_{uuid.uuid4().hex[:10]}"
     yield name
-    for n in (name, f"{name}_camera"):
-        path = os.path.join(_SHM_DIR, n)
-        if os.path.exists(path):
-            _shm_leaks.append(n)
-            os.unlink(path)
+    leaked = [n for n in (name, f"{name}_camera") if os.path.exists(os.path.join(_SHM_DIR, n))]
+    for n in leaked:
+        os.unlink(os.path.join(_SHM_DIR, n))
+    if leaked:
+        pytest.fail(f"the test left segments in {_SHM_DIR}: {leaked}")
