@@ -36,7 +36,7 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 # (student, curve, metrics, table, video) land in runs/demo/.
 DEMO_STEPS ?= 24000
 demo: setup
-	$(PY) launch/run_pair.py --name roverav_demo --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.imitation.demo --timesteps $(DEMO_STEPS) --out runs/demo
+	$(PY) launch/run_pair.py --name roverav_demo --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.imitation.demo --timesteps $(DEMO_STEPS) --episodes 20 --out runs/demo
 
 # Two workers at most on this 2-core class of machine (one per core, four on bigger ones); a
 # test file runs whole on one worker, so its module fixtures (a daemon, a Ray cluster) start once.

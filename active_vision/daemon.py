@@ -85,6 +85,7 @@ import numpy as np
 
 from active_vision.launcher import READY_MARKER
 from fused_image import CHANNEL_HEATMAP, FUSED_SIZE
+from roverav_cli import Connection, add_group
 from shm_protocol import (
     DEFAULT_NAME,
     SPIN_S,
@@ -555,8 +556,8 @@ def _source(text: str) -> str:
     return text
 
 
-def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
-    # imports torch, which serving needs anyway
+def build_parser() -> argparse.ArgumentParser:
+    """av-daemon's command line (imports torch, which serving needs anyway)."""
     from active_vision.backends import BACKENDS, PRECISION_CHOICES
 
     d = DaemonConfig()
@@ -564,9 +565,7 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
         prog="av-daemon",
         description="Active Vision daemon: camera frames in, fused observations out (shared "
                     "memory). Prints a line with 'ready' when a peer can attach.")
-    p.add_argument("--name", default=d.name, help="base segment name (default %(default)s)")
-    p.add_argument("--slots", type=_positive_int, default=d.slots,
-                   help="slots served (one per env of a vector env)")
+    add_group(p, Connection)
     p.add_argument("--size", type=_size, default=d.size, help="frame side in pixels")
     p.add_argument("--depth", choices=("model", "render"), default=d.depth,
                    help="depth channel from the network, or from the camera frame's 4th "
@@ -613,9 +612,11 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         "occupancy over the next 1.5 s from the slot's last 5 frames")
     p.add_argument("--predict-weights", type=Path, default=None,
                    help="predictor weights file (--heatmap predict)")
-    p.add_argument("--log-level", default=d.log_level,
-                   choices=("DEBUG", "INFO", "WARNING", "ERROR", "debug", "info", "warning",
-                            "error"))
+    return p
+
+
+def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
+    p = build_parser()
     a = p.parse_args(argv)
     try:
         validate_name(a.name)
@@ -629,7 +630,7 @@ def parse_args(argv: Sequence[str] | None = None) -> DaemonConfig:
                         precision=a.precision,
                         source=a.source, preview=a.preview,
                         log_every=max(0, a.log_every), stale_after=a.stale_after,
-                        weights=a.weights, log_level=a.log_level.upper(),
+                        weights=a.weights, log_level=a.log_level,
                         heatmap=a.heatmap, predict_weights=a.predict_weights,
                         spin_wait=a.spin_wait)
 

@@ -8,7 +8,7 @@ with one torch thread:
 
 - ``local 2 envs``: what ``rover-pair --slots 2 -- rover-train --slots 2`` runs: one daemon
   with 2 slots and rover-train's own vector env (SB3 SubprocVecEnv).
-- ``ray W x M``: ``rover-train --ray --workers W --envs-per-worker M`` on a local Ray
+- ``ray W x M``: ``rover-train --ray --ray-workers W --envs-per-worker M`` on a local Ray
   cluster: W actors with M envs each, each actor with its own daemon with M slots.
 - ``train``: the same two set-ups under PPO (n_steps 256 per env, 1 epoch, batch 256), so
   the overhead ratio also shows what it is once a learner shares the machine.

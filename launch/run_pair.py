@@ -68,6 +68,7 @@ from launch.restart_policy import (  # noqa: E402
     DEFAULT_RESTART_WINDOW_S,
     RestartPolicy,
 )
+from roverav_cli import Connection, add_group  # noqa: E402
 from shm_protocol import (  # noqa: E402
     DEFAULT_NAME,
     camera_name,
@@ -82,7 +83,6 @@ EXIT_USAGE = 2
 EXIT_DAEMON_NOT_READY = 69  # EX_UNAVAILABLE
 EXIT_RESTARTS_EXHAUSTED = 70  # EX_SOFTWARE: the daemon crash-looped
 DEFAULT_TRAINER_GRACE_S = 60.0
-LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 
 
 @dataclass
@@ -296,21 +296,17 @@ def check_usage(
     return None
 
 
-def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if "--" in argv:
-        split = argv.index("--")
-        own, trainer = argv[:split], argv[split + 1 :]
-    else:
-        own, trainer = argv, []
+def build_parser() -> argparse.ArgumentParser:
+    """rover-pair's own command line (the trainer's follows ``--``)."""
     parser = argparse.ArgumentParser(
         prog="rover-pair",
         description="Run the Active Vision daemon and a trainer together, supervised.",
         epilog="Example: rover-pair --slots 2 -- rover-train --env fused  (the trainer's "
         "--slots defaults to the supervisor's)",
     )
-    parser.add_argument("--name", default=PairConfig.name, help="segment base name")
-    parser.add_argument("--slots", type=int, default=PairConfig.slots, help="daemon slots")
+    add_group(parser, Connection).description = (
+        "The daemon's --name, --slots and --log-level; the trainer gets them as "
+        "$ROVERAV_SHM_NAME, $ROVERAV_SLOTS and $ROVERAV_LOG_LEVEL.")
     parser.add_argument(
         "--daemon-arg",
         action="append",
@@ -336,13 +332,20 @@ def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
     parser.add_argument("--trainer-grace", type=float, default=PairConfig.trainer_grace,
                         help="seconds the trainer gets between SIGTERM and SIGKILL, to save "
                         "its final checkpoint (default %(default)s)")
-    parser.add_argument("--log-level", default=PairConfig.log_level, type=str.upper,
-                        choices=LOG_LEVELS, help="supervisor, daemon and trainer log level")
+    return parser
+
+
+def parse_args(argv: Sequence[str] | None = None) -> PairConfig:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--" in argv:
+        split = argv.index("--")
+        own, trainer = argv[:split], argv[split + 1 :]
+    else:
+        own, trainer = argv, []
+    parser = build_parser()
     ns = parser.parse_args(own)
     if not trainer:
         parser.error("no trainer command: put it after '--', e.g. -- rover-train --env fused")
-    if ns.slots < 1:
-        parser.error(f"--slots must be at least 1, got {ns.slots}")
     if ns.max_restarts < 0:
         parser.error(f"--max-restarts must be 0 or more, got {ns.max_restarts}")
     if not ns.restart_window > 0:

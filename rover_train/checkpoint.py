@@ -68,7 +68,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from rover_train.recipe import write_recipe
+from rover_train.recipe import stored_args, write_recipe
 
 log = logging.getLogger(__name__)
 
@@ -249,7 +249,7 @@ class RunRecord:
         problem = _record_problem(data)
         if problem:
             raise ResumeError(f"{path} {problem}. " + _record_fix(run_dir))
-        return cls(**data)
+        return cls(**{**data, "args": stored_args(data["args"])})
 
     def save(self, run_dir: Path) -> None:
         from dataclasses import asdict

@@ -2,18 +2,17 @@
 
 Each field of an arguments dataclass becomes ``--field-name`` with the field's type, its
 default, and the docstring written under it as help text. ``bool`` fields become
-``--x/--no-x``; ``choices``, ``nargs``/``const`` (an option whose value may be left out)
-and hidden old spellings come from the field's metadata::
+``--x/--no-x``; ``choices``, ``parse`` (the argparse type), ``nargs``/``const`` (an option
+whose value may be left out) come from the field's metadata::
 
     @dataclass
     class Args:
         env: str = field(default="lidar", metadata={"choices": ("lidar", "fused")})
         \"\"\"Which env.\"\"\"
-        slots: int = field(default=1, metadata={"aliases": ("--n-envs",)})
-        \"\"\"Parallel envs.\"\"\"
+        slots: int = shared_field(Connection, "slots")   # roverav_cli's --slots
 
-An alias is accepted and not shown in ``--help``, with a deprecation message on stderr
-(kept for one release after a rename).
+A field taken from a group of :mod:`roverav_cli` (``shared_field``) is that group's flag: its
+type, default, choices and help, the same in every command.
 
 Artefact recipes are frozen dataclasses of the same kind, stored in the artefact
 (:func:`recipe_dict` / :func:`recipe_from_dict`); a maker's command line is the recipe's fields
@@ -29,7 +28,6 @@ import ast
 import dataclasses
 import inspect
 import logging
-import os
 import sys
 import textwrap
 import types
@@ -38,18 +36,10 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
+from roverav_cli import LOG_LEVEL_ENV_VAR, LOG_LEVELS, Connection, add_group, default_log_level
+
 T = TypeVar("T")
 U = TypeVar("U")
-
-LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
-LOG_LEVEL_ENV_VAR = "ROVERAV_LOG_LEVEL"
-"""Set by ``rover-pair --log-level`` for its trainer."""
-
-
-def default_log_level(fallback: str = "INFO") -> str:
-    """``$ROVERAV_LOG_LEVEL`` (set by rover-pair) when it names a level, else ``fallback``."""
-    level = os.environ.get(LOG_LEVEL_ENV_VAR, "").upper()
-    return level if level in LOG_LEVELS else fallback
 
 
 def field_docs(cls: type) -> dict[str, str]:
@@ -84,30 +74,12 @@ def _base_type(tp: Any) -> tuple[Any, bool]:
     return tp, False
 
 
-class _DeprecatedAlias(argparse.Action):
-    """An old spelling of an option: stores like the new one and says it is going."""
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows each option's default, unless its help already says it (a shared flag's)."""
 
-    def __init__(self, option_strings: list[str], dest: str, new: str = "",
-                 inner: argparse.Action | None = None, **kwargs: Any) -> None:  # fmt: skip
-        self.new = new
-        self.inner = inner
-        super().__init__(option_strings, dest, **kwargs)
-
-    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
-                 values: Any, option_string: str | None = None) -> None:  # fmt: skip
-        print(f"{parser.prog}: {option_string} is deprecated and goes in the next release; "
-              f"use {self.new}", file=sys.stderr)  # fmt: skip
-        assert self.inner is not None
-        self.inner(parser, namespace, values, self.new)
-
-
-def add_deprecated_alias(parser: argparse.ArgumentParser, alias: str,
-                         action: argparse.Action) -> None:  # fmt: skip
-    """Accept ``alias`` as an old spelling of the option of ``action`` (hidden from
-    ``--help``; using it prints a deprecation message)."""
-    parser.add_argument(alias, dest=action.dest, action=_DeprecatedAlias,
-                        new=action.option_strings[0], inner=action, help=argparse.SUPPRESS,
-                        default=argparse.SUPPRESS, type=action.type, nargs=action.nargs)
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        return text if "(default" in text else super()._get_help_string(action)
 
 
 def _field_default(f: dataclasses.Field[Any], defaults: Any) -> Any:
@@ -134,7 +106,7 @@ def build_parser(cls: type | Sequence[type], prog: str, description: str,
     classes = [cls] if isinstance(cls, type) else list(cls)
     parser = argparse.ArgumentParser(
         prog=prog, description=description, epilog=epilog,
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=_HelpFormatter,
     )  # fmt: skip
     has_log_level = False
     for c in classes:
@@ -147,8 +119,10 @@ def build_parser(cls: type | Sequence[type], prog: str, description: str,
             has_log_level |= f.name == "log_level"
             tp, _optional = _base_type(hints[f.name])
             default = _field_default(f, instance)
-            # argparse expands %-formats in help: a docstring's "70 %" must reach it as "%%"
-            text = docs.get(f.name, f.metadata.get("help", "")).replace("%", "%%")
+            # a shared flag's help is its group's; argparse expands %-formats in help: a
+            # docstring's "70 %" must reach it as "%%"
+            text = (f.metadata["help"] if f.metadata.get("shared") else
+                    docs.get(f.name, f.metadata.get("help", ""))).replace("%", "%%")  # fmt: skip
             kwargs: dict[str, Any] = {"default": default, "help": text}
             if "choices" in f.metadata:
                 kwargs["choices"] = tuple(f.metadata["choices"])
@@ -165,22 +139,12 @@ def build_parser(cls: type | Sequence[type], prog: str, description: str,
                     kwargs["metavar"] = f.metadata.get("metavar", f.name.upper())
             if f.name in positional:
                 kwargs.pop("default")
-                action = parser.add_argument(f.name, **kwargs)
+                parser.add_argument(f.name, **kwargs)
                 continue
             flag = "--" + f.name.replace("_", "-")
-            action = parser.add_argument(flag, dest=f.name, **kwargs)
-            for alias in f.metadata.get("aliases", ()):
-                hidden = {k: v for k, v in kwargs.items()
-                          if k in ("type", "choices", "nargs", "const")}  # fmt: skip
-                if kwargs.get("action") is argparse.BooleanOptionalAction:
-                    hidden["nargs"] = 0
-                parser.add_argument(alias, dest=f.name, action=_DeprecatedAlias, new=flag,
-                                    inner=action, help=argparse.SUPPRESS,
-                                    default=argparse.SUPPRESS, **hidden)  # fmt: skip
+            parser.add_argument(flag, dest=f.name, **kwargs)
     if not has_log_level:
-        parser.add_argument("--log-level", type=str.upper, choices=LOG_LEVELS,
-                            default=default_log_level(),
-                            help="logging level (default: $ROVERAV_LOG_LEVEL, else INFO)")
+        add_group(parser, Connection, only=("log_level",))
     return parser
 
 
@@ -307,7 +271,6 @@ def plain(obj: Any) -> dict[str, Any]:
 __all__ = [
     "LOG_LEVELS",
     "LOG_LEVEL_ENV_VAR",
-    "add_deprecated_alias",
     "add_recipe_option",
     "build_parser",
     "default_log_level",

@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Any
 import gymnasium as gym
 
 from rover_train.zoo.registry import EVAL_MAX_STEPS
+from rover_train.zoo.registry import RENAMED_KINDS as RENAMED_KINDS
+from rover_train.zoo.registry import stored_kind as stored_kind
 from shm_protocol.names import default_name
 
 if TYPE_CHECKING:
@@ -25,12 +27,12 @@ ENV_IDS = {
     "lidar": "roverav/RoverEnv-v0",
     "lidar-discrete": "roverav/RoverEnvDiscrete-v0",
     "fused": "roverav/RoverEnvFused-v0",
-    "discrete": "roverav/RoverEnvFusedDiscrete-v0",
+    "fused-discrete": "roverav/RoverEnvFusedDiscrete-v0",
     "fused-gaze": "roverav/RoverEnvFusedGaze-v0",
     "fused-gaze-discrete": "roverav/RoverEnvFusedGazeDiscrete-v0",
 }
-FUSED_KINDS = ("fused", "discrete", "fused-gaze", "fused-gaze-discrete")
-DISCRETE_KINDS = ("lidar-discrete", "discrete", "fused-gaze-discrete")  # Discrete action spaces
+FUSED_KINDS = ("fused", "fused-discrete", "fused-gaze", "fused-gaze-discrete")
+DISCRETE_KINDS = ("lidar-discrete", "fused-discrete", "fused-gaze-discrete")  # Discrete actions
 
 
 @dataclass(frozen=True)

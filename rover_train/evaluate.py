@@ -59,9 +59,8 @@ import numpy as np
 
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
 from rover_env.crowd import MAX_PEDESTRIANS
-from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
+from rover_env.pedestrians import DEFAULT_MODE
 from rover_env.reward import STUCK_IN_COLLISION
-from rover_env.worlds import WORLD_CHOICES
 from rover_train import zoo
 from rover_train.agents import (
     EXPERT_PLUGIN,
@@ -72,18 +71,17 @@ from rover_train.agents import (
     agent_plugin,
 )
 from rover_train.algos import ALGOS, RECURRENT, ModelAgent, algo_class
-from rover_train.cli import LOG_LEVELS, add_deprecated_alias, default_log_level
 from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
 from rover_train.progress import StatusLine
 from rover_train.recipe import RecipeError, read_recipe
 from rover_train.wrappers import agent_io
 from rover_train.zoo.registry import (
-    EVAL_EPISODES,
     EVAL_MAX_STEPS,
     EVAL_SEED_BASE,
     STUDENT_FUSED_KINDS,
 )
-from shm_protocol.names import default_name, default_slots
+from roverav_cli import Connection, Episodes, add_group
+from shm_protocol.names import default_name
 
 if TYPE_CHECKING:
     from rover_env.scenarios import Scenario
@@ -612,16 +610,10 @@ def validate(args: argparse.Namespace) -> str | None:
     """What else is wrong with rover-eval's arguments, and how to fix it; None if nothing."""
     from shm_protocol import InvalidNameError, camera_name, slot_name
 
-    if args.slots < 1 or args.episodes < 1:
-        return f"--slots and --episodes must be at least 1, got {args.slots} and {args.episodes}"
-    if args.max_steps < 1:
-        return f"--max-steps must be at least 1, got {args.max_steps}"
-    if args.slot < 0:
-        return f"--slot must be >= 0 (the first daemon slot to use), got {args.slot}"
     if args.n_pedestrians is not None and not 0 <= args.n_pedestrians <= MAX_PEDESTRIANS:
         return f"--n-pedestrians must be from 0 to {MAX_PEDESTRIANS}, got {args.n_pedestrians}"
     try:
-        camera_name(slot_name(args.name, args.slot + args.slots - 1))
+        camera_name(slot_name(args.name, args.slots - 1))
     except InvalidNameError as exc:
         return f"--name: {exc}"
     if args.manners is not None and not args.expert:
@@ -658,6 +650,7 @@ def _parser() -> argparse.ArgumentParser:
         prog="rover-eval", description=" ".join(__doc__.split("\n\n")[0].split()),
         epilog="examples:\n" + "\n".join(_EXAMPLES),
         formatter_class=argparse.RawDescriptionHelpFormatter,
+        allow_abbrev=False,  # the removed --slot (a first slot) must not read as --slots
     )  # fmt: skip
     p.add_argument("agent", nargs="?", metavar="AGENT",
                    help="a zoo entry (rover_train.zoo.ENTRIES: "
@@ -687,34 +680,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--env", choices=sorted(ENV_IDS), default=None,
                    help=f"a model's env kind, and --random's without AGENT (default "
                         f"{DEFAULT_ENV}); a zoo entry runs on the env it was made for")
-    p.add_argument("--world", choices=WORLD_CHOICES, default=None,
-                   help=f"a model's world, and --random's without AGENT (default "
-                        f"{DEFAULT_WORLD}); a zoo entry's is its own")  # fmt: skip
-    p.add_argument("--pedestrian-mode", choices=PEDESTRIAN_MODES, default=None,
-                   help="crowd (social force, to goals, making room for the rover), pacing "
-                        "(out and back), oblivious (blind to the rover), crossing (across "
-                        "the rover's path) or groups (default: a zoo entry's own, else "
-                        f"{DEFAULT_MODE})")  # fmt: skip
-    p.add_argument("--n-pedestrians", type=int, default=None,
-                   help="pedestrians per world, 0 to 20 (default: a zoo entry's own, else "
-                        "the world's 3)")
-    p.add_argument("--episodes", type=int, default=EVAL_EPISODES,
-                   help=f"evaluation episodes (default {EVAL_EPISODES})")
-    p.add_argument("--seed", type=int, default=EVAL_SEED_BASE,
-                   help="episode i is reset with seed + i (default the zoo's evaluation "
-                        f"seeds, from {EVAL_SEED_BASE}: no training episode uses them)")
-    p.add_argument("--max-steps", type=int, default=EVAL_MAX_STEPS,
-                   help=f"steps before an episode is a timeout (default {EVAL_MAX_STEPS})")
-    name = p.add_argument("--name", default=default_name(),
-                          help="daemon segment base name (fused envs; default "
-                               "$ROVERAV_SHM_NAME or rl_observation)")
-    add_deprecated_alias(p, "--shm-name", name)
-    p.add_argument("--slots", type=int, default=default_slots(),
-                   help="envs to spread the episodes over, one per daemon slot (episode i on "
-                        "slot i mod N; default $ROVERAV_SLOTS or 1)")
-    p.add_argument("--slot", type=int, default=0, help=argparse.SUPPRESS)  # old: first slot
-    p.add_argument("--log-level", type=str.upper, choices=LOG_LEVELS,
-                   default=default_log_level("WARNING"))
+    add_group(p, Connection).description = (
+        "--slots: envs to spread the episodes over, one per daemon slot (episode i on slot "
+        "i mod N)")
+    add_group(p, Episodes).description = (
+        "A zoo entry runs in its own world among its own pedestrians (--pedestrian-mode and "
+        "--n-pedestrians override them); a model or --random without AGENT in --world "
+        f"(default {DEFAULT_WORLD}) among {DEFAULT_MODE} pedestrians unless given.")
     p.add_argument("--video", type=Path,
                    help="write an MP4: chase view beside the fused channels, labelled")
     p.add_argument("--video-episodes", type=int, default=1, help="episodes recorded in the video")
@@ -922,14 +894,14 @@ def _evaluate(
     try:
         try:
             for k in range(min(args.slots, args.episodes)):
-                envs.append(_make_env(args, plan, args.slot + k, env_kwargs,
+                envs.append(_make_env(args, plan, k, env_kwargs,
                                       render=(video and k == 0) or args.record is not None))
         except ShmError as exc:
             kind = zoo.ENTRIES[plan.entry].kind if plan.entry is not None else args.env
             raise _EvalError(
                 f"{exc}\n\nrover-eval on {ENV_IDS[kind]} needs the daemon: "
-                f"av-daemon --name {args.name} --slots {args.slot + args.slots}, or run it "
-                f"under rover-pair --slots {args.slot + args.slots} -- rover-eval ..."
+                f"av-daemon --name {args.name} --slots {args.slots}, or run it "
+                f"under rover-pair --slots {args.slots} -- rover-eval ..."
             ) from exc
         status = StatusLine(f"eval {plan.source.label}{label}", args.episodes * args.max_steps,
                             every=STATUS_EVERY_S, stream=sys.stderr)  # fmt: skip

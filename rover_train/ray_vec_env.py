@@ -354,10 +354,10 @@ def make_ray_vec_env(args: Any) -> RayVecEnv:
     """The ``RayVecEnv`` of a ``rover-train --ray`` run (``args`` is its ``TrainArgs``):
     connects to (or starts) the cluster; the env shuts a cluster it started down on close."""
     _stop_on_sigterm()
-    owns = connect(args.ray or None, num_cpus=int(args.workers * WORKER_CPUS))
+    owns = connect(args.ray or None, num_cpus=int(args.ray_workers * WORKER_CPUS))
     cfg = worker_config(args)
     try:
-        venv = RayVecEnv(cfg, args.workers, owns_ray=owns)
+        venv = RayVecEnv(cfg, args.ray_workers, owns_ray=owns)
     except BaseException:
         if owns:
             ray.shutdown()

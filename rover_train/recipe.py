@@ -23,6 +23,23 @@ class RecipeError(ValueError):
     """A file that holds no rover-train recipe (the message names the file and the fix)."""
 
 
+RENAMED_FIELDS = {"workers": "ray_workers"}
+"""Old ``TrainArgs`` field -> its name now (rover-train's ``--workers`` became
+``--ray-workers``: ``--workers`` is the daemon's serving threads)."""
+
+
+def stored_args(args: dict[str, Any]) -> dict[str, Any]:
+    """Run arguments as an artefact stored them (a model's recipe, a run's ``run.json``),
+    in today's names: renamed fields (:data:`RENAMED_FIELDS`) and env kinds
+    (``rover_train.zoo.registry.RENAMED_KINDS``: ``discrete`` is ``fused-discrete``)."""
+    from rover_train.zoo.registry import stored_kind
+
+    out = {RENAMED_FIELDS.get(k, k): v for k, v in args.items()}
+    if isinstance(out.get("env"), str):
+        out["env"] = stored_kind(out["env"])
+    return out
+
+
 NOT_RECIPE = ("resume", "recipe", "logdir", *OPERATIONAL_FIELDS)
 """Fields a recipe leaves out: where the run came from and where it writes, and how a machine
 runs it."""
@@ -55,4 +72,4 @@ def read_recipe(model_zip: Path) -> dict[str, Any]:
         ) from None
     if not isinstance(data, dict):
         raise RecipeError(f"{model_zip}: its {RECIPE_MEMBER} is not a JSON object")
-    return data
+    return stored_args(data)

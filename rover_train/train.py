@@ -1,7 +1,7 @@
 """rover-train: train a Stable-Baselines3 policy on a roverav env.
 
     rover-train --env lidar --world maze --timesteps 200000
-    rover-pair --slots 2 -- rover-train --env fused --n-envs 2 --timesteps 50000
+    rover-pair --slots 2 -- rover-train --env fused --timesteps 50000   # --slots 2 from rover-pair
     rover-train --env lidar --task nav --algo recurrent-ppo   # one goal per episode, an LSTM
 
     rover-train --resume runs/train      # after Ctrl-C: the same run, to its requested steps
@@ -31,8 +31,7 @@ from typing import Any
 import numpy as np
 
 from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
-from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
-from rover_env.worlds import WORLD_CHOICES
+from rover_env.pedestrians import DEFAULT_MODE
 from rover_train.algos import ALGOS, ON_POLICY, RECURRENT, algo_class, contrib_missing, policy_name
 from rover_train.checkpoint import (
     Checkpoint,
@@ -52,7 +51,7 @@ from rover_train.checkpoint import (
     make_checkpoint_callback,
     restore_rng_states,
 )
-from rover_train.cli import LOG_LEVELS, build_parser, default_log_level, parse_into, plain
+from rover_train.cli import build_parser, parse_into, plain
 from rover_train.envs import (
     DEFAULT_TASK,
     DISCRETE_KINDS,
@@ -69,7 +68,7 @@ from rover_train.recipe import (
     recipe_of,
     write_recipe,
 )
-from shm_protocol.names import default_name, default_slots
+from roverav_cli import Connection, Episodes, shared_field
 
 log = logging.getLogger("rover_train")
 
@@ -81,15 +80,14 @@ class TrainArgs:
     """Arguments of one training run (the CLI is generated from these fields)."""
 
     env: str = field(default="lidar", metadata={"choices": tuple(ENV_IDS)})
-    """Which env: lidar (RoverEnv), fused (RoverEnvFused), discrete (its Discrete(60) twin),
-    fused-gaze or fused-gaze-discrete (the same, also turning the camera)."""
-    world: str = field(default=DEFAULT_WORLD, metadata={"choices": WORLD_CHOICES})
-    """World: inspect, moon (island) or maze."""
-    pedestrian_mode: str = field(default=DEFAULT_MODE, metadata={"choices": PEDESTRIAN_MODES})
-    """How the pedestrians walk: crowd (social force, to goals, making room for the rover),
-    pacing (out and back, waiting for the rover), oblivious (the crowd, blind to
-    the rover), crossing (the crowd crossing the rover's path from the sides) or groups."""
-    n_pedestrians: int | None = None
+    """Which env: lidar (RoverEnv), lidar-discrete (RoverEnvDiscrete), fused
+    (RoverEnvFused), fused-discrete (its Discrete(60) twin), fused-gaze or
+    fused-gaze-discrete (the same, also turning the camera)."""
+    world: str = shared_field(Episodes, "world")
+    """World (roverav_cli.Episodes; None, the default, is the recipe's or DEFAULT_WORLD)."""
+    pedestrian_mode: str = shared_field(Episodes, "pedestrian_mode")
+    """How the pedestrians walk (roverav_cli.Episodes; None is the recipe's or DEFAULT_MODE)."""
+    n_pedestrians: int | None = shared_field(Episodes, "n_pedestrians")
     """Pedestrians per world, 0 to 20 (default: the world's 3)."""
     task: str = field(default=DEFAULT_TASK, metadata={"choices": tuple(TASKS)})
     """What an episode is: seed (the seed's: goal after goal until a failure or the env's
@@ -118,11 +116,11 @@ class TrainArgs:
     sac (lidar, fused) or dqn (discrete)."""
     timesteps: int = 100_000
     """Total environment steps to train for (over all envs)."""
-    slots: int = field(default_factory=default_slots, metadata={"aliases": ("--n-envs",)})
-    """Parallel envs; env i uses daemon slot i. Defaults to $ROVERAV_SLOTS (set by rover-pair
-    --slots), else 1."""
+    slots: int = shared_field(Connection, "slots")
+    """Parallel envs; env i uses daemon slot i (roverav_cli.Connection)."""
     seed: int = 0
-    """Seed of the model and of env i's first reset (seed + i)."""
+    """Training seed: of the model and of env i's first reset (seed + i). Not rover-eval's
+    --seed (the evaluation seeds, from 100000, which training stays clear of)."""
     device: str = "cpu"
     """Torch device for the policy: cpu or cuda."""
     logdir: Path = Path("runs/train")
@@ -138,9 +136,8 @@ class TrainArgs:
     with the arguments stored in it; flags given as well override those."""
     progress: bool = True
     """Show a progress bar."""
-    name: str = field(default_factory=default_name, metadata={"aliases": ("--shm-name",)})
-    """Daemon segment base name (fused envs); defaults to $ROVERAV_SHM_NAME set by rover-pair,
-    else rl_observation."""
+    name: str = shared_field(Connection, "name")
+    """Daemon segment base name (fused envs; roverav_cli.Connection)."""
     length: int | None = None
     """Episode length override (default: the task's, nav 600; seed: the env's own, 2000 lidar
     / 6000 fused)."""
@@ -153,8 +150,9 @@ class TrainArgs:
     """Step the envs in Ray actors: ADDRESS of a cluster's head (host:6379, auto), or no
     ADDRESS to start a local one. Each worker runs its own av-daemon (fused envs). Needs
     pip install 'roverav[ray]'."""
-    workers: int = 2
-    """With --ray: env worker actors, spread over the cluster's nodes."""
+    ray_workers: int = 2
+    """With --ray: env worker actors, spread over the cluster's nodes (av-daemon's --workers
+    are its serving threads)."""
     envs_per_worker: int = 1
     """With --ray: envs per worker (its daemon serves that many slots)."""
     threads: int = 1
@@ -165,10 +163,8 @@ class TrainArgs:
     are idle (0: every core this process may use). More than 1 pays only on an otherwise
     idle machine: with other work on the cores a 2-thread update is slower. Rollouts
     keep --threads."""
-    log_level: str = field(
-        default_factory=default_log_level, metadata={"choices": LOG_LEVELS, "parse": str.upper}
-    )
-    """Log level; defaults to $ROVERAV_LOG_LEVEL (set by rover-pair --log-level), else INFO."""
+    log_level: str = shared_field(Connection, "log_level")
+    """Log level (roverav_cli.Connection)."""
     # --- algorithm hyperparameters (written to metrics.json) -----------------------------
     learning_rate: float | None = None
     """Adam learning rate (default: ppo and sac 3e-4, dqn 1e-4)."""
@@ -192,6 +188,14 @@ class TrainArgs:
     """SAC/DQN: environment steps collected before the first update."""
     exploration_fraction: float = 0.3
     """DQN: fraction of training over which epsilon anneals."""
+
+    def __post_init__(self) -> None:
+        # the shared --world and --pedestrian-mode default to None: "the recipe's own" under
+        # --recipe or --resume; a run itself always names them
+        if self.world is None:
+            self.world = DEFAULT_WORLD
+        if self.pedestrian_mode is None:
+            self.pedestrian_mode = DEFAULT_MODE
 
 
 _ALGO_DEFAULTS: dict[str, dict[str, Any]] = {
@@ -320,7 +324,8 @@ def validate(args: TrainArgs) -> str | None:
     discrete = args.env in DISCRETE_KINDS or args.relative_table
     if args.algo == "dqn" and not discrete:
         return (
-            "--algo dqn needs a discrete action space: use --env discrete|fused-gaze-discrete "
+            "--algo dqn needs a discrete action space: use --env lidar-discrete|fused-discrete|"
+            "fused-gaze-discrete "
             "(or --algo ppo/sac)"
         )
     if args.algo == "sac" and discrete:
@@ -348,15 +353,15 @@ def validate(args: TrainArgs) -> str | None:
 
 def n_envs(args: TrainArgs) -> int:
     """How many envs the run steps: --slots, or with --ray workers x envs per worker."""
-    return args.workers * args.envs_per_worker if args.ray is not None else args.slots
+    return args.ray_workers * args.envs_per_worker if args.ray is not None else args.slots
 
 
 def _validate_ray(args: TrainArgs) -> str | None:
     """--ray: worker counts, and Ray itself (an extra: the core install does not have it)."""
     if args.ray is None:
         return None
-    if args.workers < 1 or args.envs_per_worker < 1:
-        return (f"--workers and --envs-per-worker must be at least 1, got {args.workers} "
+    if args.ray_workers < 1 or args.envs_per_worker < 1:
+        return (f"--ray-workers and --envs-per-worker must be at least 1, got {args.ray_workers} "
                 f"and {args.envs_per_worker}")  # fmt: skip
     import importlib.util
 

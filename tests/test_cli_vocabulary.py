@@ -3,6 +3,7 @@ daemon launcher (active_vision.launcher) that the supervisor, tests and benchmar
 
 from __future__ import annotations
 
+import argparse
 import os
 import subprocess
 import sys
@@ -37,24 +38,149 @@ def test_every_command_speaks_name_slots_log_level(cmd: str) -> None:
     text = _help(cmd)
     for flag in ("--name", "--slots", "--log-level"):
         assert flag in text, f"{cmd} --help lacks {flag}"
-    for old in ("--shm-name", "--n-envs"):  # hidden aliases are not advertised
+    for old in ("--shm-name", "--n-envs", "--rl-obs-name"):
         assert old not in text
 
 
-def test_rover_train_old_spellings_still_parse_and_slots_follow_rover_pair(monkeypatch) -> None:
+def _parsers() -> dict[str, argparse.ArgumentParser]:
+    """Every user-facing command line that takes shared flags, built in this process."""
+    from active_vision.daemon import build_parser as daemon_parser
+    from launch.run_pair import build_parser as pair_parser
+    from rover_train import evaluate, train
+    from rover_train.cli import build_parser
+    from rover_train.imitation import demo, distill
+    from rover_train.imitation.finetune import FineTuneRecipe, FineTuneRun
+
+    return {
+        "av-daemon": daemon_parser(),
+        "rover-pair": pair_parser(),
+        "rover-train": train._parser(),
+        "rover-eval": evaluate._parser(),
+        "distill": distill._parser(None),
+        "finetune": build_parser((FineTuneRecipe, FineTuneRun), "finetune", ""),
+        "demo": demo._parser(),
+    }
+
+
+# the groups' flags each command takes
+TRAINING_SEED = ("rover-train", "distill", "finetune", "demo")
+"""Commands whose --seed is a training seed (default 0 or the recipe's), not the groups' --seed
+(the evaluation seeds, from 100000, which training episodes stay clear of)."""
+USES = {
+    "av-daemon": {"Connection": "*"},
+    "rover-pair": {"Connection": "*"},
+    "rover-train": {"Connection": "*",
+                    "Episodes": ("world", "pedestrian_mode", "n_pedestrians")},
+    "rover-eval": {"Connection": "*", "Episodes": "*"},
+    "distill": {"Connection": ("name", "log_level"),
+                "Episodes": ("pedestrian_mode", "n_pedestrians")},
+    "finetune": {"Connection": ("log_level",), "Episodes": ("pedestrian_mode", "n_pedestrians")},
+    "demo": {"Episodes": ("world", "episodes", "max_steps")},
+}
+
+
+def test_shared_flags_are_the_groups_in_every_command(monkeypatch) -> None:
+    """Same flag, same type, default, choices and help, wherever it appears: each is built
+    from roverav_cli's groups."""
+    import dataclasses
+
+    import roverav_cli
+
+    for var in ("ROVERAV_SHM_NAME", "ROVERAV_SLOTS", "ROVERAV_LOG_LEVEL"):
+        monkeypatch.delenv(var, raising=False)
+    groups = {g.__name__: g for g in roverav_cli.GROUPS}
+    for cmd, parser in _parsers().items():
+        actions = {s: a for a in parser._actions for s in a.option_strings}
+        for gname, names in USES[cmd].items():
+            group = groups[gname]
+            names = [f.name for f in dataclasses.fields(group)] if names == "*" else names
+            for name in names:
+                flag = roverav_cli.option(name)
+                assert flag in actions, f"{cmd} lacks {flag}"
+                got, want = actions[flag], roverav_cli.argument_kwargs(group, name)
+                assert got.dest == name, (cmd, flag)
+                assert got.type is want["type"], (cmd, flag, got.type)
+                assert got.default == want["default"], (cmd, flag, got.default)
+                assert tuple(got.choices or ()) == tuple(want.get("choices", ())), (cmd, flag)
+                assert got.help == want["help"], (cmd, flag)
+        for flag in actions:  # no command defines a shared flag its own way
+            for group in roverav_cli.GROUPS:
+                for f in dataclasses.fields(group):
+                    if flag == roverav_cli.option(f.name) and not (
+                            cmd in TRAINING_SEED and f.name == "seed"):  # fmt: skip
+                        uses = USES[cmd].get(group.__name__, ())
+                        assert uses == "*" or f.name in uses, f"{cmd} {flag} not the group's"
+
+
+def test_shared_flags_follow_rover_pair_and_the_evaluation_defaults(monkeypatch) -> None:
+    from rover_train.evaluate import _parser
+    from rover_train.zoo import EVAL_EPISODES, EVAL_MAX_STEPS, EVAL_SEED_BASE
+
+    monkeypatch.setenv("ROVERAV_SLOTS", "4")
+    monkeypatch.setenv("ROVERAV_SHM_NAME", "from_pair")
+    monkeypatch.setenv("ROVERAV_LOG_LEVEL", "WARNING")
+    a = _parser().parse_args(["--random"])
+    assert (a.slots, a.name, a.log_level) == (4, "from_pair", "WARNING")
+    assert (a.episodes, a.seed, a.max_steps) == (100, 100_000, 600)
+    assert (EVAL_EPISODES, EVAL_SEED_BASE, EVAL_MAX_STEPS) == (100, 100_000, 600)
+    assert (a.world, a.pedestrian_mode, a.n_pedestrians) == (None, None, None)
+
+
+def test_the_groups_copies_of_rover_env_are_equal() -> None:
+    import roverav_cli
+    from rover_env.constants import DEFAULT_WORLD
+    from rover_env.crowd import MAX_PEDESTRIANS
+    from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
+    from rover_env.worlds import WORLD_CHOICES
+
+    assert roverav_cli.WORLD_CHOICES == tuple(WORLD_CHOICES)
+    assert roverav_cli.DEFAULT_WORLD == DEFAULT_WORLD
+    assert roverav_cli.PEDESTRIAN_MODES == tuple(PEDESTRIAN_MODES)
+    assert roverav_cli.DEFAULT_PEDESTRIAN_MODE == DEFAULT_MODE
+    assert roverav_cli.MAX_PEDESTRIANS == MAX_PEDESTRIANS
+
+
+@pytest.mark.parametrize("cmd, argv", [
+    ("rover-train", ["--shm-name", "x1"]),
+    ("rover-train", ["--n-envs", "3"]),
+    ("rover-train", ["--workers", "3"]),  # Ray actors are --ray-workers
+    ("rover-train", ["--env", "discrete"]),  # the fused discrete env is fused-discrete
+    ("rover-train", ["--rl-obs-name", "x1"]),
+    ("rover-eval", ["--random", "--shm-name", "x1"]),
+    ("rover-eval", ["--random", "--slot", "1"]),
+    ("av-daemon", ["--shm-name", "x1"]),
+    ("rover-pair", ["--shm-name", "x1"]),
+])  # fmt: skip
+def test_removed_spellings_are_refused(cmd: str, argv: list[str], capsys) -> None:
+    with pytest.raises(SystemExit) as exc:
+        _parsers()[cmd].parse_args(argv)
+    assert exc.value.code == 2
+
+
+def test_rover_train_slots_follow_rover_pair(monkeypatch) -> None:
     from rover_train.train import TrainArgs, hyperparameters, parse_args
 
-    a = parse_args(["--n-envs", "3", "--shm-name", "x1", "--log-level", "debug"])
+    a = parse_args(["--slots", "3", "--name", "x1", "--log-level", "debug"])
     assert (a.slots, a.name, a.log_level) == (3, "x1", "DEBUG")
     monkeypatch.setenv("ROVERAV_SLOTS", "4")
     monkeypatch.setenv("ROVERAV_SHM_NAME", "from_pair")
     monkeypatch.setenv("ROVERAV_LOG_LEVEL", "WARNING")
     b = parse_args([])
     assert (b.slots, b.name, b.log_level) == (4, "from_pair", "WARNING")
+    assert (b.world, b.pedestrian_mode, b.seed) == ("inspect", "crowd", 0)
     assert parse_args(["--slots", "2"]).slots == 2  # an explicit flag wins
     hp = hyperparameters(TrainArgs(algo="ppo", n_steps=64, gamma=0.95))
     assert hp["n_steps"] == 64 and hp["gamma"] == 0.95 and hp["batch_size"] == 256
-    assert hyperparameters(TrainArgs(algo="dqn", env="discrete"))["learning_rate"] == 1e-4
+    assert hyperparameters(TrainArgs(algo="dqn", env="fused-discrete"))["learning_rate"] == 1e-4
+
+
+def test_stored_artefacts_with_old_names_read_under_the_new() -> None:
+    from rover_train.recipe import stored_args
+    from rover_train.zoo.registry import stored_kind
+
+    assert stored_kind("discrete") == "fused-discrete" and stored_kind("fused") == "fused"
+    old = {"env": "discrete", "workers": 3, "world": "maze"}
+    assert stored_args(old) == {"env": "fused-discrete", "ray_workers": 3, "world": "maze"}
 
 
 def test_rover_train_help_is_generated_from_the_dataclass() -> None:

@@ -12,7 +12,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("shm_protocol", "fused_image", "rover_env", "active_vision", "launch",
-            "rover_train")  # fmt: skip
+            "rover_train", "roverav_cli")  # fmt: skip
 LAB = ("active_vision.training", "rover_train.imitation")
 
 RUNTIME = f"""
@@ -75,6 +75,7 @@ def test_no_runtime_module_imports_a_lab_wing() -> None:
 
 @pytest.mark.parametrize("package, forbidden", [
     ("shm_protocol", PACKAGES[1:]),
+    ("roverav_cli", PACKAGES[1:6]),  # the shared flags: shm_protocol's names only
     ("fused_image", PACKAGES[:1] + PACKAGES[2:]),
     ("rover_env", ("active_vision", "launch", "rover_train")),
     ("active_vision", ("rover_env", "launch", "rover_train")),

@@ -121,7 +121,7 @@ def test_the_term_is_off_by_default_and_checked() -> None:
         RewardConfig(personal_space_distance=-1.0)
     seed = env_kwargs("lidar", "moon")  # the seed's task leaves the reward alone
     assert "reward_config" not in seed
-    for kind in ("lidar", "lidar-discrete", "fused", "fused-gaze", "discrete",
+    for kind in ("lidar", "lidar-discrete", "fused", "fused-gaze", "fused-discrete",
                  "fused-gaze-discrete"):  # fmt: skip
         cfg = get_task("nav").reward_config(kind)
         assert cfg is not None and cfg.contact_is_collision

@@ -17,17 +17,17 @@ from shm_protocol import FrameReader, existing_segments
 
 def test_ray_flag_takes_an_optional_address() -> None:
     assert parse_args([]).ray is None
-    local = parse_args(["--ray", "--workers", "3", "--envs-per-worker", "2"])
-    assert (local.ray, local.workers, local.envs_per_worker) == ("", 3, 2)
+    local = parse_args(["--ray", "--ray-workers", "3", "--envs-per-worker", "2"])
+    assert (local.ray, local.ray_workers, local.envs_per_worker) == ("", 3, 2)
     assert parse_args(["--ray", "10.0.0.1:6379"]).ray == "10.0.0.1:6379"
 
 
 def test_ray_flags_are_validated() -> None:
-    problem = validate(TrainArgs(ray="", workers=0))
-    assert problem is not None and "--workers" in problem
+    problem = validate(TrainArgs(ray="", ray_workers=0))
+    assert problem is not None and "--ray-workers" in problem
     problem = validate(TrainArgs(ray="", envs_per_worker=0))
     assert problem is not None and "--envs-per-worker" in problem
-    ok = validate(TrainArgs(ray="", workers=2, envs_per_worker=2))
+    ok = validate(TrainArgs(ray="", ray_workers=2, envs_per_worker=2))
     if importlib.util.find_spec("ray") is None:  # a core install says how to get Ray
         assert ok is not None and "roverav[ray]" in ok
     else:

@@ -75,12 +75,12 @@ def test_fused_train_then_eval_with_video(tmp_path: Path) -> None:
     d = Daemon(f"test_train_{uuid.uuid4().hex[:8]}").start()
     try:
         res = _cli("rover_train.train", "--env", "fused", "--timesteps", "256", "--n-steps", "128",
-                   "--logdir", str(tmp_path), "--no-progress", "--shm-name", d.name)  # fmt: skip
+                   "--logdir", str(tmp_path), "--no-progress", "--name", d.name)  # fmt: skip
         assert res.returncode == 0, res.stdout + res.stderr
         _check_outputs(tmp_path, "fused")
         video = tmp_path / "eval.mp4"
         res = _cli("rover_train.evaluate", str(tmp_path / "model.zip"), "--env", "fused",
-                   "--episodes", "1", "--max-steps", "10", "--shm-name", d.name,
+                   "--episodes", "1", "--max-steps", "10", "--name", d.name,
                    "--video", str(video))  # fmt: skip
         assert res.returncode == 0, res.stdout + res.stderr
         assert "success rate" in res.stdout
@@ -98,7 +98,7 @@ def test_fused_train_then_eval_with_video(tmp_path: Path) -> None:
 def test_fused_without_daemon_says_how_to_start_one(tmp_path: Path) -> None:
     name = f"test_nodaemon_{uuid.uuid4().hex[:8]}"
     res = _cli("rover_train.train", "--env", "fused", "--timesteps", "64", "--logdir",
-               str(tmp_path), "--shm-name", name, "--connect-timeout", "0.2")  # fmt: skip
+               str(tmp_path), "--name", name, "--connect-timeout", "0.2")  # fmt: skip
     assert res.returncode == 1
     assert f"av-daemon --name {name}" in res.stderr and "rover-pair" in res.stderr
     assert not (tmp_path / "model.zip").exists()
@@ -106,7 +106,8 @@ def test_fused_without_daemon_says_how_to_start_one(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(
     ("env", "algo", "fragment"),
-    [("lidar", "dqn", "--env discrete"), ("discrete", "sac", "continuous")],
+    [("lidar", "dqn", "--env lidar-discrete|fused-discrete"),
+     ("fused-discrete", "sac", "continuous")],
 )
 def test_invalid_algorithm_env_pairs_are_explained(env: str, algo: str, fragment: str) -> None:
     problem = validate(TrainArgs(env=env, algo=algo))

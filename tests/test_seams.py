@@ -40,11 +40,11 @@ Further bad inputs tried (``fixed`` = gave a traceback or a misleading message b
 17. ``rover-train --length 0``, ``--n-steps 1``, ``--batch-size 0``, ``--gamma 1.5``: usage
     error, status 2 (fixed: the first two gave tracebacks, SB3's AssertionError for n_steps;
     ``--batch-size 0`` silently trained with the default; ``--gamma 1.5`` was accepted).
-18. ``rover-train --shm-name a/b``: usage error, status 2 (fixed: traceback).
+18. ``rover-train --name a/b``: usage error, status 2 (fixed: traceback).
 19. ``rover-eval`` of a missing model file: status 1, "no model file".
 20. ``rover-eval --world mars``: usage error, status 2 (fixed: traceback).
 21. ``rover-eval --episodes 0``: usage error, status 2 (fixed: ZeroDivisionError).
-22. ``rover-eval --slot -1``: usage error, status 2 (fixed: traceback).
+22. ``rover-eval --slot -1``: usage error, status 2 (the hidden --slot is gone).
 23. ``rover-eval`` of a model made for another env (a LIDAR model on the fused env, or one
     with another LIDAR size): status 1 naming both observation spaces and ``--env`` (fixed:
     a traceback deep in SB3's predict).
@@ -320,8 +320,8 @@ def test_rover_train_bad_input(args: list[str], words: list[str], tmp_path: Path
     [
         (["{tmp}/missing.zip"], 1, ["no model file at", "missing.zip"]),
         (["--random", "--world", "mars"], 2, ["--world", "mars", "maze"]),
-        (["--random", "--episodes", "0"], 2, ["--episodes", "at least 1"]),
-        (["--random", "--slot", "-1"], 2, ["--slot", ">= 0"]),
+        (["--random", "--episodes", "0"], 2, ["--episodes", "must be >= 1"]),
+        (["--random", "--slot", "-1"], 2, ["unrecognized arguments: --slot"]),
     ],
     ids=["missing_model", "world", "episodes0", "slot"],
 )

@@ -50,6 +50,7 @@ from rover_train.imitation.dagger import (
 )
 from rover_train.imitation.distill import RECIPES
 from rover_train.progress import StatusLine
+from roverav_cli import Episodes, add_group
 from shm_protocol import default_name
 
 _LABEL_ROWS = 24  # video rows holding the panels' names (rover_train.evaluate.label_frame)
@@ -119,18 +120,17 @@ def quiet_logs() -> None:
         logging.getLogger(name).setLevel(logging.WARNING)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    quiet_logs()
+def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="rover_train.imitation.demo", description=__doc__.split("\n")[0]
     )
-    p.add_argument("--world", choices=["inspect", "maze"], default="maze")
+    add_group(p, Episodes, only=("world", "episodes", "max_steps")).description = (
+        "the zoo entry fused-WORLD (inspect or maze; default maze) is fine-tuned, then it, "
+        "the result and a random policy are evaluated on the evaluation seeds")
     p.add_argument(
         "--timesteps", type=int, default=24000, help="fine-tuning env steps (0: evaluate only)"
     )
     p.add_argument("--rounds", type=int, default=6, help="DAgger rounds the steps are split in")
-    p.add_argument("--episodes", type=int, default=20, help="evaluation episodes per policy")
-    p.add_argument("--max-steps", type=int, default=zoo.EVAL_MAX_STEPS)
     p.add_argument("--seed", type=int, default=0, help="seeds fine-tuning and the random policy")
     p.add_argument("--video-episodes", type=int, default=2)
     p.add_argument(
@@ -138,9 +138,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         help="torch threads for the fine-tune's fits (0: all cores; collection uses 1)",
     )  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    quiet_logs()
+    p = _parser()
     args = p.parse_args(argv)
-    if args.episodes < 1:
-        p.error(f"--episodes must be at least 1 (got {args.episodes}): the tables need episodes")
+    args.world = args.world or "maze"
+    if args.world not in ("inspect", "maze"):
+        p.error(f"--world {args.world}: the demo fine-tunes fused-inspect or fused-maze")
     import torch
 
     torch.set_num_threads(1)

@@ -32,7 +32,7 @@ from typing import Any
 import torch
 
 from fused_image import FUSED_SIZE
-from rover_env.pedestrians import DEFAULT_MODE, PEDESTRIAN_MODES
+from rover_env.pedestrians import DEFAULT_MODE
 from rover_train.cli import (
     add_recipe_option,
     build_parser,
@@ -66,6 +66,7 @@ from rover_train.zoo.registry import (
     STUDENT_FUSED_KINDS,
     TABLE_KINDS,
 )
+from roverav_cli import Connection, Episodes, shared_field
 
 log = logging.getLogger(__name__)
 
@@ -121,10 +122,10 @@ class DAggerRecipe:
     depth_scan: int = SCAN_BANDS
     """A fused student's bands of forward range scan read off the depth channel (0: none,
     the image branch alone sees what is ahead)."""
-    pedestrian_mode: str = field(default=DEFAULT_MODE, metadata={"choices": PEDESTRIAN_MODES})
+    pedestrian_mode: str = shared_field(Episodes, "pedestrian_mode")
     """How the pedestrians of the training episodes walk (``RoverEnv``'s
-    ``pedestrian_mode``: pacing, crowd, oblivious, crossing or groups)."""
-    n_pedestrians: int | None = None
+    ``pedestrian_mode``; None, the flag's default: the recipe's, else DEFAULT_MODE)."""
+    n_pedestrians: int | None = shared_field(Episodes, "n_pedestrians")
     """Pedestrians in the training episodes, 0 to 20 (default: the world's 3)."""
     unmapped_scan: bool = False
     """A LIDAR student's second scan of the returns the world's map does not explain (the
@@ -138,6 +139,10 @@ class DAggerRecipe:
     stage1_only: bool = False
     """Fused entries: stop after stage 1 (no daemon needed) and save; run stage 2 later
     with ``init`` set to that file."""
+
+    def __post_init__(self) -> None:
+        if self.pedestrian_mode is None:  # the shared flag's "not given": the env's default
+            object.__setattr__(self, "pedestrian_mode", DEFAULT_MODE)
 
     @property
     def kind(self) -> str:
@@ -252,8 +257,8 @@ class DistillRun:
     resume: bool = False
     """Load the members and fused stage 1s already in ``member_dir`` instead of making them
     again (a run stopped part-way loses only the part it was making)."""
-    name: str | None = None
-    """Daemon name for fused entries (default: ``$ROVERAV_SHM_NAME``, set by rover-pair)."""
+    name: str = shared_field(Connection, "name")
+    """Daemon name for fused entries (roverav_cli.Connection)."""
     slot: int = 0
     """The daemon slot a fused entry's stage 2 uses."""
 

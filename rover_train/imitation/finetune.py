@@ -49,7 +49,6 @@ from torch import nn
 
 from fused_image import FUSED_SIZE
 from rover_env.crowd import MAX_PEDESTRIANS
-from rover_env.pedestrians import PEDESTRIAN_MODES
 from rover_train.checkpoint import durable_path
 from rover_train.cli import parse_recipe_command, recipe_dict, recipe_from_dict
 from rover_train.envs import TASKS
@@ -75,6 +74,7 @@ from rover_train.zoo.registry import (
     TABLE_KINDS,
     shown_path,
 )
+from roverav_cli import Episodes, shared_field
 
 log = logging.getLogger(__name__)
 
@@ -102,9 +102,9 @@ class FineTuneRecipe:
     """The zoo student to start from. Its episodes are RoverEnv's in the entry's world (a
     fused student's with the fused image computed in the worker, a gaze student's with the
     camera turned by its pan head)."""
-    pedestrian_mode: str | None = field(default=None, metadata={"choices": PEDESTRIAN_MODES})
+    pedestrian_mode: str | None = shared_field(Episodes, "pedestrian_mode")
     """The pedestrians of the training episodes (default: the start entry's)."""
-    n_pedestrians: int | None = None
+    n_pedestrians: int | None = shared_field(Episodes, "n_pedestrians")
     """How many (default: the start entry's)."""
     task: str = field(default="nav", metadata={"choices": tuple(TASKS)})
     """What an episode is (``rover-train --task``); ``nav`` ends it at the goal or the first

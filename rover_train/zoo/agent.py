@@ -614,7 +614,7 @@ class StudentAgent:
             else StudentNet(spec)
         )
         net.load_state_dict({k: v.float() for k, v in blob["weights"].items()})
-        return cls(net, blob.get("meta"))
+        return cls(net, _current_meta(blob.get("meta")))
 
     @classmethod
     def ensemble(cls, agents: list[StudentAgent], meta: dict[str, Any] | None = None
@@ -640,7 +640,17 @@ class StudentAgent:
     def read_meta(path: Any) -> dict[str, Any]:
         """The ``meta`` of the student file ``path`` (its name, kind, world and recipe),
         read without building the network."""
-        return dict(read_student_file(path).get("meta") or {})
+        return dict(_current_meta(read_student_file(path).get("meta")) or {})
+
+
+def _current_meta(meta: dict[str, Any] | None) -> dict[str, Any] | None:
+    """A student file's ``meta`` with its env kind under today's name (``discrete`` was the
+    fused discrete env: ``rover_train.zoo.registry.RENAMED_KINDS``)."""
+    from rover_train.zoo.registry import stored_kind
+
+    if meta and isinstance(meta.get("kind"), str):
+        return {**meta, "kind": stored_kind(meta["kind"])}
+    return meta
 
 
 class StudentFileError(ValueError):

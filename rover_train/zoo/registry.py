@@ -8,17 +8,16 @@ from pathlib import Path
 from typing import Any
 
 from rover_env.scenarios import Scenario
+from roverav_cli import EVAL_EPISODES as EVAL_EPISODES
+from roverav_cli import EVAL_MAX_STEPS as EVAL_MAX_STEPS
+from roverav_cli import EVAL_SEED_BASE as EVAL_SEED_BASE
 
 ENTRY_DIR = Path(__file__).resolve().parent / "entries"
-EVAL_SEED_BASE = 100_000
-"""Evaluation seeds start here; training (DAgger) episodes use seeds below it."""
+# EVAL_SEED_BASE (100000), EVAL_MAX_STEPS (600) and EVAL_EPISODES (100), the evaluation
+# defaults, are rover-eval's --seed, --max-steps and --episodes (roverav_cli.Episodes)
 DIAGNOSTIC_SEED_BASE = 50_000
 """Diagnostic seeds (``benchmarks/zoo_diagnose.py``) start here: a change is chosen on them
 and reported on the evaluation seeds; training episodes stay below them."""
-EVAL_MAX_STEPS = 600
-"""An evaluation episode ends at the first goal, a termination or 600 steps (30 s)."""
-EVAL_EPISODES = 100
-"""Episodes of an evaluation (``rover-eval``'s default)."""
 
 
 def shown_path(path: Path) -> str:
@@ -27,12 +26,24 @@ def shown_path(path: Path) -> str:
     return str(path) if rel.startswith("..") else rel
 
 
-STUDENT_FUSED_KINDS = ("fused", "fused-gaze", "discrete", "fused-gaze-discrete")
+STUDENT_FUSED_KINDS = ("fused", "fused-gaze", "fused-discrete", "fused-gaze-discrete")
 """Kinds of student that see the fused image (their env needs the daemon)."""
 GAZE_KINDS = ("fused-gaze", "fused-gaze-discrete")
 """Kinds of student that turn the camera."""
-TABLE_KINDS = ("discrete", "fused-gaze-discrete")
+TABLE_KINDS = ("fused-discrete", "fused-gaze-discrete")
 """Kinds of student that drive the seed's discrete table (``Discrete(60)``, ``(180)``)."""
+RENAMED_KINDS = {"discrete": "fused-discrete"}
+"""Old env kind -> its name now. Artefacts store the kind they were made with (a model's
+recipe, a run's arguments, a student's meta): :func:`stored_kind` reads them. Not a CLI
+spelling: ``--env discrete`` is refused."""
+
+
+def stored_kind(kind: str) -> str:
+    """The env kind a stored artefact names, under its current name (``discrete`` was the
+    fused discrete env, now ``fused-discrete``)."""
+    return RENAMED_KINDS.get(kind, kind)
+
+
 DAGGER = "dagger"
 RL = "rl"
 RL_FUSED_SLOTS = 4
@@ -124,9 +135,9 @@ ENTRIES.update(
     for name, (scenario, kind) in LOOKING_PAIRS.items()
 )
 ENTRIES.update(
-    (f"{kind}-inspect", EntrySpec(f"{kind}-inspect", kind, "inspect",
-                                  ENTRIES["fused-inspect"].env_kwargs))
-    for kind in TABLE_KINDS
+    (name, EntrySpec(name, kind, "inspect", ENTRIES["fused-inspect"].env_kwargs))
+    for name, kind in (("discrete-inspect", "fused-discrete"),
+                       ("fused-gaze-discrete-inspect", "fused-gaze-discrete"))
 )  # fmt: skip  # the pair on the seed's tables: fused-inspect's recipe, Discrete(60) / (180)
 ENTRIES.update(
     (f"{start}-rl", EntrySpec(f"{start}-rl", ENTRIES[start].kind, ENTRIES[start].world,
