@@ -21,11 +21,15 @@ on the gaze envs) and the env's own pose and yaw.
 Each update projects every image column to the ground plane: the nearest pixel of the
 column that stands more than ``obstacle_height`` above the ground (and is not hot) is that
 column's obstacle, the nearest hot pixel (heatmap above ``person_threshold``) its person.
-Those points go into a world-frame memory (one obstacle and one person point per sector,
-the nearest), which the next update re-reads from the rover's new pose: the rover's own
-motion moves the memory, nothing else does. Sectors the camera sees now are replaced by
-what it shows (a sector seen empty is emptied); points older than ``memory_s`` (scenery) or
-``person_memory_s`` (people walk) are dropped.
+
+Scenery goes into a world-frame grid of ``cell_m`` cells (an occupancy layer, as a costmap
+keeps one): each column marks the cell of its obstacle and frees the remembered cells it
+sees through, nearer than its obstacle or, when it shows none, within ``max_range``. A wall
+seen ahead is still there beside the rover as it passes, and behind it after a turn, for
+``memory_s``. People walk, so each sector keeps one person point, the nearest, re-read from
+the rover's new pose every update; sectors in view are replaced by what the camera shows (a
+sector seen empty is emptied) and points older than ``person_memory_s`` are dropped. The
+rover's own motion moves both memories, nothing else does.
 """
 
 from __future__ import annotations
@@ -68,11 +72,13 @@ class CameraScanConfig:
     person_memory_s: float = 2.0
     """Seconds a person reading is kept once the camera looks away (people walk about
     1.3 m/s: older readings mislead more than they tell)."""
+    cell_m: float = 0.1
+    """Metres: the side of a cell of the scenery grid."""
 
     def __post_init__(self) -> None:
         if self.sectors < 4:
             raise ValueError(f"sectors must be >= 4, got {self.sectors}")
-        for name in ("max_range", "memory_s", "person_memory_s"):
+        for name in ("max_range", "memory_s", "person_memory_s", "cell_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not 0.0 < self.person_threshold < 1.0:
@@ -121,13 +127,21 @@ class CameraScan:
         self._params = np.array([
             DEPTH_MAX_M, cfg.max_range, cfg.person_threshold,
             cfg.obstacle_height - CAMERA_HEIGHT,  # a pixel this far above the camera or more
-            self.half_fov, cfg.memory_s, cfg.person_memory_s, rover.CAMERA_X, 0.0])  # fmt: skip
+            self.half_fov, cfg.memory_s, cfg.person_memory_s, rover.CAMERA_X, 0.0,
+            cfg.cell_m, 0.0])  # fmt: skip
+        # the scenery grid is toroidal: slot (ix mod g, iy mod g) holds world cell (ix, iy).
+        # Its read-out keeps cells within max_range + 1 m, so two live cells never share a
+        # slot when g cells span twice that.
+        g = math.ceil(2.0 * (cfg.max_range + 1.0) / cfg.cell_m) + 2
+        self._params[10] = g
+        self._grid_t = np.full(g * g, -np.inf)  # when each slot was last seen occupied (s)
+        self._grid_i = np.zeros((g * g, 2), dtype=np.int64)  # the world cell a slot holds
+        self._occ = np.zeros(g * g, dtype=np.int64)  # the listed (possibly occupied) slots
+        self._occ_n = np.zeros(1, dtype=np.int64)
         self._pose = np.zeros(4)
         n = cfg.sectors
-        self._obstacle = np.full((n, 2), np.nan)  # world x, y of each sector's reading
-        self._person = np.full((n, 2), np.nan)
-        self._obstacle_t = np.full(n, -np.inf)  # when each reading was taken (s)
-        self._person_t = np.full(n, -np.inf)
+        self._person = np.full((n, 2), np.nan)  # world x, y of each sector's person reading
+        self._person_t = np.full(n, -np.inf)  # when each reading was taken (s)
         self._seen_t = np.full(n, -np.inf)  # when each world-bearing sector was last in view
         self._t = 0.0
         self._warned = False
@@ -150,9 +164,9 @@ class CameraScan:
 
     def reset(self) -> None:
         """Forget everything (a new episode)."""
-        self._obstacle[:] = np.nan
+        self._grid_t[:] = -np.inf
+        self._occ_n[0] = 0
         self._person[:] = np.nan
-        self._obstacle_t[:] = -np.inf
         self._person_t[:] = -np.inf
         self._seen_t[:] = -np.inf
         self._t = 0.0
@@ -182,18 +196,23 @@ class CameraScan:
         self._pose[:] = (x, y, yaw, pan)
         image = fused if fused.dtype == np.float32 else fused.astype(np.float32)
         kernel.scan_update(image, self._fwd, self._up, self._left, self._params, self._pose,
-                           self._obstacle, self._obstacle_t, self._person, self._person_t,
+                           self._grid_t, self._grid_i, self._occ, self._occ_n,
+                           self._person, self._person_t,
                            self._seen_t, self.observation, self.columns)  # fmt: skip
 
     def points(self, which: str) -> tuple[np.ndarray, np.ndarray]:
-        """The remembered ``"obstacle"`` or ``"person"`` readings as world points (K, 2) and
-        their ages (K,) in seconds (for checking the scan against the simulator)."""
+        """The remembered ``"obstacle"`` readings (the centres of the occupied scenery
+        cells) or ``"person"`` readings as world points (K, 2), and their ages (K,) in
+        seconds (for checking the scan against the simulator)."""
         if which not in SCAN_ROWS[:2]:
             raise ValueError(f"which must be 'obstacle' or 'person', got {which!r}")
-        pts, stamps = ((self._obstacle, self._obstacle_t) if which == "obstacle"
-                       else (self._person, self._person_t))  # fmt: skip
-        known = np.isfinite(pts[:, 0])
-        return pts[known].copy(), self._t - stamps[known]
+        if which == "obstacle":
+            slots = self._occ[: self._occ_n[0]]
+            slots = slots[self._grid_t[slots] > self._t - self.config.memory_s]
+            cells = self._grid_i[slots]
+            return (cells + 0.5) * self.config.cell_m, self._t - self._grid_t[slots]
+        known = np.isfinite(self._person[:, 0])
+        return self._person[known].copy(), self._t - self._person_t[known]
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:

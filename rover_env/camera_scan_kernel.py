@@ -1,10 +1,11 @@
 """The camera scan's update, compiled: one pass over the fused image and the memory.
 
 :class:`rover_env.camera_scan.CameraScan` keeps the state and the constants; this function
-does a step's arithmetic (every pixel of the image once, then at most one point per sector
-and per column), which as numpy array operations costs more than the render. Compiled by
-numba (``cache=True``: once per machine, then loaded from ``__pycache__``), it costs a
-small fraction of a step (benchmarks/RESULTS.md, "The camera scan"). The method is documented in
+does a step's arithmetic (every pixel of the image once, then the scenery grid's listed cells
+and at most one person point per sector), which as
+numpy array operations costs more than the render. Compiled by numba (``cache=True``: once
+per machine, then loaded from ``__pycache__``), it costs a small fraction of a step
+(benchmarks/RESULTS.md, "The camera scan"). The method is documented in
 :mod:`rover_env.camera_scan`.
 """
 
@@ -78,6 +79,75 @@ def _insert(pts: np.ndarray, stamps: np.ndarray, rng: np.ndarray, wx: float, wy:
         pts[k, 0], pts[k, 1], stamps[k] = wx, wy, now
 
 
+@njit(cache=True, inline="always")
+def _cell(coord: float, res: float) -> int:
+    return int(math.floor(coord / res))
+
+
+@njit(cache=True)
+def _mark(grid_t: np.ndarray, grid_i: np.ndarray, occ: np.ndarray, occ_n: np.ndarray,
+          g: int, ix: int, iy: int, now: float) -> None:  # fmt: skip
+    """Scenery seen in world cell (ix, iy) now (the grid is toroidal: g x g slots)."""
+    flat = (ix % g) * g + (iy % g)
+    if grid_t[flat] == -np.inf:
+        occ[occ_n[0]] = flat
+        occ_n[0] += 1
+    grid_i[flat, 0], grid_i[flat, 1], grid_t[flat] = ix, iy, now
+
+
+@njit(cache=True)
+def _clear_in_view(grid_t: np.ndarray, grid_i: np.ndarray, occ: np.ndarray, occ_n: np.ndarray,
+                   res: float, cam_x: float, cam_y: float, look: float, half_fov: float,
+                   left_col: np.ndarray, fwd_h: float, free_r: np.ndarray) -> None:  # fmt: skip
+    """Free the listed cells the camera sees through now: those in its view nearer than
+    their column's ``free_r`` (m from the camera on the ground). A cell's column follows
+    from its bearing (``left_col`` over the horizon row's forward factor ``fwd_h``)."""
+    width = left_col.shape[0]
+    u_per_left = 1.0 / (left_col[0] - left_col[1])  # the focal length, in pixels
+    cos_l, sin_l, tan_h = math.cos(look), math.sin(look), math.tan(half_fov)
+    for i in range(occ_n[0]):
+        flat = occ[i]
+        if grid_t[flat] == -np.inf:
+            continue
+        dx = (grid_i[flat, 0] + 0.5) * res - cam_x
+        dy = (grid_i[flat, 1] + 0.5) * res - cam_y
+        fwd = dx * cos_l + dy * sin_l  # the cell in the camera's level frame
+        left = dy * cos_l - dx * sin_l
+        if fwd <= 0.0 or abs(left) > fwd * tan_h:
+            continue
+        u = int(round((left_col[0] - left / fwd * fwd_h) * u_per_left))
+        u = min(max(u, 0), width - 1)
+        if fwd * fwd + left * left < free_r[u] * free_r[u]:
+            grid_t[flat] = -np.inf
+
+
+@njit(cache=True)
+def _read_grid(grid_t: np.ndarray, grid_i: np.ndarray, occ: np.ndarray, occ_n: np.ndarray,
+               res: float, x: float, y: float, yaw: float, now: float, memory_s: float,
+               keep_m: float, rng: np.ndarray) -> None:  # fmt: skip
+    """Each sector's nearest remembered scenery (``rng``, inf where none); cells freed,
+    older than ``memory_s`` or farther than ``keep_m`` leave the list."""
+    n = rng.shape[0]
+    for k in range(n):
+        rng[k] = np.inf
+    i = 0
+    while i < occ_n[0]:
+        flat = occ[i]
+        t = grid_t[flat]
+        dx = (grid_i[flat, 0] + 0.5) * res - x
+        dy = (grid_i[flat, 1] + 0.5) * res - y
+        r = math.hypot(dx, dy)
+        if t == -np.inf or now - t > memory_s or r > keep_m:
+            grid_t[flat] = -np.inf
+            occ_n[0] -= 1
+            occ[i] = occ[occ_n[0]]
+            continue
+        k = _sector(math.atan2(dy, dx) - yaw, n)
+        if r < rng[k]:
+            rng[k] = r
+        i += 1
+
+
 @njit(cache=True)
 def scan_update(
     fused: np.ndarray,
@@ -86,8 +156,10 @@ def scan_update(
     left_col: np.ndarray,
     params: np.ndarray,
     pose: np.ndarray,
-    obstacle: np.ndarray,
-    obstacle_t: np.ndarray,
+    grid_t: np.ndarray,
+    grid_i: np.ndarray,
+    occ: np.ndarray,
+    occ_n: np.ndarray,
     person: np.ndarray,
     person_t: np.ndarray,
     seen_t: np.ndarray,
@@ -99,9 +171,12 @@ def scan_update(
     ``fused`` (H, W, 3) float32; ``fwd_row``/``up_row`` (H,) and ``left_col`` (W,): a pixel at
     optical depth d lies d * (fwd_row[r], left_col[u], up_row[r]) from the camera in its
     level frame. ``params``: depth_max, max_range, person_threshold, obstacle_height
-    above the camera (negative), half_fov, memory_s, person_memory_s, camera_x, now.
-    ``pose``: x, y, yaw, pan. The stores (n, 2) world points with their stamps (n,) are
-    indexed by rover-frame sector; ``seen_t`` (n,) by world-bearing sector; ``out`` (3, n)
+    above the camera (negative), half_fov, memory_s, person_memory_s, camera_x, now,
+    cell size (m), cells per side of the grid. ``pose``: x, y, yaw, pan. Scenery lives in a
+    toroidal world-frame grid: ``grid_t`` (g*g,) when each cell was last seen occupied (-inf:
+    free), ``grid_i`` (g*g, 2) the world cell each slot holds, ``occ`` the listed slots and
+    ``occ_n`` (1,) their count. The person store (n, 2) world points with their stamps (n,)
+    is indexed by rover-frame sector; ``seen_t`` (n,) by world-bearing sector; ``out`` (3, n)
     gets the observation; ``columns`` (3, W) gets each column's nearest scenery depth and
     its row (inf / -1 where none), then the median depth of its person pixels (inf where
     none), for checks.
@@ -109,6 +184,7 @@ def scan_update(
     depth_max, max_range, threshold, high_from = params[0], params[1], params[2], params[3]
     half_fov, memory_s, person_memory_s = params[4], params[5], params[6]
     camera_x, now = params[7], params[8]
+    res, g = params[9], int(params[10])
     x, y, yaw, pan = pose[0], pose[1], pose[2], pose[3]
     n = seen_t.shape[0]
     height, width = fused.shape[0], fused.shape[1]
@@ -120,13 +196,12 @@ def scan_update(
             seen_t[k] = now
     obstacle_r = np.empty(n)
     person_r = np.empty(n)
-    _rebin(obstacle, obstacle_t, obstacle_r, x, y, yaw)
     _rebin(person, person_t, person_r, x, y, yaw)
-    _forget_in_view(obstacle, obstacle_t, obstacle_r, cam_x, cam_y, look, half_fov, max_range)
     _forget_in_view(person, person_t, person_r, cam_x, cam_y, look, half_fov, max_range)
     cos_l, sin_l = math.cos(look), math.sin(look)
     far = depth_max * 0.999
     hot = np.empty(height)
+    hit_x, hit_y, free_r = np.empty(width), np.empty(width), np.empty(width)
     for u in range(width):
         best_s, row_s, m = np.inf, -1, 0
         for r in range(height):
@@ -142,10 +217,21 @@ def scan_update(
         # a person's depth is the median of its hot pixels' (the network's depth is noisy at
         # a figure's edges, and the nearest of them reads a metre short)
         columns[2, u] = np.median(hot[:m]) if m else np.inf
+        # the column sees through to its nearest scenery (a margin short of it: the
+        # network's depth is noisy), or to the range when it shows none
         if row_s >= 0:
             fwd, left = best_s * fwd_row[row_s], best_s * left_col[u]
-            _insert(obstacle, obstacle_t, obstacle_r, cam_x + fwd * cos_l - left * sin_l,
-                    cam_y + fwd * sin_l + left * cos_l, now, x, y, yaw)
+            hit_x[u] = cam_x + fwd * cos_l - left * sin_l
+            hit_y[u] = cam_y + fwd * sin_l + left * cos_l
+            free_r[u] = max(math.hypot(fwd, left) - 2.0 * res, 0.0)
+        else:
+            hit_x[u] = np.nan
+            free_r[u] = max_range
+    _clear_in_view(grid_t, grid_i, occ, occ_n, res, cam_x, cam_y, look, half_fov, left_col,
+                   fwd_row[height // 2], free_r)  # fmt: skip
+    for u in range(width):
+        if math.isfinite(hit_x[u]):
+            _mark(grid_t, grid_i, occ, occ_n, g, _cell(hit_x[u], res), _cell(hit_y[u], res), now)
     # each run of adjacent person columns is one person: its middle column at the run's
     # median depth, on the horizon row's forward factor (a figure stands up from the ground)
     horizon_fwd = fwd_row[height // 2]
@@ -164,11 +250,9 @@ def scan_update(
         fwd, left = d * horizon_fwd, d * left_factor
         _insert(person, person_t, person_r, cam_x + fwd * cos_l - left * sin_l,
                 cam_y + fwd * sin_l + left * cos_l, now, x, y, yaw)
+    _read_grid(grid_t, grid_i, occ, occ_n, res, x, y, yaw, now, memory_s, max_range + 1.0,
+               obstacle_r)  # fmt: skip
     for k in range(n):  # readings older than their memory are dropped
-        if now - obstacle_t[k] > memory_s:
-            obstacle[k, 0] = np.nan
-            obstacle[k, 1] = np.nan
-            obstacle_r[k] = np.inf
         if now - person_t[k] > person_memory_s:
             person[k, 0] = np.nan
             person[k, 1] = np.nan

@@ -295,3 +295,33 @@ def test_the_relative_table_is_rover_env_discretes_table() -> None:
     finally:
         discrete.close()
         table.close()
+
+
+def test_scenery_seen_ahead_is_still_there_beside_the_rover_after_it_drove_on(
+    inspect_env: RoverEnv,
+) -> None:
+    # The panel rows seen from the start are remembered in the world frame: 2.5 m on, with
+    # the camera looking back (it frees only what it sees behind), every sector whose LIDAR
+    # hit lies on scenery the first view saw reads that range from the new pose.
+    env = inspect_env
+    env.reset(seed=3)
+    _people_ahead(env, [(30.0, 30.0), (31.0, 30.0), (32.0, 30.0)])
+    scan = CameraScan(SIZE, DT)
+    x0, y0, yaw0 = _pose(env)
+    scan.update(_truth_image(env), x0, y0, yaw0)
+    seen, _ = scan.points("obstacle")
+    assert len(seen) >= 15  # the cells of the columns that show scenery, not a point a sector
+    while math.hypot(env.position[0] - x0, env.position[1] - y0) < 2.5:
+        env.step(np.array([0.5, 0.0], dtype=np.float32))
+    x, y, yaw = _pose(env)
+    scan.update(np.zeros((*SIZE, 3), dtype=np.float32), x, y, yaw, pan=math.pi)
+    lidar = env.sim.lidar(32, 12.0, pedestrians=False)
+    angles = -math.pi + (np.arange(32) + 0.5) * 2 * math.pi / 32 + yaw
+    hits = np.stack([x + lidar * np.cos(angles), y + lidar * np.sin(angles)], axis=1)
+    gap = np.hypot(hits[:, None, 0] - seen[None, :, 0], hits[:, None, 1] - seen[None, :, 1])
+    covered = (lidar < 10.0) & (gap.min(axis=1) < 0.15)
+    assert covered.sum() >= 5
+    # a 0.1 m cell beside the rover spans more than a sector: it may read in a neighbour
+    reading = scan.observation[0]
+    error = np.min([np.abs(np.roll(reading, k) - lidar) for k in (-1, 0, 1)], axis=0)[covered]
+    assert (error < 0.3).all(), (error, np.flatnonzero(covered))
