@@ -1,4 +1,4 @@
-"""Crowd models compared (issue 36): cost per step for 20 agents, determinism, obstacles.
+"""Crowd models compared: cost per step for 20 agents, determinism, obstacles.
 
 One scene for every model: 20 agents in a 12 x 12 m square with two 1 x 5 m walls, starts
 1 m apart and goals drawn from one seed, 0.05 s steps (PySocialForce: its own fixed step),

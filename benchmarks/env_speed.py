@@ -20,7 +20,7 @@ drawn (the way before the camera left out what it cannot see) and as the env ren
 leaving out the pedestrian geoms wholly outside the view frustum and, looking straight
 ahead, the rover's own body. The two renders of a frame are checked to be pixel-identical.
 
-A third table (issue 36) times RoverEnv's steps/s with the 3 pacing pedestrians (the default
+A third table times RoverEnv's steps/s with the 3 pacing pedestrians (the default
 when the crowd came) against 3, 10 and 20 walkers of the social-force crowd (the default
 now), in interleaved rounds (medians), and the ratios crowd 10 / pacing 3 (the target is
 >= 80 %) and crowd 10 / crowd 3, taken within each round (median, quartiles in brackets):

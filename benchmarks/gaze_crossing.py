@@ -1,4 +1,4 @@
-"""Does looking help? Fixed-camera vs gaze agents in the crossing scenario (issue 13).
+"""Does looking help? Fixed-camera vs gaze agents in the crossing scenario.
 
     .venv/bin/python -m benchmarks.gaze_crossing --fixed runs/fixed/model.zip \\
         --gaze runs/gaze/model.zip --episodes 30 --gif docs/gaze_crossing.gif

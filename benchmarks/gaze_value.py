@@ -1,4 +1,4 @@
-"""What looking is worth to the planner expert (issue 37): three teachers on the same episodes.
+"""What looking is worth to the planner expert: three teachers on the same episodes.
 
     .venv/bin/python -m benchmarks.gaze_value    # 100 episodes a row: ~10 min
     .venv/bin/python -m benchmarks.gaze_value --episodes 250 \

@@ -28,7 +28,7 @@ and in the same way (batch 1 and 8, one thread), so two networks are compared at
 machine load: e.g. the previous network, ``git show REV:active_vision/weights/avnet.pt >
 /tmp/old.pt``.
 
-Targets (issue 4): <= 2 ms/frame at batch 1 on one thread for all three channels; <= 1 ms/frame
+Targets: <= 2 ms/frame at batch 1 on one thread for all three channels; <= 1 ms/frame
 at batch 8. The machine's other load is reported with the table: timings on a shared
 2-core machine move by tens of percent.
 """

@@ -16,10 +16,10 @@ What runs:
    per repeat and then the median.
 2. Unless ``--no-quality``: ``active_vision.training.evaluate`` on the held-out split at each
    precision (per world: IoU, recall, false-positive rate, AbsRel, delta1) and the int8
-   minus fp32 differences against the tolerances of issue 40 (0.01 IoU/recall, 0.005
+   minus fp32 differences against the int8 tolerances (0.01 IoU/recall, 0.005
    AbsRel/delta1).
 
-Targets (issue 40): int8 >= 2x faster than fp32 ONNX at batch 1 and at batch 8 on one
+Targets: int8 >= 2x faster than fp32 ONNX at batch 1 and at batch 8 on one
 thread; quality within the tolerances in every world. Name the CPU and the machine's other
 load beside the figures (the script prints ``lscpu``'s model name and the load average).
 """
@@ -40,7 +40,7 @@ from benchmarks.machine import cpu_name
 BATCHES = (1, 8)
 FIGURES = ("iou", "recall", "false_positive_rate", "abs_rel", "delta1")
 TOLERANCES = {"iou": 0.01, "recall": 0.01, "abs_rel": 0.005, "delta1": 0.005}
-"""Largest loss of int8 against fp32 per world (issue 40); no tolerance on false positives
+"""Largest loss of int8 against fp32 per world; no tolerance on false positives
 (their target, <= 0.02, still holds per world)."""
 
 

@@ -10,7 +10,7 @@ Both rows run what the daemon runs per camera frame, on the shipped weights:
 
 Median and best of ``repeats`` runs of ``iters`` frames; the machine's load average is
 printed with the table (a shared 2-core machine moves timings by tens of percent). The
-budget (issue 12): AVNet <= 2 ms/frame at batch 1 on one thread.
+budget: AVNet <= 2 ms/frame at batch 1 on one thread.
 """
 
 from __future__ import annotations

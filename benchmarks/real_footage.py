@@ -71,7 +71,7 @@ falls under OpenCV's own; Debian's ``/usr/share/doc/opencv-doc/copyright`` lists
 AMD, the OpenCV Foundation, Itseez, Xperience AI, and the OpenCV contributors. OpenCV's
 repository does not record where the clip was filmed or by whom.
 
-The rules and the targets are :mod:`active_vision.training.real_footage`'s. Targets (issue 41),
+The rules and the targets are :mod:`active_vision.training.real_footage`'s. Targets,
 at the threshold: people found >= 95 % with mean box cover >= 0.4;
 people-free crops: median hot area <= 0.5 %, at most 10 % of crops with more than 2 % hot.
 

@@ -1,4 +1,4 @@
-"""What recording an episode as ROS 2 MCAP costs (issue 70): steps/s with and without it.
+"""What recording an episode as ROS 2 MCAP costs: steps/s with and without it.
 
 One run, interleaved rounds (this VM's speed drifts within minutes; rows a second apart
 far less), medians over the rounds, the same seeded random actions in every row:

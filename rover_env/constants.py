@@ -75,7 +75,7 @@ HEATMAP_CENTER_SCALE = 0.1  # seed 000: heatmap_center_scale (fused envs)
 HEATMAP_CENTER_COLUMNS = 4  # seed 000: sum over the centre 4 columns of the heatmap
 PAN_PENALTY = 0.02  # original joint gaze policy: -0.02 reward per camera pan move
 
-# --- gaze (issue 13; seed 001: pan_offsets = [-60, -30, 0, +30, +60] degrees) ---------------
+# --- gaze (seed 001: pan_offsets = [-60, -30, 0, +30, +60] degrees) -------------------------
 PAN_WINDOWS_DEG = (-60.0, -30.0, 0.0, 30.0, 60.0)  # camera pan relative to the heading
 PAN_LIMIT = math.radians(60.0)  # rad, either side; the continuous gaze env's action bound
 PAN_RATE = math.radians(180.0)  # rad/s, the camera head's servo rate (hobby pan servos:

@@ -1,5 +1,5 @@
 """RoverEnvDiscrete: RoverEnv with ``Discrete(60)`` actions, the seed's speed levels x 12
-headings relative to the rover's yaw (the RL baselines' action space, issue 38).
+headings relative to the rover's yaw (the RL baselines' action space).
 
 Why relative, when the seed's discrete fused env steers to absolute compass headings: the
 LIDAR observation gives the goal's bearing relative to the heading, so with relative

@@ -59,7 +59,7 @@ _MAX_BATCHES = 20
 _PATH_SAMPLES = 33  # clearance checks along a path (every 0.25 m on an 8 m path)
 
 PEDESTRIAN_MODES = ("pacing", "crowd", "oblivious", "crossing", "groups")
-DEFAULT_MODE = "crowd"  # people who walk to goals and make room for the rover (issue 36)
+DEFAULT_MODE = "crowd"  # people who walk to goals and make room for the rover
 RENAMED_MODES = {"walk": "pacing"}  # old name -> new, accepted with a warning for one release
 # crossing mode: each pedestrian walks across the rover's start-goal line
 CROSSING_FRACTION_RANGE = (0.3, 0.85)  # where along the line it crosses

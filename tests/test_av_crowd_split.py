@@ -1,4 +1,4 @@
-"""The perception's evaluation split among crowds (issue 36): ``evaluate --pedestrian-mode
+"""The perception's evaluation split among crowds: ``evaluate --pedestrian-mode
 crowd --pedestrians N`` renders its driving frames with that many crowd pedestrians, caches
 them under their own file name, and leaves the pacers' split and its name as they were."""
 

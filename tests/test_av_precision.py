@@ -1,4 +1,4 @@
-"""The precision the daemon runs (issue 67): the shipped int8 model agrees with fp32 on the
+"""The precision the daemon runs: the shipped int8 model agrees with fp32 on the
 committed reference frames on this CPU (a CPU whose int8 kernels saturate fails here),
 ``auto`` measures once and caches, says what it chose in one log line, ``--precision int8``
 is refused where the int8 model disagrees, and ``fp32`` runs unchecked. Real ONNX models in

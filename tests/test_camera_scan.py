@@ -1,4 +1,4 @@
-"""The camera scan (issue 66): a rover-frame memory of what the camera has seen, checked
+"""The camera scan: a rover-frame memory of what the camera has seen, checked
 against the simulator's truth on seeded scenes and on a real daemon."""
 
 from __future__ import annotations
@@ -183,7 +183,7 @@ def test_every_fused_id_adds_the_scan_key_only_when_asked(daemon: Daemon, env_id
 
 def test_on_seeded_episodes_the_scan_agrees_with_the_truth(daemon: Daemon) -> None:
     """The daemon's own depth and heatmap, the planner expert driving among the crowd of 3:
-    scenery within the issue's figures, people found, few false ones (the benchmark's
+    scenery within the bounds asserted below, people found, few false ones (the benchmark's
     table: benchmarks/camera_scan_accuracy.py)."""
     from rover_env import RoverEnvFused
 

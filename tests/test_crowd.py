@@ -1,4 +1,4 @@
-"""The crowd (issue 36): people who walk to goals in real MuJoCo envs, never through each
+"""The crowd: people who walk to goals in real MuJoCo envs, never through each
 other or the scenery, who make room for a parked rover (``crowd``) or do not
 (``oblivious``); deterministic per seed; bad input refused."""
 

@@ -1,4 +1,4 @@
-"""PPO from a distilled student (issue 38, item 3): ``rover_train.imitation.finetune``."""
+"""PPO from a distilled student: ``rover_train.imitation.finetune``."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Gaze control (issue 13): RoverEnvFusedGaze and DiscreteRoverEnvFusedGaze on a real daemon,
+"""Gaze control: RoverEnvFusedGaze and DiscreteRoverEnvFusedGaze on a real daemon,
 the camera's pan head in the MuJoCo model, and the crossing pedestrian mode."""
 
 from __future__ import annotations

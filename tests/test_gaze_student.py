@@ -1,4 +1,4 @@
-"""Gaze students (issue 37): a zoo student that also chooses where the camera looks."""
+"""Gaze students: a zoo student that also chooses where the camera looks."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The gaze teacher (issue 37): the planner expert's camera policy, its camera-restricted
+"""The gaze teacher: the planner expert's camera policy, its camera-restricted
 driving through a turned camera, the pan head for envs without one, and the reward option
 that charges pedestrians in the rover's heading instead of the image's centre."""
 

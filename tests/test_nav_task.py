@@ -1,4 +1,4 @@
-"""The nav task (issue 38): ``goal_ends_episode`` on the envs, ``--task`` on rover-train and
+"""The nav task: ``goal_ends_episode`` on the envs, ``--task`` on rover-train and
 rover-eval, and ``--algo recurrent-ppo`` (a tiny run that checkpoints and resumes)."""
 
 from __future__ import annotations

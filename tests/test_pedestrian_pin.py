@@ -1,5 +1,5 @@
 """The pacers (``pacing``, the world's 3) are bit-identical to the pacers the
-shipped perception network and zoo students were made on (issue 36).
+shipped perception network and zoo students were made on.
 
 The hashes below were computed on the code before the crowd model existed: two LIDAR
 episodes per world, seeded random actions, every observation array's bytes and every reward.

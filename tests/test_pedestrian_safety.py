@@ -1,4 +1,4 @@
-"""Keeping clear of people (issue 71): ``info["contact"]`` counts a touched person, the
+"""Keeping clear of people: ``info["contact"]`` counts a touched person, the
 evaluators' headline counts it as a collision episode, and the nav task's personal-space
 term works the same on the LIDAR, fused and gaze envs."""
 

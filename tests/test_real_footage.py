@@ -1,4 +1,4 @@
-"""The shipped perception on real pedestrian footage (issue 41): committed crops of OpenCV's
+"""The shipped perception on real pedestrian footage: committed crops of OpenCV's
 ``vtest.avi`` (``tests/data/real_footage/``, made by ``python -m benchmarks.real_footage
 --write-test-data``; no download, no HOG here) through the daemon's ``Perception``, measured
 with the benchmark's rules (``active_vision.training.real_footage``): people found and box
@@ -31,14 +31,14 @@ from fused_image import CHANNEL_HEATMAP, FUSED_SIZE  # noqa: E402
 DATA = Path(__file__).resolve().parent / "data" / "real_footage"
 
 FOUND_MIN = 0.9
-"""Share of the person crops' people found: the issue's target (95 %) with one crop of slack
+"""Share of the person crops' people found: the benchmark's target (95 %) with one crop of slack
 (15 of 16 passes). The shipped network finds 16/16 here (282/283 in the benchmark)."""
 COVER_MIN = 0.2
-"""Mean box cover, a regression bound: 0.232 (fp32) / 0.229 (int8) on these crops. The issue's
-0.4 is above what a heatmap exactly on the person scores (0.27 in the benchmark)."""
+"""Mean box cover, a regression bound: 0.232 (fp32) / 0.229 (int8) on these crops. The target
+(0.4) is above what a heatmap exactly on the person scores (0.27 in the benchmark)."""
 FREE_MEDIAN_MAX = 0.005
 FREE_GT2_MAX = 0.1
-"""False heat on the people-free crops, the issue's targets: median hot area <= 0.5 % and at
+"""False heat on the people-free crops, the benchmark's targets: median hot area <= 0.5 % and at
 most 10 % of crops (1 of 16) over 2 % hot. The shipped network: 0 % median, none over 2 %
 (the network it was fine-tuned from: 3.15 % median, 14 of 16 over 2 %)."""
 

@@ -1,5 +1,5 @@
 """RL models as zoo entries: the recipe rover-train stores in every model.zip, ``rover-train
---recipe FILE``, and ``zoo.load`` / ``rover-eval`` on an ``rl-*`` entry (issue 38)."""
+--recipe FILE``, and ``zoo.load`` / ``rover-eval`` on an ``rl-*`` entry."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The robot's formats (issue 70), on real files: episodes recorded as ROS 2 MCAP by a real
+"""The robot's formats, on real files: episodes recorded as ROS 2 MCAP by a real
 RoverEnv and a real fused env beside a real av-daemon, read back with rosbags' reader and with
 the MCAP library's; a bag made of the committed real-footage crops played by the daemon's bag
 source (against the video source on the same frames, and through a real av-daemon against the

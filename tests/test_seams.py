@@ -1,10 +1,10 @@
-"""Clear errors where two processes (or a user and a process) disagree: issue 9, part 5.
+"""Clear errors where two processes (or a user and a process) disagree.
 
 Every bad input below gives a named error (envs) or a usage message (CLIs) that says what
 was expected, what was found and what to do; CLIs exit with 2 (usage) or 1 (runtime) and
 print no traceback. Real av-daemon subprocesses, real shared memory.
 
-The seams the issue named:
+The seams checked:
 
 1. Two envs on the same daemon slot (same process, or another process): ``SegmentBusyError``
    at attach naming the pid that holds the slot's camera segment and ``slot=`` /

@@ -1,4 +1,4 @@
-"""Discrete students (issue 37): zoo students that drive the seed's action tables, Discrete(60)
+"""Discrete students: zoo students that drive the seed's action tables, Discrete(60)
 and the gaze env's Discrete(180), learnt from the planner expert's nearest table action."""
 
 from __future__ import annotations

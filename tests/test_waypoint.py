@@ -1,4 +1,4 @@
-"""The map planner's waypoint as an observation key (``rover-train --waypoint``, issue 38): it
+"""The map planner's waypoint as an observation key (``rover-train --waypoint``): it
 leads round the maze's walls, it is computed from the observation alone, and a model trained
 with it drives the plain env through ``zoo.load`` and ``rover-eval``."""
 

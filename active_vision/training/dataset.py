@@ -126,7 +126,7 @@ class DatasetConfig:
     n_pedestrians: int | None = None
     """Pedestrians in each world (``RoverSim(n_pedestrians=...)``; None: the world's own, 3).
     With ``pedestrian_mode``, what ``evaluate --pedestrian-mode crowd --pedestrians 10``
-    renders its split with (issue 36: the targets at 3 and at 10 people)."""
+    renders its split with (the targets are held at 3 and at 10 people)."""
 
 
 @dataclass

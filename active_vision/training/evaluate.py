@@ -19,7 +19,7 @@ ONNX Runtime instead of the fp32 network in torch (the JSON line says which: ``p
 ``--depth-bands`` also prints, per world, the depth figures by true depth and by image row
 (:func:`depth_bands`): where the depth channel goes wrong.
 ``--pedestrian-mode crowd --pedestrians 10`` renders (and caches under its own file name)
-the split with those pedestrians instead of the world's 3 pacers: issue 36's crowds, where
+the split with those pedestrians instead of the world's 3 pacers: the crowds, where
 the targets are held at 3 and at 10 people.
 
 Definitions (``THRESHOLD`` = 0.5, ``MIN_PEDESTRIAN_PX`` = 30, ``MIN_BLOB_PX`` = 5):

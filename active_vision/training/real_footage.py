@@ -1,6 +1,6 @@
 """How a heatmap is scored on real footage: people found, box cover, false heat and the
 person's silhouette, at the detection threshold (:data:`~active_vision.training.evaluate.
-THRESHOLD`, blobs of at least ``MIN_BLOB_PX`` pixels, evaluate's definitions), with issue 41's
+THRESHOLD`, blobs of at least ``MIN_BLOB_PX`` pixels, evaluate's definitions), with its
 targets. ``benchmarks/real_footage.py`` runs the daemon's perception on ``vtest.avi`` and
 scores it with these rules (its docstring says how the reference people and the people-free
 crops are made); ``tests/test_real_footage.py`` holds the committed crops to them. Results:
@@ -18,8 +18,8 @@ import numpy as np
 from active_vision.training.evaluate import MIN_BLOB_PX, THRESHOLD
 
 TARGETS = {"found": 0.95, "cover": 0.4, "free_median": 0.005, "free_gt2": 0.10}
-"""Issue 41's targets: found share and mean box cover (at least), people-free median hot area
-and share of crops with more than 2 % hot (at most)."""
+"""The targets on real footage: found share and mean box cover (at least), people-free median
+hot area and share of crops with more than 2 % hot (at most)."""
 MIN_SILHOUETTE = 0.1
 """A person's MOG2 silhouette counts when it fills at least this share of their box."""
 TEST_PEOPLE = 16

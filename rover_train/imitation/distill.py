@@ -242,7 +242,7 @@ benchmarks/RESULTS.md, "Looking, for the students"). lidar-maze's students see t
 scan (why: docs/decisions.md, "Imitation and the zoo"). fused-moon and fused-gaze-moon (moon
 crossings), and fused-inspect-10 and fused-gaze-inspect-10 (inspect among a crowd of 10, where
 looking changes what the teacher hits), are pairs of one recipe: the camera fixed ahead, or
-turned by the student as the gaze teacher turns it (issue 37's comparison)."""
+turned by the student as the gaze teacher turns it (the fixed-against-gaze comparison)."""
 
 
 @dataclass(frozen=True)

@@ -1,5 +1,5 @@
 """PPO from a distilled student: fine-tune a zoo student on the env's reward, held near its
-start by a KL term (issue 38).
+start by a KL term.
 
 A zoo student is a softmax over (speed level, heading bin) classes
 (:mod:`rover_train.zoo.agent`), so it is already a policy over a discrete action space:
