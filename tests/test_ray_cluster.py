@@ -171,7 +171,7 @@ def _train_cli(cluster: Any, logdir: Path, *args: str) -> subprocess.Popen[str]:
     env = dict(os.environ, PYTHONPATH=str(ROOT), ROVERAV_LOG_LEVEL="INFO")
     return subprocess.Popen(
         [sys.executable, "-m", "rover_train.train", "--ray", cluster.address, "--env", "fused",
-         "--world", "maze", "--workers", "2", "--n-steps", "128", "--batch-size", "64",
+         "--world", "maze", "--ray-workers", "2", "--n-steps", "128", "--batch-size", "64",
          "--n-epochs", "1", "--logdir", str(logdir), "--no-progress", *args],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT, env=env,
     )  # fmt: skip
