@@ -85,7 +85,7 @@ import numpy as np
 
 from active_vision.launcher import READY_MARKER
 from fused_image import CHANNEL_HEATMAP, FUSED_SIZE
-from roverav_cli import Connection, add_group
+from roverav_cli import Connection, add_group, integer_at_least, positive_int
 from shm_protocol import (
     DEFAULT_NAME,
     SPIN_S,
@@ -520,26 +520,12 @@ class Daemon:
             self._lock = None
 
 
-def _integer(text: str, low: int, hint: str = "") -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < low:
-        raise argparse.ArgumentTypeError(f"must be >= {low}{hint}, got {v}")
-    return v
-
-
-def _positive_int(text: str) -> int:
-    return _integer(text, 1)
-
-
 def _count(text: str) -> int:
-    return _integer(text, 0, " (0: one per CPU core)")
+    return integer_at_least(text, 0, " (0: one per CPU core)")
 
 
 def _size(text: str) -> int:
-    v = _positive_int(text)
+    v = positive_int(text)
     if v % 16:
         raise argparse.ArgumentTypeError(f"must be a multiple of 16 (the network halves the "
                                          f"frame four times), got {v}")
@@ -581,7 +567,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "once, cached in ~/.cache/roverav, one log line says why); int8: the "
                         "int8 model, refused where it disagrees with fp32 here; fp32: the "
                         "fp32 export, unchecked (torch: always fp32)")
-    p.add_argument("--threads", type=_positive_int, default=d.threads,
+    p.add_argument("--threads", type=positive_int, default=d.threads,
                    help="threads of the perception network (torch / ONNX Runtime intra-op)")
     p.add_argument("--workers", type=_count, default=d.workers,
                    help="serving loops (threads), each with its own network session; 0 "

@@ -63,24 +63,26 @@ def default_log_level(fallback: str = "INFO") -> str:
     return level if level in LOG_LEVELS else fallback
 
 
-def _integer(text: str, low: int) -> int:
+def integer_at_least(text: str, low: int, hint: str = "") -> int:
+    """An ``argparse`` type's body: ``text`` as an integer of at least ``low``; ``hint`` is
+    added to the refusal (e.g. what 0 means)."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
     if value < low:
-        raise argparse.ArgumentTypeError(f"must be >= {low}, got {value}")
+        raise argparse.ArgumentTypeError(f"must be >= {low}{hint}, got {value}")
     return value
 
 
 def positive_int(text: str) -> int:
     """An ``argparse`` type: an integer of at least 1."""
-    return _integer(text, 1)
+    return integer_at_least(text, 1)
 
 
 def count(text: str) -> int:
     """An ``argparse`` type: an integer of at least 0."""
-    return _integer(text, 0)
+    return integer_at_least(text, 0)
 
 
 def segment_name(text: str) -> str:
@@ -93,7 +95,7 @@ def segment_name(text: str) -> str:
 
 def pedestrian_count(text: str) -> int:
     """An ``argparse`` type: 0 to :data:`MAX_PEDESTRIANS`."""
-    value = _integer(text, 0)
+    value = integer_at_least(text, 0)
     if value > MAX_PEDESTRIANS:
         raise argparse.ArgumentTypeError(f"must be from 0 to {MAX_PEDESTRIANS}, got {value}")
     return value
@@ -243,6 +245,7 @@ __all__ = [
     "count",
     "default_log_level",
     "flag",
+    "integer_at_least",
     "option",
     "pedestrian_count",
     "positive_int",
