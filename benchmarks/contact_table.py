@@ -6,7 +6,7 @@
         --entries lidar-inspect --record runs/contact/smoke.json          # a smoke run
 
 Run from the repository root (``benchmarks`` is imported as a namespace package there).
-For each zoo entry (``--entries``, default all, in :data:`ORDER`: the LIDAR entries, which
+For each shipped zoo entry (``--entries``, default all, in :data:`ORDER`: the LIDAR entries, which
 are fast, first) and each crowd size of :data:`PEOPLE`, ``rover-eval ENTRY --episodes N
 --n-pedestrians P --seed S --dump FILE`` runs ``--episodes`` (default 200) episodes on the
 zoo's evaluation seeds (``zoo.EVAL_SEED_BASE`` on): the entry's own env, world and
@@ -55,7 +55,7 @@ TARGET = {3: 0.03, 10: 0.07}  # the zoo's safety target: most pedestrian contact
 EPISODES = 200
 # the LIDAR entries first (seconds a row), then the fused ones (the daemon's network: slow)
 ORDER = (
-    "lidar-inspect", "lidar-maze", "lidar-maze-rl", "rl-lidar-inspect", "rl-lidar-maze",
+    "lidar-inspect", "lidar-maze", "rl-lidar-inspect", "rl-lidar-maze",
     "fused-maze", "fused-inspect", "fused-moon", "discrete-inspect", "fused-inspect-10",
     "fused-gaze-inspect", "fused-gaze-moon", "fused-gaze-discrete-inspect",
     "fused-gaze-inspect-10", "fused-moon-rl", "fused-inspect-10-rl", "fused-gaze-moon-rl",
@@ -117,8 +117,9 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--redo", action="store_true", help="run rows the record already has again")
     args = p.parse_args(argv)
-    names = args.entries.split(",") if args.entries else list(ORDER)
-    names += [] if args.entries else [e for e in zoo.ENTRIES if e not in names]
+    shipped = zoo.names()  # an entry the zoo knows but does not ship has no file to run
+    names = args.entries.split(",") if args.entries else [e for e in ORDER if e in shipped]
+    names += [] if args.entries else [e for e in shipped if e not in names]
     unknown = [e for e in names if e not in zoo.ENTRIES]
     if unknown:
         p.error(f"not zoo entries: {', '.join(unknown)} (known: {', '.join(zoo.ENTRIES)})")
