@@ -1,11 +1,13 @@
 """Training and evaluation of roverav policies with Stable-Baselines3 (rover-train, rover-eval).
 
-``RayVecEnv`` (``rover-train --ray``) is imported on first use, so the core install and
-``import rover_train`` never need Ray.
+The names below are imported on first use (PEP 562), so ``import rover_train`` (and the
+command lines' argument parsing) loads neither torch nor MuJoCo, and the core install never
+needs Ray (``RayVecEnv``, ``rover-train --ray``).
 """
 
 import os as _os
-from typing import Any
+from importlib import import_module as _import_module
+from typing import TYPE_CHECKING, Any
 
 # A PPO update runs on every core (rover_train.threads.PhaseThreads) and rollouts on one:
 # torch's OpenMP workers must sleep, not spin, between the phases and while the daemon and
@@ -13,25 +15,41 @@ from typing import Any
 # OMP_WAIT_POLICY set by the user wins.
 _os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
-from rover_train.checkpoint import (  # noqa: E402
-    EpisodeRng,
-    ResumeError,
-    RunRecord,
-    latest_checkpoint,
-)
-from rover_train.daemon_keeper import DaemonKeeper  # noqa: E402
-from rover_train.envs import ENV_IDS, DaemonRecovery, env_factory, make_env  # noqa: E402
-from rover_train.ray_worker import EnvWorker, WorkerConfig  # noqa: E402
+if TYPE_CHECKING:
+    from rover_train.checkpoint import EpisodeRng, ResumeError, RunRecord, latest_checkpoint
+    from rover_train.daemon_keeper import DaemonKeeper
+    from rover_train.envs import ENV_IDS, DaemonRecovery, env_factory, make_env
+    from rover_train.ray_vec_env import RayVecEnv, WorkerLostError
+    from rover_train.ray_worker import EnvWorker, WorkerConfig
 
-_NEEDS_RAY = ("RayVecEnv", "WorkerLostError")
+_LAZY = {
+    "EpisodeRng": "checkpoint",
+    "ResumeError": "checkpoint",
+    "RunRecord": "checkpoint",
+    "latest_checkpoint": "checkpoint",
+    "DaemonKeeper": "daemon_keeper",
+    "ENV_IDS": "envs",
+    "DaemonRecovery": "envs",
+    "env_factory": "envs",
+    "make_env": "envs",
+    "EnvWorker": "ray_worker",
+    "WorkerConfig": "ray_worker",
+    "RayVecEnv": "ray_vec_env",  # needs Ray
+    "WorkerLostError": "ray_vec_env",
+}
 
 
 def __getattr__(name: str) -> Any:
-    if name in _NEEDS_RAY:
-        from rover_train import ray_vec_env
+    module = _LAZY.get(name)
+    if module is None:  # a submodule (``from rover_train import evaluate``) imports as usual
+        raise AttributeError(f"module 'rover_train' has no attribute {name!r}")
+    value = getattr(_import_module(f"rover_train.{module}"), name)
+    globals()[name] = value
+    return value
 
-        return getattr(ray_vec_env, name)
-    raise AttributeError(f"module 'rover_train' has no attribute {name!r}")
+
+def __dir__() -> list[str]:
+    return sorted([*globals(), *_LAZY])
 
 
 __all__ = [

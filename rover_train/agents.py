@@ -19,11 +19,23 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from importlib.metadata import distributions
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from rover_train.zoo.agent import Agent
+if TYPE_CHECKING:
+    from rover_train.zoo.agent import Agent
+
+
+def __getattr__(name: str) -> Any:
+    # re-exported on first use: rover_train.zoo.agent imports torch, which rover-eval's
+    # argument parsing does without
+    if name == "Agent":
+        from rover_train.zoo.agent import Agent
+
+        return Agent
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 AGENT_PLUGINS = "roverav.agents"
 """The entry-point group of the agents other packages add to rover-eval."""

@@ -13,15 +13,28 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
-from rover_train.zoo.registry import EVAL_MAX_STEPS
-from rover_train.zoo.registry import RENAMED_KINDS as RENAMED_KINDS
-from rover_train.zoo.registry import stored_kind as stored_kind
+from roverav_cli import EVAL_MAX_STEPS
 from shm_protocol.names import default_name
 
 if TYPE_CHECKING:
     from rover_env.reward import RewardConfig
+    from rover_train.zoo.registry import RENAMED_KINDS as RENAMED_KINDS
+    from rover_train.zoo.registry import stored_kind as stored_kind
 
 log = logging.getLogger(__name__)
+
+_FROM_REGISTRY = ("RENAMED_KINDS", "stored_kind")
+
+
+def __getattr__(name: str) -> Any:
+    # re-exported from the zoo's registry on first use: the registry imports rover_env
+    # (MuJoCo), which the command lines' argument parsing does without
+    if name in _FROM_REGISTRY:
+        from rover_train.zoo.registry import RENAMED_KINDS, stored_kind
+
+        return {"RENAMED_KINDS": RENAMED_KINDS, "stored_kind": stored_kind}[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 ENV_IDS = {
     "lidar": "roverav/RoverEnv-v0",

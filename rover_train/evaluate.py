@@ -64,7 +64,6 @@ from rover_env.reward import STUCK_IN_COLLISION
 from rover_train import zoo
 from rover_train.agents import (
     EXPERT_PLUGIN,
-    Agent,
     AgentSource,
     PluginMissingError,
     RandomAgent,
@@ -85,6 +84,7 @@ from shm_protocol.names import default_name
 
 if TYPE_CHECKING:
     from rover_env.scenarios import Scenario
+    from rover_train.agents import Agent
     from rover_train.record import EpisodeRecorder
 
 DEFAULT_ENV = "lidar"  # a model's (and --random's without an agent) env kind
@@ -130,7 +130,7 @@ def load_policy(model: Path, env: Any, algo: str | None = None) -> ModelAgent:
     ``algo``: default from ``metrics.json`` beside it. Raises :class:`PolicyLoadError`.
     """
     if not model.is_file():
-        raise PolicyLoadError(f"no model file at {model} (train one with rover-train)")
+        raise PolicyLoadError(_no_model_file(model))
     if algo is None:
         algo = run_metrics(model).get("algo")
     # without metrics.json: recurrent first (its load refuses a non-recurrent policy)
@@ -147,6 +147,10 @@ def load_policy(model: Path, env: Any, algo: str | None = None) -> ModelAgent:
         observe, act = agent_io(recipe)
         return ModelAgent(loaded, observe=observe, act=act)
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
+
+
+def _no_model_file(model: Path) -> str:
+    return f"no model file at {model} (train one with rover-train)"
 
 
 def _recipe(model: Path) -> dict[str, Any]:
@@ -826,6 +830,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             typestore()
         except RosExtraMissingError as exc:
             p.error(f"--record: {exc}")
+    if args.model is not None and not args.model.is_file():  # said before torch and the envs load
+        print(f"rover-eval: {_no_model_file(args.model)}", file=sys.stderr)
+        return 1
     import torch
 
     torch.set_num_threads(1)  # batch-1 forwards: one thread is the fastest, and reproducible

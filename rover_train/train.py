@@ -30,8 +30,6 @@ from typing import Any
 
 import numpy as np
 
-from rover_env.constants import DEFAULT_WORLD, PERSONAL_SPACE_M
-from rover_env.pedestrians import DEFAULT_MODE
 from rover_train.algos import ALGOS, ON_POLICY, RECURRENT, algo_class, contrib_missing, policy_name
 from rover_train.checkpoint import (
     Checkpoint,
@@ -68,7 +66,12 @@ from rover_train.recipe import (
     recipe_of,
     write_recipe,
 )
-from roverav_cli import Connection, Episodes, shared_field
+
+# rover_env's DEFAULT_WORLD and DEFAULT_MODE, as roverav_cli keeps them: parsing and
+# validating the arguments imports neither MuJoCo nor torch (a usage error is refused in a
+# fraction of a second); both load when a run starts
+from roverav_cli import DEFAULT_PEDESTRIAN_MODE as DEFAULT_MODE
+from roverav_cli import DEFAULT_WORLD, Connection, Episodes, shared_field
 
 log = logging.getLogger("rover_train")
 
@@ -560,6 +563,8 @@ def resume_model(args: TrainArgs, venv: Any, tb_dir: Path) -> tuple[Any, dict[st
 
 def make_metrics_callback() -> Any:
     from stable_baselines3.common.callbacks import BaseCallback
+
+    from rover_env.constants import PERSONAL_SPACE_M
 
     class RoverMetrics(BaseCallback):
         """Logs episode return, success, collisions, intrusions and frame latency."""

@@ -96,3 +96,22 @@ def shm_name() -> Iterator[str]:
         os.unlink(os.path.join(_SHM_DIR, n))
     if leaked:
         pytest.fail(f"the test left segments in {_SHM_DIR}: {leaked}")
+
+
+# --- Stable-Baselines3's logger: no SB3-<date> directories left in /tmp ------------------
+#
+# A model's learn() without ``tensorboard_log`` configures SB3's logger with no folder, and
+# SB3 then makes an (empty) directory $TMPDIR/SB3-<date and time> unless $SB3_LOGDIR names
+# one. For the session (and the processes it starts) that folder is one under the session's
+# temporary directory, which pytest removes with it.
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _sb3_logdir(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    old = os.environ.get("SB3_LOGDIR")
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3_logger"))
+    yield
+    if old is None:
+        os.environ.pop("SB3_LOGDIR", None)
+    else:
+        os.environ["SB3_LOGDIR"] = old

@@ -301,14 +301,20 @@ def test_training_can_start_from_weights_of_the_same_shape(tmp_path, heldout) ->
               TrainRun(data=data, evaluate=False, out=tmp_path / "x.pt"))
 
 
-def test_a_weights_file_is_remade_from_the_recipe_it_stores(tmp_path, heldout) -> None:
+def test_a_weights_file_is_remade_from_the_recipe_it_stores(tmp_path, heldout,
+                                                           monkeypatch) -> None:
     """The recipe travels in the weights: ``--recipe FILE`` alone remakes the same weights
     bit for bit, an option beside it overrides the stored value, and a checkpoint resumes
     only a run of the same recipe."""
+    import active_vision.training.quantize as quant
     from active_vision.models import load_model
     from active_vision.training.train import main as train_main
     from active_vision.training.train import read_recipe
 
+    # the ONNX and int8 exports after each run (nine tenths of its time) are the calibrate
+    # test's and tests/test_av_quantize.py's; here only that each weights file gets them
+    exported: list[object] = []
+    monkeypatch.setattr(quant, "write_exports_beside", lambda w, data_dir: exported.append(w))
     data = heldout.save(tmp_path / "tiny.npz")
     first = tmp_path / "first.pt"
     run = ["--data", str(data), "--no-evaluate"]
@@ -326,6 +332,7 @@ def test_a_weights_file_is_remade_from_the_recipe_it_stores(tmp_path, heldout) -
     other = tmp_path / "other.pt"
     assert train_main(run + ["--recipe", str(first), "--seed", "5", "--out", str(other)]) == 0
     assert read_recipe(other).seed == 5
+    assert exported == [first, again, other]
     # the checkpoint beside ``again`` is of that recipe: a resume with another lr is refused
     with pytest.raises(ValueError, match=r"recipe fields that differ: \['lr'\]"):
         train(replace(recipe, lr=1e-3), TrainRun(data=data, evaluate=False, out=again,

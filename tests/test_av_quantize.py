@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import logging
 import os
-import subprocess
-import sys
+from collections.abc import Callable
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -38,7 +37,6 @@ from active_vision.training.quantize import (  # noqa: E402
     quantize_file,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
 FRAMES_SEED = 515_151  # neither the training nor an evaluation split
 # int8 against fp32 on the fused frame (channel units, [0, 1]); measured 2026-11-26 on 24
 # such frames (VNNI, 8-bit weights): gray identical, heatmap mean |diff| 0.0002, detections'
@@ -162,11 +160,12 @@ def test_quantize_remakes_the_shipped_int8_model_from_its_recipe(tmp_path: Path)
     kernels may round differently)."""
     import onnx
 
+    from active_vision.training.quantize import main as quantize_main
+
     shipped = int8_file_for()
     assert shipped is not None
-    res = _cli("active_vision.training.quantize", "--recipe", str(shipped), "--out-dir",
-               str(tmp_path))
-    assert res.returncode == 0, res.stderr
+    # the command (python -m active_vision.training.quantize ...), in this process
+    assert quantize_main(["--recipe", str(shipped), "--out-dir", str(tmp_path)]) == 0
     made = onnx.load(str(tmp_path / shipped.name))
     want = onnx.load(str(shipped))
     assert [n.op_type for n in made.graph.node] == [n.op_type for n in want.graph.node]
@@ -181,17 +180,22 @@ def test_quantize_remakes_the_shipped_int8_model_from_its_recipe(tmp_path: Path)
             np.testing.assert_array_equal(a, b, t.name)
 
 
-def _cli(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
-                          timeout=120, cwd=ROOT, env=dict(os.environ, PYTHONPATH=str(ROOT)))
+def test_command_lines_check_precision_and_quantize_options(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    # each command's main() on the arguments, in this process (a usage error exits before
+    # any work, so no process of its own is needed to see it)
+    from active_vision.daemon import main as daemon_main
+    from active_vision.training.evaluate import main as evaluate_main
+    from active_vision.training.quantize import main as quantize_main
 
+    def usage_error(main: Callable[[list[str]], int], *argv: str) -> str:
+        with pytest.raises(SystemExit) as exit_:
+            main(list(argv))
+        assert exit_.value.code == 2
+        return capsys.readouterr().err
 
-def test_command_lines_check_precision_and_quantize_options() -> None:
-    res = _cli("active_vision", "--precision", "int4")
-    assert res.returncode == 2 and "--precision" in res.stderr and "fp32" in res.stderr
-    res = _cli("active_vision.training.evaluate", "--precision", "bf16")
-    assert res.returncode == 2 and "--precision" in res.stderr
-    res = _cli("active_vision.training.quantize", "--calibration-frames", "0")
-    assert res.returncode == 2 and "--calibration-frames" in res.stderr
-    res = _cli("active_vision.training.quantize", "--method", "kl")
-    assert res.returncode == 2 and "--method" in res.stderr
+    err = usage_error(daemon_main, "--precision", "int4")
+    assert "--precision" in err and "fp32" in err
+    assert "--precision" in usage_error(evaluate_main, "--precision", "bf16")
+    assert "--calibration-frames" in usage_error(quantize_main, "--calibration-frames", "0")
+    assert "--method" in usage_error(quantize_main, "--method", "kl")

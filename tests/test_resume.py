@@ -13,6 +13,7 @@ import json
 import os
 import pickle
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -89,13 +90,21 @@ def _tb_scalars(run: Path, tag: str) -> dict[int, float]:
     return steps
 
 
-@pytest.mark.slow
-def test_sigint_then_resume_equals_the_run_that_never_stopped(tmp_path: Path) -> None:
-    straight, stopped = tmp_path / "straight", tmp_path / "stopped"
-    total = "1024"
-    res = _train(*PPO_SMALL, "--timesteps", total, "--logdir", str(straight))
+@pytest.fixture(scope="module")
+def straight(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A PPO run of 1024 steps that never stopped (nothing may write into it)."""
+    run = tmp_path_factory.mktemp("straight")
+    res = _train(*PPO_SMALL, "--timesteps", "1024", "--logdir", str(run))
     assert res.returncode == 0, res.stdout + res.stderr
+    return run
 
+
+@pytest.mark.slow
+def test_sigint_then_resume_equals_the_run_that_never_stopped(
+    straight: Path, tmp_path: Path
+) -> None:
+    stopped = tmp_path / "stopped"
+    total = "1024"
     proc = _start([sys.executable, "-m", "rover_train.train", *PPO_SMALL, "--timesteps", total,
                    "--logdir", str(stopped)])  # fmt: skip
     _read_until(proc, r"checkpoint \(periodic\) at 128 steps")
@@ -162,12 +171,12 @@ def test_sigterm_to_the_process_group_saves_with_subprocess_workers(tmp_path: Pa
     assert alive == [], f"processes of the trainer's session still alive: {alive}"
 
 
-def test_resume_refuses_to_change_what_the_run_is(tmp_path: Path) -> None:
-    res = _train(*PPO_SMALL, "--timesteps", "64", "--logdir", str(tmp_path))
-    assert res.returncode == 0, res.stdout + res.stderr
-    res = _train("--resume", str(tmp_path), "--world", "maze")
+def test_resume_refuses_to_change_what_the_run_is(straight: Path, tmp_path: Path) -> None:
+    before = json.loads((straight / "run.json").read_text())
+    res = _train("--resume", str(straight), "--world", "maze")
     assert res.returncode == 2
     assert "--world was 'inspect'" in res.stderr and "another --logdir" in res.stderr
+    assert json.loads((straight / "run.json").read_text()) == before  # refused, untouched
     res = _train("--resume", str(tmp_path / "nothing"))
     assert res.returncode == 2 and "expected a run directory" in res.stderr
 
@@ -220,19 +229,43 @@ def test_env_whose_first_reset_meets_a_stalled_daemon_recovers() -> None:
             env.close()
 
 
-def test_off_policy_resume_keeps_the_replay_buffer(tmp_path: Path) -> None:
-    from stable_baselines3.common.save_util import load_from_pkl
-
+@pytest.fixture(scope="module")
+def sac_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A SAC run of 64 steps (its replay buffer in its one checkpoint); tests resume copies."""
+    run = tmp_path_factory.mktemp("sac")
     sac = ["--env", "lidar", "--algo", "sac", "--learning-starts", "32", "--batch-size", "16",
            "--length", "64", "--checkpoint-every", "0", "--no-progress"]  # fmt: skip
-    res = _train(*sac, "--timesteps", "64", "--logdir", str(tmp_path))
+    res = _train(*sac, "--timesteps", "64", "--logdir", str(run))
     assert res.returncode == 0, res.stdout + res.stderr
-    res = _train("--resume", str(tmp_path), "--timesteps", "96", "--no-progress")
+    assert [p.name for p in (run / "checkpoints").glob("*.replay.pkl")] == [
+        "sac_64_steps.replay.pkl"
+    ]
+    return run
+
+
+def test_off_policy_resume_keeps_the_replay_buffer(sac_run: Path, tmp_path: Path) -> None:
+    from stable_baselines3.common.save_util import load_from_pkl
+
+    run = shutil.copytree(sac_run, tmp_path / "run")
+    res = _train("--resume", str(run), "--timesteps", "96", "--no-progress")
     assert res.returncode == 0, res.stdout + res.stderr
-    state = _state(tmp_path)
+    state = _state(run)
     assert state["num_timesteps"] == 96 and state["replay_buffer"] == "sac_96_steps.replay.pkl"
-    assert [p.name for p in (tmp_path / "checkpoints").glob("*.replay.pkl")] == [
+    assert [p.name for p in (run / "checkpoints").glob("*.replay.pkl")] == [
         "sac_96_steps.replay.pkl"
     ]
-    buffer = load_from_pkl(tmp_path / "checkpoints" / state["replay_buffer"])
+    buffer = load_from_pkl(run / "checkpoints" / state["replay_buffer"])
     assert buffer.pos == 96 and not buffer.full  # 64 from the first run + 32 after the resume
+
+
+def test_off_policy_resume_past_a_cut_short_replay_buffer(sac_run: Path, tmp_path: Path) -> None:
+    run = shutil.copytree(sac_run, tmp_path / "run")
+    replay = run / "checkpoints" / "sac_64_steps.replay.pkl"
+    os.truncate(replay, replay.stat().st_size // 2)
+    res = _train("--resume", str(run), "--timesteps", "96", "--no-progress")
+    assert res.returncode == 0, res.stderr
+    assert re.search(r"resume: replay buffer not loaded \(sac_64_steps\.replay\.pkl is \d+ bytes, "
+                     r"\d+ were written: cut short .*\): resuming with an empty one", res.stderr)
+    assert [p.name for p in (run / "checkpoints").glob("*.replay.pkl")] == [
+        "sac_96_steps.replay.pkl"
+    ]

@@ -164,22 +164,6 @@ def test_damaged_run_json_is_a_usage_error(
     assert f"then run rover-train --resume {run} again" in error and "another --logdir" in error
 
 
-def test_off_policy_resume_past_a_cut_short_replay_buffer(tmp_path: Path) -> None:
-    sac = ["--env", "lidar", "--algo", "sac", "--learning-starts", "32", "--batch-size", "16",
-           "--length", "64", "--checkpoint-every", "0", "--no-progress"]  # fmt: skip
-    res = _train(*sac, "--timesteps", "64", "--logdir", str(tmp_path))
-    assert res.returncode == 0, res.stdout + res.stderr
-    replay = tmp_path / "checkpoints" / "sac_64_steps.replay.pkl"
-    os.truncate(replay, replay.stat().st_size // 2)
-    res = _train("--resume", str(tmp_path), "--timesteps", "96", "--no-progress")
-    assert res.returncode == 0, res.stderr
-    assert re.search(r"resume: replay buffer not loaded \(sac_64_steps\.replay\.pkl is \d+ bytes, "
-                     r"\d+ were written: cut short .*\): resuming with an empty one", res.stderr)
-    assert [p.name for p in (tmp_path / "checkpoints").glob("*.replay.pkl")] == [
-        "sac_96_steps.replay.pkl"
-    ]
-
-
 # --- durable writes -------------------------------------------------------------------------
 def test_durable_path_syncs_the_file_before_its_rename_and_the_directory_after(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import uuid
@@ -33,16 +34,24 @@ def _check_outputs(logdir: Path, env: str) -> None:
     assert list((logdir / "tb").rglob("events.out.tfevents.*"))
 
 
-def test_lidar_train_then_eval(tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def lidar_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """rover-train PPO on the LIDAR env, 256 steps (nothing may write into it: tests that
+    continue it work on a copy)."""
+    logdir = tmp_path_factory.mktemp("lidar")
     res = _cli("rover_train.train", "--env", "lidar", "--timesteps", "256", "--n-steps", "128",
-               "--logdir", str(tmp_path), "--no-progress", "--checkpoint-every", "128")  # fmt: skip
+               "--logdir", str(logdir), "--no-progress", "--checkpoint-every", "128")  # fmt: skip
     assert res.returncode == 0, res.stdout + res.stderr
-    _check_outputs(tmp_path, "lidar")
-    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == [
+    return logdir
+
+
+def test_lidar_train_then_eval(lidar_run: Path) -> None:
+    _check_outputs(lidar_run, "lidar")
+    assert sorted(p.name for p in (lidar_run / "checkpoints").iterdir()) == [
         "ppo_128_steps.state.pkl", "ppo_128_steps.zip", "ppo_256_steps.state.pkl",
         "ppo_256_steps.zip",
     ]  # fmt: skip
-    res = _cli("rover_train.evaluate", str(tmp_path / "model.zip"), "--env", "lidar",
+    res = _cli("rover_train.evaluate", str(lidar_run / "model.zip"), "--env", "lidar",
                "--episodes", "2", "--max-steps", "30", "--json")  # fmt: skip
     assert res.returncode == 0, res.stdout + res.stderr
     for row in (
@@ -60,15 +69,13 @@ def test_lidar_train_then_eval(tmp_path: Path) -> None:
     assert summary["episodes"] == 2 and summary["timeouts"] == 2
 
 
-def test_resume_with_more_timesteps_extends_the_run(tmp_path: Path) -> None:
-    first = _cli("rover_train.train", "--env", "lidar", "--timesteps", "128", "--n-steps", "128",
-                 "--logdir", str(tmp_path), "--no-progress", "--checkpoint-every", "0")  # fmt: skip
-    assert first.returncode == 0, first.stderr
-    again = _cli("rover_train.train", "--timesteps", "256", "--no-progress",
-                 "--resume", str(tmp_path))  # fmt: skip
+def test_resume_with_more_timesteps_extends_the_run(lidar_run: Path, tmp_path: Path) -> None:
+    run = shutil.copytree(lidar_run, tmp_path / "run")  # a finished run of 256 steps
+    again = _cli("rover_train.train", "--timesteps", "384", "--no-progress",
+                 "--resume", str(run))  # fmt: skip
     assert again.returncode == 0, again.stderr
-    metrics = json.loads((tmp_path / "metrics.json").read_text())
-    assert metrics["timesteps"] == 256 and metrics["args"]["n_steps"] == 128  # the run's own
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["timesteps"] == 384 and metrics["args"]["n_steps"] == 128  # the run's own
 
 
 def test_fused_train_then_eval_with_video(tmp_path: Path) -> None:

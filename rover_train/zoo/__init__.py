@@ -23,13 +23,6 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
 
-from rover_train.zoo.agent import (
-    Agent,
-    FeatureSpec,
-    StudentAgent,
-    StudentFileError,
-    StudentNet,
-)
 from rover_train.zoo.registry import (
     DAGGER,
     ENTRIES,
@@ -44,6 +37,25 @@ from rover_train.zoo.registry import (
 
 if TYPE_CHECKING:
     from rover_train.algos import ModelAgent
+    from rover_train.zoo.agent import (
+        Agent,
+        FeatureSpec,
+        StudentAgent,
+        StudentFileError,
+        StudentNet,
+    )
+
+_FROM_AGENT = ("Agent", "FeatureSpec", "StudentAgent", "StudentFileError", "StudentNet")
+
+
+def __getattr__(name: str) -> Any:
+    # rover_train.zoo.agent (torch) is imported on first use: the names and specs of the
+    # entries (rover-eval's argument parsing) need no torch
+    if name in _FROM_AGENT:
+        import rover_train.zoo.agent
+
+        return getattr(rover_train.zoo.agent, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class UnknownEntryError(KeyError):
@@ -75,6 +87,8 @@ def command(name: str) -> str:
     spec = _spec(name)
     if not spec.path.is_file() or spec.trainer != DAGGER:
         return spec.command
+    from rover_train.zoo.agent import StudentAgent, StudentFileError
+
     try:
         recipe = StudentAgent.read_meta(spec.path).get("recipe")
     except StudentFileError:  # a damaged file: remade from the lab's table
@@ -103,6 +117,8 @@ def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent 
     :raises FileNotFoundError: no file; :class:`StudentFileError`: a student file that does
         not read (cut short, say). Both name the file and the command that remakes it.
     """
+    from rover_train.zoo.agent import StudentAgent, StudentFileError
+
     spec = _spec(name)
     file = spec.path if path is None else Path(path)
     if not file.is_file():
