@@ -41,7 +41,7 @@ from active_vision.launcher import (
 )
 
 _LAZY = {
-    "BACKENDS": "active_vision.backends",
+    "BACKENDS": "active_vision.choices",
     "BackendError": "active_vision.backends",
     "AVNet": "active_vision.models",
     "AVNetConfig": "active_vision.models",

@@ -43,22 +43,15 @@ import numpy as np
 import torch
 from torch import nn
 
+from active_vision.choices import BACKENDS, DEFAULT_PRECISION, PRECISION_CHOICES, PRECISIONS
 from active_vision.models import HEAD_DEPTH, HEAD_HEATMAP, log_depth_to_channel
 from fused_image import CHANNEL_DEPTH, CHANNEL_GRAY, CHANNEL_HEATMAP, LUMA_WEIGHTS
 
 logger = logging.getLogger(__name__)
 
 BackendName = Literal["auto", "onnx", "torch"]
-BACKENDS: tuple[str, ...] = ("auto", "onnx", "torch")
 Precision = Literal["fp32", "int8"]
-"""What a network computes in."""
-PRECISIONS: tuple[str, ...] = ("fp32", "int8")
-PRECISION_CHOICES: tuple[str, ...] = ("auto", "fp32", "int8")
-"""What may be asked for: a precision, or ``auto`` (the faster one that agrees with fp32)."""
-DEFAULT_PRECISION = "auto"
-"""int8 where the int8 model agrees with fp32 on this CPU and is faster, else fp32
-(:mod:`active_vision.precision`; the ratios: benchmarks/RESULTS.md, "Precision: int8
-against fp32")."""
+"""What a network computes in (the values of ``PRECISIONS``)."""
 _INT8_DISABLED_OPTIMIZERS = ("NchwcTransformer",)
 """ONNX Runtime graph passes left out for the int8 model (see :class:`OnnxNetwork`)."""
 

@@ -116,7 +116,7 @@ def fuse_bag(src: Path | str, dst: Path | str, config: FuseConfig | None = None)
 
 
 def parse_args(argv: Sequence[str] | None = None) -> tuple[Path, Path, FuseConfig, str]:
-    from active_vision.backends import BACKENDS, PRECISIONS
+    from active_vision.choices import BACKENDS, PRECISIONS
 
     d = FuseConfig()
     p = argparse.ArgumentParser(

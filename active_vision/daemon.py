@@ -543,8 +543,8 @@ def _source(text: str) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """av-daemon's command line (imports torch, which serving needs anyway)."""
-    from active_vision.backends import BACKENDS, PRECISION_CHOICES
+    """av-daemon's command line (no torch: it loads when serving starts)."""
+    from active_vision.choices import BACKENDS, PRECISION_CHOICES
 
     d = DaemonConfig()
     p = argparse.ArgumentParser(
