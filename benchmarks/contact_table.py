@@ -40,7 +40,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.machine import cpu_name
+from benchmarks.machine import cpu_description
+from benchmarks.record_file import read_record, save_record
 from rover_env.pedestrians import DEFAULT_MODE
 from rover_train import zoo
 from rover_train.evaluate import EpisodeResult, summarise
@@ -133,45 +134,9 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     return args
 
 
-def cpu_description() -> str:
-    """:func:`benchmarks.machine.cpu_name` with the core generation (AMD's families) and the
-    vector extensions the network's kernels care about, from ``/proc/cpuinfo``."""
-    fields: dict[str, str] = {}
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            key, _, value = line.partition(":")
-            fields.setdefault(key.strip(), value.strip())
-            if not line.strip():
-                break
-    except OSError:
-        return cpu_name()
-    flags = set(fields.get("flags", "").split())
-    extras = []
-    if fields.get("vendor_id") == "AuthenticAMD":
-        family, model = int(fields.get("cpu family", "0")), int(fields.get("model", "0"))
-        zen = {23: "Zen 2" if model >= 0x30 else "Zen/Zen+",
-               25: "Zen 4" if 0x10 <= model < 0x20 or model >= 0x60 else "Zen 3",
-               26: "Zen 5"}.get(family)  # fmt: skip
-        if zen:
-            extras.append(f"{zen}, family {family} model {model}")
-    extras.append("AVX-512" if "avx512f" in flags else ("AVX2" if "avx2" in flags else "no AVX2"))
-    vnni = flags & {"avx512_vnni", "avx_vnni"}
-    extras.append(f"VNNI ({', '.join(sorted(vnni))})" if vnni else "no VNNI")
-    return f"{cpu_name()}: {', '.join(extras)}"
-
-
 def load_record(path: Path) -> dict[str, Any]:
-    if path.is_file():
-        return json.loads(path.read_text())
-    return {"title": TITLE, "command": "", "cpu": "", "date": "", "columns": COLUMNS,
-            "rows": [], "notes": NOTES}  # fmt: skip
-
-
-def save_record(path: Path, record: dict[str, Any]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(record, indent=1) + "\n")
-    tmp.replace(path)  # a stop mid-write leaves the last whole record
+    return read_record(path, {"title": TITLE, "command": "", "cpu": "", "date": "",
+                              "columns": COLUMNS, "rows": [], "notes": NOTES})  # fmt: skip
 
 
 def _pct(share: float) -> float:

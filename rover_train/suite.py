@@ -64,7 +64,8 @@ def run_suite(
 
 
 def _pct(v: float) -> str:
-    return f"{100 * v:.0f}%"
+    """A share as a percentage to 0.1 (200 episodes resolve 0.5 %), without a trailing .0."""
+    return f"{100 * v:.1f}".removesuffix(".0") + "%"
 
 
 def format_suite_row(scenario: Scenario, s: dict[str, Any]) -> list[str]:

@@ -12,7 +12,7 @@ from rover_env import RoverEnv
 from rover_env.scenarios import SCENARIOS, Scenario, select_scenarios
 from rover_train import evaluate
 from rover_train.evaluate import run_episode
-from rover_train.suite import SUITE_COLUMNS, wilson_interval
+from rover_train.suite import SUITE_COLUMNS, format_suite_row, wilson_interval
 
 FORWARD = np.array([1.0, 0.0], dtype=np.float32)  # full speed, straight on
 
@@ -58,6 +58,22 @@ def test_wilson_interval() -> None:
     assert lo == pytest.approx(0.700, abs=0.002) and hi == pytest.approx(0.858, abs=0.002)
     assert wilson_interval(0, 4)[0] == 0.0 and 0.45 < wilson_interval(0, 4)[1] < 0.55
     assert wilson_interval(4, 4)[1] == 1.0
+
+
+def test_suite_row_keeps_the_half_percent_200_episodes_resolve() -> None:
+    """199 of 200 is 99.5 %, not a rounded 100 % beside a table that says 99.5."""
+    summary = {
+        "episodes": 200, "success_rate": 0.995, "success_ci95": (0.9722, 0.9991),
+        "collision_rate": 0.08, "pedestrian_contact_rate": 0.045,
+        "pedestrian_contact_ci95": (0.024, 0.083), "scenery_contact_rate": 0.0,
+        "intimate_intrusion_rate": 0.005, "timeouts": 1, "spl": 0.781, "time_to_goal_s": 9.31,
+        "personal_space_intrusion_rate": 0.0612, "min_pedestrian_distance_m": 0.457,
+    }  # fmt: skip
+    row = dict(zip(SUITE_COLUMNS, format_suite_row(SCENARIOS["maze-crowd-3"], summary),
+                   strict=True))  # fmt: skip
+    assert row["success [95% CI]"] == "99.5% [97.2%-99.9%]"
+    assert row["collisions"] == "8%" and row["ped. contact [95% CI]"] == "4.5% [2.4%-8.3%]"
+    assert row["intimate"] == "0.5%" and row["SPL"] == "0.78" and row["intrusion"] == "6.1%"
 
 
 def test_run_episode_splits_scenery_contact_from_pedestrian_contact() -> None:

@@ -1,0 +1,23 @@
+"""Reading and writing one record of ``benchmarks/records/`` from a benchmark that fills it
+row by row (a stopped run resumes from the rows already there)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+
+def read_record(path: Path, empty: dict[str, Any]) -> dict[str, Any]:
+    """The record at ``path``, or ``empty`` when there is none yet."""
+    if path.is_file():
+        return json.loads(path.read_text())
+    return dict(empty)
+
+
+def save_record(path: Path, record: dict[str, Any]) -> None:
+    """Write ``record`` whole: a stop mid-write leaves the last whole record."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(record, indent=1) + "\n")
+    tmp.replace(path)
