@@ -192,6 +192,34 @@ def test_expert_yielding_to_pedestrians_slows_down_for_turns_as_its_pursuit_does
     assert checked > 50
 
 
+@pytest.mark.parametrize("velocity_from", ["updates", "steps"])
+def test_expert_reads_a_walker_the_crowd_moves_at_10_hz(velocity_from: str) -> None:
+    """The crowd moves its walkers every other 20 Hz control step. Estimated over the
+    positions' last change, a walker at 1 m/s reads 1 m/s at every step; differenced over
+    steps (the shipped students' teacher) it read 0 and 2 m/s by turns."""
+    expert = PlannerExpert("inspect", ExpertConfig(velocity_from=velocity_from))
+    speeds = []
+    for step in range(12):
+        walker = np.array([[0.1 * (step // 2), 2.0]])  # 0.1 m per crowd update, 1 m/s
+        expert.act((0.0, 0.0), 0.0, (8.0, 0.0), walker, time=0.05 * step)
+        speeds.append(float(np.hypot(*expert._velocities[0])))
+    late = np.round(speeds[3:], 6)
+    if velocity_from == "updates":
+        assert np.allclose(late, 1.0)
+    else:
+        assert set(late.tolist()) == {0.0, 2.0}
+
+
+def test_an_old_student_files_recipe_reads_the_teacher_it_had() -> None:
+    """The shipped students' files predate ``teacher_velocity``: read, their recipe says
+    ``steps`` (what taught them), so ``zoo.command`` remakes them; a new recipe's default
+    is ``updates``."""
+    assert read_recipe(zoo.ENTRIES["lidar-maze"].path).teacher_velocity == "steps"
+    assert DAggerConfig().teacher_velocity == "updates"
+    with pytest.raises(ValueError, match="velocity_from"):
+        ExpertConfig(velocity_from="frames")
+
+
 def test_camera_expert_reacts_only_to_the_pedestrians_a_fused_student_can_see() -> None:
     """``sees="camera"``: a pedestrian inside the forward camera's 90-degree view (or with
     part of its body in it) changes the action as before; one beside or behind the rover

@@ -107,6 +107,10 @@ class DAggerConfig:
     teacher_manners: str = "polite"
     """The labelling expert's pedestrian terms (``rover_train.imitation.expert.MANNERS``):
     :func:`teacher_manners_for` gives each kind of entry its default."""
+    teacher_velocity: str = "updates"
+    """How the labelling expert estimates the pedestrians' velocities
+    (``ExpertConfig.velocity_from``): ``updates`` or ``steps`` (the shipped students'
+    teacher; their recipes say so)."""
     teacher_gaze: str = "fixed"
     """Where the labelling expert points the camera in a gaze env (``ExpertConfig.gaze``):
     ``fixed`` ahead, or ``active``, the gaze teacher (gaze students learn its pan targets)."""
@@ -519,7 +523,8 @@ def run_dagger(
 def teacher_config(cfg: DAggerConfig) -> ExpertConfig:
     """The expert that labels ``cfg``'s states."""
     return ExpertConfig.with_manners(cfg.teacher_manners, sees=cfg.teacher_sees,
-                                     gaze=cfg.teacher_gaze)
+                                     gaze=cfg.teacher_gaze,
+                                     velocity_from=cfg.teacher_velocity)  # fmt: skip
 
 
 def stage2_config(

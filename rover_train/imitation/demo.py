@@ -171,6 +171,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     seed=args.seed + 1,
                     fit_threads=args.fit_threads,
                     teacher_sees=RECIPES[name].teacher_sees,
+                    teacher_velocity=RECIPES[name].teacher_velocity,
                 ),
                 iterations=rounds,
                 steps=max(1, args.timesteps // rounds),

@@ -56,7 +56,7 @@ from rover_train.imitation.dagger import (
     run_dagger,
     stage2_config,
 )
-from rover_train.imitation.expert import GAZES, MANNERS, SEES
+from rover_train.imitation.expert import GAZES, MANNERS, SEES, VELOCITY_FROM
 from rover_train.wrappers import WithPanHead, WithSeedTable
 from rover_train.zoo.agent import StudentAgent, StudentNet
 from rover_train.zoo.registry import (
@@ -112,6 +112,11 @@ class DAggerRecipe:
     teacher_manners: str = field(default=_D.teacher_manners,
                                  metadata={"choices": tuple(sorted(MANNERS))})
     """The labelling expert's pedestrian terms (``rover_train.imitation.expert.MANNERS``)."""
+    teacher_velocity: str = field(default=_D.teacher_velocity,
+                                  metadata={"choices": VELOCITY_FROM})
+    """How the labelling expert estimates the pedestrians' velocities: over the last change
+    of their positions (``updates``) or between control steps (``steps``, which reads 0 and
+    twice the speed on alternate steps: the shipped students' teacher)."""
     teacher_gaze: str = field(default=_D.teacher_gaze, metadata={"choices": GAZES})
     """Where the labelling expert points the camera: a gaze entry learns the ``active``
     gaze teacher's pan targets (``rover_train.imitation.gaze``)."""
@@ -161,6 +166,7 @@ class DAggerRecipe:
             synthetic_goals=self.synthetic_goals, synthetic_per_goal=self.synthetic_per_goal,
             near_weight=self.near_weight, teacher_sees=self.teacher_sees,
             teacher_manners=self.teacher_manners, teacher_gaze=self.teacher_gaze,
+            teacher_velocity=self.teacher_velocity,
             fit_threads=self.fit_threads,
         )  # fmt: skip
 
@@ -213,6 +219,10 @@ def _recipe(entry: str, **kw: Any) -> DAggerRecipe:
     # an entry made for a scenario (ENTRIES' env keywords) is trained among its pedestrians
     crowd = {k: v for k, v in ENTRIES[entry].env_kwargs.items()
              if k in ("pedestrian_mode", "n_pedestrians")}  # fmt: skip
+    # the shipped students were taught by an expert that differenced its velocity estimate
+    # over control steps (benchmarks/RESULTS.md, "The planner expert"); a remade entry
+    # with the held estimate says teacher_velocity="updates" here
+    kw = {"teacher_velocity": "steps", **kw}
     return DAggerRecipe(entry=entry, synthetic_goals=150, **teacher, **{**crowd, **kw})
 
 
@@ -269,7 +279,8 @@ def read_recipe(path: Path) -> DAggerRecipe:
     if RECIPE_KEY not in meta:
         raise ValueError(f"{path} holds no recipe (a file written before recipes were "
                          "stored); remake it with its entry's name instead")  # fmt: skip
-    return recipe_from_dict(DAggerRecipe, meta[RECIPE_KEY])
+    # a file written before the velocity estimate was a field was taught by ``steps``
+    return recipe_from_dict(DAggerRecipe, {"teacher_velocity": "steps", **meta[RECIPE_KEY]})
 
 
 def entry_command(recipe: DAggerRecipe, path: Path) -> str:

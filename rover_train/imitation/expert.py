@@ -74,6 +74,7 @@ CAMERA_HALF_FOV = math.radians(CAMERA_FOVY) / 2  # rad; square frames: horizonta
 PEDESTRIAN_RADIUS = 0.25  # m: a pedestrian this far off the view's edge still shows in it
 SEES = ("all", "camera")
 GAZES = ("fixed", "active")
+VELOCITY_FROM = ("updates", "steps")
 MANNERS = {
     "polite": {"personal_weight": 6.0, "zone": PERSONAL_SPACE + 0.15,
                "contact_distance": 0.6, "contact_cost": 5.0},
@@ -114,6 +115,10 @@ class ExpertConfig:
     rover's centre, so about 0.55 m centre to centre)."""
     contact_cost: float = MANNERS["polite"]["contact_cost"]
     """Local planner: cost per predicted near-contact sample."""
+    velocity_from: str = "updates"
+    """How pedestrian velocities are estimated (:meth:`PlannerExpert._pedestrian_velocities`):
+    ``updates``, over the last change of their positions, or ``steps``, between consecutive
+    calls (what the shipped students' teacher did; their recipes say so)."""
     trigger: float = PED_RANGE
     """The local planner takes over when a pedestrian is closer than this (m)."""
     sees: str = "all"
@@ -134,6 +139,9 @@ class ExpertConfig:
             raise ValueError(f"ExpertConfig.sees must be one of {SEES}, got {self.sees!r}")
         if self.gaze not in GAZES:
             raise ValueError(f"ExpertConfig.gaze must be one of {GAZES}, got {self.gaze!r}")
+        if self.velocity_from not in VELOCITY_FROM:
+            raise ValueError(f"ExpertConfig.velocity_from must be one of {VELOCITY_FROM}, "
+                             f"got {self.velocity_from!r}")  # fmt: skip
 
     @classmethod
     def with_manners(cls, manners: str, **kwargs: object) -> ExpertConfig:
@@ -191,6 +199,7 @@ class PlannerExpert:
         self._last_peds = None
         self._last_time = None
         self._velocities = None
+        self._held_velocities: np.ndarray | None = None
         self.gaze.reset()
         self._detour: CostToGo | None = None
         self._detour_until = -1.0
@@ -236,16 +245,7 @@ class PlannerExpert:
         self._velocities = None
         if cfg.pedestrian_aware and pedestrians is not None and len(pedestrians):
             peds = np.asarray(pedestrians, dtype=np.float64)[:, :2]
-            vel = np.zeros_like(peds)
-            if (
-                self._last_peds is not None
-                and time is not None
-                and self._last_time is not None
-                and time > self._last_time
-                and self._last_peds.shape == peds.shape
-            ):
-                vel = (peds - self._last_peds) / (time - self._last_time)
-            self._last_peds, self._last_time = peds.copy(), time
+            vel = self._pedestrian_velocities(peds, time)
             self._velocities = vel
             near = np.hypot(peds[:, 0] - x, peds[:, 1] - y) < cfg.trigger
             if cfg.sees == "camera":
@@ -259,6 +259,27 @@ class PlannerExpert:
                     speed *= max(0.0, math.cos(heading)) ** 3 * clear_factor
         speed = float(np.clip(speed, cfg.min_speed, cfg.max_speed))
         return np.array([speed, heading], dtype=np.float32)
+
+    def _pedestrian_velocities(self, peds: np.ndarray, time: float | None) -> np.ndarray:
+        """Velocities (P, 2) of ``peds`` by finite differences. The crowd moves at its own
+        rate (10 Hz against the env's 20 Hz control): with ``config.velocity_from="updates"``
+        the difference spans the last change of the positions and the estimate is held
+        between changes; ``"steps"`` differences consecutive calls, which reads 0 and twice
+        the speed on alternate steps."""
+        last, when = self._last_peds, self._last_time
+        if (last is None or time is None or when is None or time <= when
+                or last.shape != peds.shape):  # fmt: skip
+            self._last_peds, self._last_time = peds.copy(), time
+            self._held_velocities = np.zeros_like(peds)
+            return self._held_velocities
+        if self.config.velocity_from == "steps":
+            self._last_peds, self._last_time = peds.copy(), time
+            self._held_velocities = (peds - last) / (time - when)
+        elif np.any(peds != last):
+            self._last_peds, self._last_time = peds.copy(), time
+            self._held_velocities = (peds - last) / (time - when)
+        held = self._held_velocities
+        return held if held is not None and held.shape == peds.shape else np.zeros_like(peds)
 
     def _watch_stall(
         self,
