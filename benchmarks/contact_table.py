@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.machine import cpu_description
-from benchmarks.record_file import read_record, save_record
+from benchmarks.record_file import read_record, record_args, save_record
 from rover_env.pedestrians import DEFAULT_MODE
 from rover_train import zoo
 from rover_train.evaluate import EpisodeResult, summarise
@@ -200,7 +200,8 @@ def _now() -> str:
 def main(argv: list[str] | None = None) -> int:
     args = _arguments(argv)
     given = sys.argv[1:] if argv is None else argv
-    command = shlex.join([".venv/bin/python", "-m", "benchmarks.contact_table", *given])
+    command = shlex.join([".venv/bin/python", "-m", "benchmarks.contact_table",
+                          *record_args(given)])  # fmt: skip
     done = {(row[0], row[3]) for row in load_record(args.record)["rows"]}
     failed = 0
     for entry in args.entries:

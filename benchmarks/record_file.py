@@ -21,3 +21,19 @@ def save_record(path: Path, record: dict[str, Any]) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(json.dumps(record, indent=1) + "\n")
     tmp.replace(path)
+
+
+def record_args(given: list[str], row_flags: tuple[str, ...] = ("--entries",),
+                switches: tuple[str, ...] = ("--redo",)) -> list[str]:  # fmt: skip
+    """A resumable benchmark's command line as its record shows it: ``row_flags`` (with
+    their values) and ``switches`` only pick which rows a run refreshes, so the record's
+    command leaves them out."""
+    out, skip = [], False
+    for arg in given:
+        if skip:
+            skip = False
+        elif arg in row_flags:
+            skip = True
+        elif arg not in switches and not arg.startswith(tuple(f"{f}=" for f in row_flags)):
+            out.append(arg)
+    return out

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.machine import cpu_description
-from benchmarks.record_file import read_record, save_record
+from benchmarks.record_file import read_record, record_args, save_record
 from rover_env.scenarios import SCENARIOS
 from rover_train import zoo
 from rover_train.suite import SUITE_COLUMNS, format_suite_row
@@ -150,20 +150,6 @@ def _entry(row: list[Any]) -> str:
     return str(row[0]).split(",")[0]
 
 
-def _record_args(given: list[str]) -> list[str]:
-    """The flags that shape the whole record: ``--entries`` and ``--redo`` only pick which
-    of its rows a run refreshes."""
-    out, skip = [], False
-    for arg in given:
-        if skip:
-            skip = False
-        elif arg == "--entries":
-            skip = True
-        elif not arg.startswith("--entries=") and arg != "--redo":
-            out.append(arg)
-    return out
-
-
 def _current(path: Path, empty: dict[str, Any]) -> dict[str, Any]:
     """The record at ``path``; one of an older table (other columns) starts anew, keeping
     its README headline."""
@@ -181,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _arguments(argv)
     given = sys.argv[1:] if argv is None else argv
     command = "\n".join([
-        shlex.join([".venv/bin/python", "-m", "benchmarks.suite_table", *_record_args(given)]),
+        shlex.join([".venv/bin/python", "-m", "benchmarks.suite_table", *record_args(given)]),
         "# which runs, for each entry, the command a user runs:",
         *(user_command(entry, args.episodes) for entry in PLAN),
     ])  # fmt: skip
