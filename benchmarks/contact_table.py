@@ -223,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 record["rows"] = [r for r in record["rows"] if (r[0], r[3]) != (entry, people)]
                 record["rows"].append(row)
-                rank = {e: i for i, e in enumerate((*ORDER, *zoo.ENTRIES))}
+                rank = {e: i for i, e in enumerate(dict.fromkeys((*ORDER, *zoo.ENTRIES)))}
                 record["rows"].sort(key=lambda r: (rank.get(r[0], len(rank)), r[3]))
                 cells = zip(COLUMNS[4:], row[4:], strict=True)
                 print(
