@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.machine import cpu_description
-from benchmarks.record_file import read_record, record_args, save_record
+from benchmarks.record_file import add_record_arguments, read_record, record_args, save_record
 from rover_env.pedestrians import DEFAULT_MODE
 from rover_train import zoo
 from rover_train.evaluate import EpisodeResult, summarise
@@ -100,23 +100,19 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         default=",".join(map(str, PEOPLE)),
         help="crowd sizes, separated by commas (default 3,10)",
     )
-    p.add_argument(
-        "--episodes", type=int, default=EPISODES, help=f"episodes per row (default {EPISODES})"
-    )
+    add_record_arguments(p, RECORD, EPISODES)
     p.add_argument(
         "--seed",
         type=int,
         default=EVAL_SEED_BASE,
         help=f"first episode's seed (default the zoo's {EVAL_SEED_BASE})",
     )
-    p.add_argument("--record", type=Path, default=RECORD, help=f"the record (default {RECORD})")
     p.add_argument(
         "--logs",
         type=Path,
         default=LOGS,
         help=f"episode dumps and evaluation logs (default {LOGS})",
     )
-    p.add_argument("--redo", action="store_true", help="run rows the record already has again")
     args = p.parse_args(argv)
     shipped = zoo.names()  # an entry the zoo knows but does not ship has no file to run
     names = args.entries.split(",") if args.entries else [e for e in ORDER if e in shipped]

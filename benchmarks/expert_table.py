@@ -29,7 +29,7 @@ import gymnasium as gym
 
 import rover_env  # noqa: F401  (registers the ids)
 from benchmarks.machine import cpu_description
-from benchmarks.record_file import read_record, save_record
+from benchmarks.record_file import add_record_arguments, read_record, save_record
 from rover_train.evaluate import evaluate_agent, summarise
 from rover_train.imitation.expert import MANNERS, VELOCITY_FROM, ExpertConfig
 from rover_train.imitation.expert_agent import ExpertAgent
@@ -60,14 +60,12 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         description="The planner expert among 3 and 10 people, by manners and velocity "
                     "estimate; one resumable record.")  # fmt: skip
-    p.add_argument("--episodes", type=int, default=200, help="episodes a row (default 200)")
+    add_record_arguments(p, RECORD, 200)
     p.add_argument("--worlds", default=",".join(WORLDS), help="worlds, separated by commas")
     p.add_argument("--manners", default=",".join(sorted(MANNERS)),
                    help="manners, separated by commas")  # fmt: skip
     p.add_argument("--velocity-from", default=",".join(VELOCITY_FROM),
                    help="velocity estimates, separated by commas")  # fmt: skip
-    p.add_argument("--record", type=Path, default=RECORD, help=f"the record (default {RECORD})")
-    p.add_argument("--redo", action="store_true", help="run rows the record already has again")
     args = p.parse_args(argv)
     args.worlds, args.manners = args.worlds.split(","), args.manners.split(",")
     args.velocity_from = args.velocity_from.split(",")

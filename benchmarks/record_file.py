@@ -3,6 +3,7 @@ row by row (a stopped run resumes from the rows already there)."""
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 from typing import Any
@@ -37,3 +38,12 @@ def record_args(given: list[str], row_flags: tuple[str, ...] = ("--entries",),
         elif arg not in switches and not arg.startswith(tuple(f"{f}=" for f in row_flags)):
             out.append(arg)
     return out
+
+
+def add_record_arguments(p: argparse.ArgumentParser, record: Path, episodes: int) -> None:
+    """The flags every resumable table takes: ``--episodes`` a row, ``--record`` and
+    ``--redo`` (run rows the record already has again)."""
+    p.add_argument("--episodes", type=int, default=episodes,
+                   help=f"episodes a row (default {episodes})")  # fmt: skip
+    p.add_argument("--record", type=Path, default=record, help=f"the record (default {record})")
+    p.add_argument("--redo", action="store_true", help="run rows the record already has again")

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.machine import cpu_description
-from benchmarks.record_file import read_record, record_args, save_record
+from benchmarks.record_file import add_record_arguments, read_record, record_args, save_record
 from rover_env.scenarios import SCENARIOS
 from rover_train import zoo
 from rover_train.suite import SUITE_COLUMNS, format_suite_row
@@ -72,12 +72,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         description="The scenario suite's table: rover-eval --suite for the zoo's entries, "
                     "one resumable record.")  # fmt: skip
     p.add_argument("--entries", help="zoo entries, separated by commas (default: those of PLAN)")
-    p.add_argument(
-        "--episodes", type=int, default=EPISODES, help=f"episodes a scenario (default {EPISODES})"
-    )
-    p.add_argument("--record", type=Path, default=RECORD, help=f"the record (default {RECORD})")
+    add_record_arguments(p, RECORD, EPISODES)
     p.add_argument("--logs", type=Path, default=LOGS, help=f"evaluation logs (default {LOGS})")
-    p.add_argument("--redo", action="store_true", help="run entries the record already has again")
     args = p.parse_args(argv)
     names = args.entries.split(",") if args.entries else list(PLAN)
     unknown = [e for e in names if e not in zoo.names()]
