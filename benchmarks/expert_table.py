@@ -110,18 +110,12 @@ def main(argv: list[str] | None = None) -> int:
             args.worlds, PEOPLE, args.manners, args.velocity_from):  # fmt: skip
         key = [world, people, manners, velocity]
         record = read_record(args.record, empty)
-        if record.get("columns") != COLUMNS:  # a record of an older table: start it anew
-            record = {**empty, **({"headline": record["headline"]} if "headline" in record
-                                  else {})}  # fmt: skip
         if any(row[:4] == key for row in record["rows"]) and not args.redo:
             print(f"{key}: in the record, skipped", flush=True)
             continue
         t0 = time.monotonic()
         row = measure(world, people, manners, velocity, args.episodes)
         record = read_record(args.record, empty) if args.record.is_file() else record
-        if record.get("columns") != COLUMNS:
-            record = {**empty, **({"headline": record["headline"]} if "headline" in record
-                                  else {})}  # fmt: skip
         record["rows"] = sorted([r for r in record["rows"] if r[:4] != key] + [row],
                                 key=lambda r: (r[0], r[1], r[2], r[3]))  # fmt: skip
         record.update(command=command, cpu=cpu_description(), notes=NOTES,

@@ -10,10 +10,16 @@ from typing import Any
 
 
 def read_record(path: Path, empty: dict[str, Any]) -> dict[str, Any]:
-    """The record at ``path``, or ``empty`` when there is none yet."""
-    if path.is_file():
-        return json.loads(path.read_text())
-    return dict(empty)
+    """The record at ``path``, or ``empty`` when there is none yet. A record of an older
+    table (its columns differ from ``empty``'s) starts anew as ``empty``, keeping the README
+    headline it held."""
+    if not path.is_file():
+        return dict(empty)
+    record: dict[str, Any] = json.loads(path.read_text())
+    if "columns" in empty and record.get("columns") != empty["columns"]:
+        kept = {"headline": record["headline"]} if "headline" in record else {}
+        return {**empty, **kept}
+    return record
 
 
 def save_record(path: Path, record: dict[str, Any]) -> None:

@@ -146,15 +146,6 @@ def _entry(row: list[Any]) -> str:
     return str(row[0]).split(",")[0]
 
 
-def _current(path: Path, empty: dict[str, Any]) -> dict[str, Any]:
-    """The record at ``path``; one of an older table (other columns) starts anew, keeping
-    its README headline."""
-    record = read_record(path, empty)
-    if record.get("columns") != COLUMNS:
-        record = {**empty, **({"headline": record["headline"]} if "headline" in record else {})}
-    return record
-
-
 def _now() -> str:
     return dt.datetime.now(dt.UTC).strftime("%H:%M:%S")
 
@@ -172,12 +163,12 @@ def main(argv: list[str] | None = None) -> int:
              "rows": [], "notes": NOTES}  # fmt: skip
     failed = 0
     for entry in args.entries:
-        record = _current(args.record, empty)
+        record = read_record(args.record, empty)
         if any(_entry(row) == entry for row in record["rows"]) and not args.redo:
             print(f"[{_now()}] {entry}: in the record, skipped", flush=True)
             continue
         rows, error = run_entry(entry, args)
-        record = _current(args.record, empty)
+        record = read_record(args.record, empty)
         record.update(title=TITLE, command=command, cpu=cpu_description(), notes=NOTES)
         errors = {k: v for k, v in record.pop("errors", {}).items() if k != entry}
         if rows is None:

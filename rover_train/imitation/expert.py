@@ -190,6 +190,8 @@ class PlannerExpert:
         self._last_peds: np.ndarray | None = None
         self._last_time: float | None = None
         self._velocities: np.ndarray | None = None
+        """The velocity estimate this step's plan used (None with no pedestrian in view)."""
+        self._held_velocities = np.zeros((0, 2))
         self.gaze = GazePolicy(self.config.gaze_config)
         """The gaze policy (``config.gaze="active"``); its ``reason`` and ``focus`` say why it
         chose the last pan target."""
@@ -199,7 +201,7 @@ class PlannerExpert:
         self._last_peds = None
         self._last_time = None
         self._velocities = None
-        self._held_velocities: np.ndarray | None = None
+        self._held_velocities = np.zeros((0, 2))
         self.gaze.reset()
         self._detour: CostToGo | None = None
         self._detour_until = -1.0
@@ -272,14 +274,11 @@ class PlannerExpert:
             self._last_peds, self._last_time = peds.copy(), time
             self._held_velocities = np.zeros_like(peds)
             return self._held_velocities
-        if self.config.velocity_from == "steps":
+        if self.config.velocity_from == "steps" or np.any(peds != last):
             self._last_peds, self._last_time = peds.copy(), time
             self._held_velocities = (peds - last) / (time - when)
-        elif np.any(peds != last):
-            self._last_peds, self._last_time = peds.copy(), time
-            self._held_velocities = (peds - last) / (time - when)
-        held = self._held_velocities
-        return held if held is not None and held.shape == peds.shape else np.zeros_like(peds)
+        # held since the positions last changed (set with _last_peds, so of their shape)
+        return self._held_velocities
 
     def _watch_stall(
         self,
