@@ -40,8 +40,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.machine import cpu_description
-from benchmarks.record_file import add_record_arguments, read_record, record_args, save_record
+from benchmarks.record_file import (
+    add_record_arguments,
+    note_cpu,
+    read_record,
+    record_args,
+    save_record,
+)
 from rover_env.pedestrians import DEFAULT_MODE
 from rover_train import zoo
 from rover_train.evaluate import EpisodeResult, summarise
@@ -207,9 +212,8 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             row, error = run_row(entry, people, args)
             record = load_record(args.record)
-            record.update(title=TITLE, command=command, cpu=cpu_description(),
-                          date=dt.datetime.now(dt.UTC).strftime("%Y-%m-%d"), columns=COLUMNS,
-                          notes=NOTES)  # fmt: skip
+            record.update(title=TITLE, command=command, columns=COLUMNS, notes=NOTES,
+                          date=dt.datetime.now(dt.UTC).strftime("%Y-%m-%d"))  # fmt: skip
             errors = {k: v for k, v in record.pop("errors", {}).items()
                       if k != f"{entry}/{people}"}  # fmt: skip
             if row is None:
@@ -221,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
                 record["rows"].append(row)
                 rank = {e: i for i, e in enumerate(dict.fromkeys((*ORDER, *zoo.ENTRIES)))}
                 record["rows"].sort(key=lambda r: (rank.get(r[0], len(rank)), r[3]))
+                note_cpu(record, entry, [str(r[0]) for r in record["rows"]])
                 cells = zip(COLUMNS[4:], row[4:], strict=True)
                 print(
                     f"[{_now()}] {entry}, {people} people: "

@@ -8,6 +8,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from benchmarks.machine import cpu_description
+
 
 def read_record(path: Path, empty: dict[str, Any]) -> dict[str, Any]:
     """The record at ``path``, or ``empty`` when there is none yet. A record of an older
@@ -28,6 +30,24 @@ def save_record(path: Path, record: dict[str, Any]) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     tmp.write_text(json.dumps(record, indent=1) + "\n")
     tmp.replace(path)
+
+
+def note_cpu(record: dict[str, Any], key: str, keys: list[str]) -> None:
+    """Record that the rows of ``key`` were measured on this machine, in ``row_cpus`` (row
+    key to CPU, in the order of ``keys``, the record's row keys; a record that had none gives
+    the rows measured before its one ``cpu``), and set ``cpu`` to name each CPU with the rows
+    measured on it, so a record filled on two machines says which figure came from which."""
+    order = list(dict.fromkeys(keys))
+    before = record.get("cpu", "")
+    cpus = dict(record.get("row_cpus") or {k: before for k in order if before})
+    cpus[key] = cpu_description()
+    cpus = {k: cpus[k] for k in order if k in cpus}
+    by_cpu: dict[str, list[str]] = {}
+    for k, cpu in cpus.items():
+        by_cpu.setdefault(cpu, []).append(k)
+    record["row_cpus"] = cpus
+    record["cpu"] = (next(iter(by_cpu)) if len(by_cpu) == 1 else
+                     "; ".join(f"{cpu} ({', '.join(ks)})" for cpu, ks in by_cpu.items()))
 
 
 def record_args(given: list[str], row_flags: tuple[str, ...] = ("--entries",),

@@ -32,8 +32,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.machine import cpu_description
-from benchmarks.record_file import add_record_arguments, read_record, record_args, save_record
+from benchmarks.record_file import (
+    add_record_arguments,
+    note_cpu,
+    read_record,
+    record_args,
+    save_record,
+)
 from rover_env.scenarios import SCENARIOS
 from rover_train import zoo
 from rover_train.suite import SUITE_COLUMNS, format_suite_row
@@ -169,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
             continue
         rows, error = run_entry(entry, args)
         record = read_record(args.record, empty)
-        record.update(title=TITLE, command=command, cpu=cpu_description(), notes=NOTES)
+        record.update(title=TITLE, command=command, notes=NOTES)
         errors = {k: v for k, v in record.pop("errors", {}).items() if k != entry}
         if rows is None:
             failed += 1
@@ -179,6 +184,7 @@ def main(argv: list[str] | None = None) -> int:
             kept = [r for r in record["rows"] if _entry(r) != entry]
             order = list(PLAN) + [e for e in zoo.names() if e not in PLAN]
             record["rows"] = sorted(kept + rows, key=lambda r: order.index(_entry(r)))
+            note_cpu(record, entry, [_entry(r) for r in record["rows"]])
             dates = record.setdefault("entry_dates", {})
             dates[entry] = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
             record["date"] = f"{min(dates.values())} to {max(dates.values())}"
