@@ -214,7 +214,7 @@ def test_an_old_student_files_recipe_reads_the_teacher_it_had() -> None:
     """The shipped students' files predate ``teacher_velocity``: read, their recipe says
     ``steps`` (what taught them), so ``zoo.command`` remakes them; a new recipe's default
     is ``updates``."""
-    assert read_recipe(zoo.ENTRIES["lidar-maze"].path).teacher_velocity == "steps"
+    assert read_recipe(zoo.ENTRIES["fused-maze"].path).teacher_velocity == "steps"
     assert DAggerConfig().teacher_velocity == "updates"
     with pytest.raises(ValueError, match="velocity_from"):
         ExpertConfig(velocity_from="frames")
@@ -279,10 +279,17 @@ def test_firm_expert_passes_a_pedestrian_beside_its_path_that_the_polite_one_giv
         ExpertConfig.with_manners("rude")
 
 
-def test_lidar_students_are_taught_by_the_firm_expert_and_fused_ones_by_the_polite() -> None:
+def test_lidar_students_teacher_sees_all_and_the_fused_ones_the_polite_camera_teacher() -> None:
+    """The fused students' teacher sees what the camera shows and keeps out of personal space;
+    the LIDAR students' sees every pedestrian: firm, except lidar-inspect's, which was remade
+    for the contact targets by the polite expert with the held velocity estimate among 10."""
     for name, recipe in RECIPES.items():
-        assert recipe.teacher_manners == ("firm" if name.startswith("lidar") else "polite")
-        assert recipe.teacher_sees == ("all" if name.startswith("lidar") else "camera")
+        lidar = name.startswith("lidar")
+        keeps_clear = name == "lidar-inspect"
+        assert recipe.teacher_manners == ("firm" if lidar and not keeps_clear else "polite")
+        assert recipe.teacher_sees == ("all" if lidar else "camera")
+        assert recipe.teacher_velocity == ("updates" if keeps_clear else "steps")
+    assert RECIPES["lidar-inspect"].n_pedestrians == 10
     cfg = DAggerConfig(teacher_manners="firm", teacher_sees="camera")
     assert teacher_config(cfg) == ExpertConfig.with_manners("firm", sees="camera")
     assert teacher_config(DAggerConfig()) == ExpertConfig()
