@@ -47,13 +47,13 @@ COLUMNS = [
 ]  # fmt: skip
 NOTES = (
     "The expert drives RoverEnv with every pedestrian's true position (rover-eval "
-    "lidar-inspect --expert is the polite row with velocities from updates, lidar-maze "
-    "--expert the firm one). Velocities from steps: differences of consecutive control steps "
-    "(20 Hz) of positions the crowd moves at 10 Hz, so the estimate reads 0 and twice the "
-    "speed on alternate steps; it taught the students but lidar-inspect. From updates: over "
-    "the last change of the positions, held between changes (the default). Targets for the "
-    "zoo's navigators: pedestrian contact at most 3 % among 3 people, 7 % among 10; a student "
-    "seldom keeps clearer than its teacher."
+    "lidar-WORLD --expert is the polite row with velocities from updates). Velocities from "
+    "steps: differences of consecutive control steps (20 Hz) of positions the crowd moves at "
+    "10 Hz, so the estimate reads 0 and twice the speed on alternate steps; it taught the "
+    "fused students. From updates: over the last change of the positions, held between "
+    "changes (the default; it taught the LIDAR students). Targets for the zoo's navigators: "
+    "pedestrian contact at most 3 % among 3 people, 7 % among 10; a student seldom keeps "
+    "clearer than its teacher."
 )
 
 

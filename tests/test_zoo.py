@@ -279,17 +279,17 @@ def test_firm_expert_passes_a_pedestrian_beside_its_path_that_the_polite_one_giv
         ExpertConfig.with_manners("rude")
 
 
-def test_lidar_students_teacher_sees_all_and_the_fused_ones_the_polite_camera_teacher() -> None:
-    """The fused students' teacher sees what the camera shows and keeps out of personal space;
-    the LIDAR students' sees every pedestrian: firm, except lidar-inspect's, which was remade
-    for the contact targets by the polite expert with the held velocity estimate among 10."""
+def test_students_are_taught_by_the_polite_expert_the_lidar_ones_by_one_that_sees_all() -> None:
+    """Every student's teacher keeps out of personal space; the LIDAR students', which sees
+    every pedestrian, taught them among 10 people with the held velocity estimate (remade for
+    the contact targets); the fused ones' sees what the camera shows."""
     for name, recipe in RECIPES.items():
         lidar = name.startswith("lidar")
-        keeps_clear = name == "lidar-inspect"
-        assert recipe.teacher_manners == ("firm" if lidar and not keeps_clear else "polite")
+        assert recipe.teacher_manners == "polite"
         assert recipe.teacher_sees == ("all" if lidar else "camera")
-        assert recipe.teacher_velocity == ("updates" if keeps_clear else "steps")
-    assert RECIPES["lidar-inspect"].n_pedestrians == 10
+        assert recipe.teacher_velocity == ("updates" if lidar else "steps")
+        if lidar:
+            assert recipe.n_pedestrians == 10
     cfg = DAggerConfig(teacher_manners="firm", teacher_sees="camera")
     assert teacher_config(cfg) == ExpertConfig.with_manners("firm", sees="camera")
     assert teacher_config(DAggerConfig()) == ExpertConfig()
