@@ -17,7 +17,8 @@ table's name in the markers below.
                      section has the same command
     cpu       str    model name and instruction set, e.g. "AMD EPYC (family 25, model 1: Zen 3),
                      AVX2, FMA, no AVX-512, no VNNI; 2 vCPUs under KVM"; "not recorded" where the
-                     measurement did not name it
+                     measurement did not name it; a record whose rows came from several CPUs
+                     names each with its rows (record_file.note_cpu keeps ``row_cpus`` for it)
     date      str    when, as recorded (UTC where the measurement said so)
     load      str    optional: the load average or what else ran (rendered "not recorded"
                      where absent)
