@@ -225,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
                 record["rows"].append(row)
                 rank = {e: i for i, e in enumerate(dict.fromkeys((*ORDER, *zoo.ENTRIES)))}
                 record["rows"].sort(key=lambda r: (rank.get(r[0], len(rank)), r[3]))
-                note_cpu(record, entry, [str(r[0]) for r in record["rows"]])
+                note_cpu(record, f"{entry}@{people}", [f"{r[0]}@{r[3]}" for r in record["rows"]])
                 cells = zip(COLUMNS[4:], row[4:], strict=True)
                 print(
                     f"[{_now()}] {entry}, {people} people: "

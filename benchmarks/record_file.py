@@ -34,9 +34,10 @@ def save_record(path: Path, record: dict[str, Any]) -> None:
 
 def note_cpu(record: dict[str, Any], key: str, keys: list[str]) -> None:
     """Record that the rows of ``key`` were measured on this machine, in ``row_cpus`` (row
-    key to CPU, in the order of ``keys``, the record's row keys; a record that had none gives
-    the rows measured before its one ``cpu``), and set ``cpu`` to name each CPU with the rows
-    measured on it, so a record filled on two machines says which figure came from which."""
+    key to CPU, in the order of ``keys``, the record's row keys, ``ENTRY`` or ``ENTRY@PART``;
+    a record that had none gives the rows measured before its one ``cpu``), and set ``cpu``
+    to name each CPU with the rows measured on it, so a record filled on two machines says
+    which figure came from which."""
     order = list(dict.fromkeys(keys))
     before = record.get("cpu", "")
     cpus = dict(record.get("row_cpus") or {k: before for k in order if before})
@@ -47,7 +48,21 @@ def note_cpu(record: dict[str, Any], key: str, keys: list[str]) -> None:
         by_cpu.setdefault(cpu, []).append(k)
     record["row_cpus"] = cpus
     record["cpu"] = (next(iter(by_cpu)) if len(by_cpu) == 1 else
-                     "; ".join(f"{cpu} ({', '.join(ks)})" for cpu, ks in by_cpu.items()))
+                     "; ".join(f"{cpu} ({', '.join(_shown(ks, cpus))})"
+                               for cpu, ks in by_cpu.items()))  # fmt: skip
+
+
+def _shown(keys: list[str], cpus: dict[str, str]) -> list[str]:
+    """``keys`` as a record's CPU note names them: keys ``ENTRY@PART`` whose every part was
+    measured on one CPU are named by ``ENTRY`` alone."""
+    out: list[str] = []
+    for key in keys:
+        entry = key.split("@")[0]
+        parts = {c for k, c in cpus.items() if k.split("@")[0] == entry}
+        name = entry if len(parts) == 1 else key
+        if name not in out:
+            out.append(name)
+    return out
 
 
 def record_args(given: list[str], row_flags: tuple[str, ...] = ("--entries",),
