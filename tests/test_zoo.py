@@ -211,7 +211,7 @@ def test_expert_reads_a_walker_the_crowd_moves_at_10_hz(velocity_from: str) -> N
 
 
 def test_an_old_student_files_recipe_reads_the_teacher_it_had() -> None:
-    """The shipped students' files predate ``teacher_velocity``: read, their recipe says
+    """The fused students' files predate ``teacher_velocity``: read, their recipe says
     ``steps`` (what taught them), so ``zoo.command`` remakes them; a new recipe's default
     is ``updates``."""
     assert read_recipe(zoo.ENTRIES["fused-maze"].path).teacher_velocity == "steps"
