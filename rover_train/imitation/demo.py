@@ -1,6 +1,7 @@
-"""The main job: fine-tune the zoo's fused navigator with the daemon in the loop, evaluate it.
+"""The main job before the camera agent learnt from the reward (``rover_train.demo`` now):
+fine-tune the zoo's fused navigator with the daemon in the loop, evaluate it.
 
-Run under the supervisor so the daemon is there (``make demo`` does this):
+Run under the supervisor so the daemon is there (``make demo-finetune`` does this):
 
     rover-pair -- python -m rover_train.imitation.demo --timesteps 24000
 
@@ -26,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import sys
 import time
 from collections.abc import Sequence
@@ -35,8 +35,8 @@ from typing import Any
 
 from rover_train import zoo
 from rover_train.agents import RandomAgent
+from rover_train.demo import quiet_logs, save_still
 from rover_train.evaluate import (
-    VIDEO_PANEL,
     evaluate_agent,
     format_comparison,
     summarise,
@@ -52,34 +52,6 @@ from rover_train.imitation.distill import RECIPES
 from rover_train.progress import StatusLine
 from roverav_cli import Episodes, add_group
 from shm_protocol import default_name
-
-_LABEL_ROWS = 24  # video rows holding the panels' names (rover_train.evaluate.label_frame)
-
-
-def save_still(video: Path, png: Path) -> None:
-    """The video frame that shows the most pedestrian heatmap (else the middle one), as PNG.
-
-    Frames are the chase view beside the gray, heatmap and depth panels (equal widths); the
-    score skips the panels' name labels at the top.
-    """
-    import cv2
-
-    cap = cv2.VideoCapture(str(video))
-    best, best_score, frames = None, -1.0, []
-    while True:
-        ok, frame = cap.read()
-        if not ok:
-            break
-        frames.append(frame)
-        score = float(frame[_LABEL_ROWS:, 2 * VIDEO_PANEL : 3 * VIDEO_PANEL].mean())
-        if score > best_score:
-            best, best_score = frame, score
-    cap.release()
-    if best is None:
-        return
-    if best_score < 1.0:  # no pedestrian anywhere: the middle frame
-        best = frames[len(frames) // 2]
-    cv2.imwrite(str(png), best)
 
 
 def plot_curve(
@@ -111,13 +83,6 @@ def plot_curve(
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
-
-
-def quiet_logs() -> None:
-    """A normal run shows status lines and warnings, not library INFO chatter."""
-    logging.basicConfig(level=logging.WARNING, format="%(name)s %(levelname)s %(message)s")
-    for name in ("OpenGL", "OpenGL.acceleratesupport", "shm_protocol", "rover_env"):
-        logging.getLogger(name).setLevel(logging.WARNING)
 
 
 def _parser() -> argparse.ArgumentParser:
