@@ -10,7 +10,7 @@ STAMP  := $(VENV)/.roverav-installed
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 
-.PHONY: setup demo test lint typecheck bench clean-shm
+.PHONY: setup demo demo-finetune test lint typecheck bench clean-shm
 
 setup: $(STAMP)
 
@@ -31,12 +31,17 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 	$(PY) -m pip install -q -c constraints.txt -e '.[train,dev,onnx,ray,ros]'
 	@touch $(STAMP)
 
-# The main job: a supervised daemon + trainer pair fine-tunes the zoo's fused-maze navigator
-# (DAgger, daemon in the loop), then evaluates it against a seeded random policy; outputs
-# (student, curve, metrics, table, video) land in runs/demo/.
-DEMO_STEPS ?= 24000
+# The main job: a supervised daemon + trainer pair; PPO learns to drive RoverEnvFused from
+# the reward, from scratch, over the camera scan (4 envs, a daemon slot each), then random
+# and each checkpoint drive the same 20 evaluation episodes: the learning curve, the table
+# and a video land in runs/demo/ (the same command continues a stopped run).
+DEMO_STEPS ?= 400000
 demo: setup
-	$(PY) launch/run_pair.py --name roverav_demo --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.imitation.demo --timesteps $(DEMO_STEPS) --episodes 20 --out runs/demo
+	$(PY) launch/run_pair.py --name roverav_demo --slots 4 --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --episodes 20 --out runs/demo
+
+# The main job before: DAgger fine-tunes the zoo's fused-maze student with the daemon in the loop.
+demo-finetune: setup
+	$(PY) launch/run_pair.py --name roverav_demo_ft --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.imitation.demo --timesteps 24000 --episodes 20 --out runs/demo-finetune
 
 # Two workers at most on this 2-core class of machine (one per core, four on bigger ones); a
 # test file runs whole on one worker, so its module fixtures (a daemon, a Ray cluster) start once.
