@@ -60,19 +60,27 @@ class ModelAgent:
     ``rover_train.evaluate.run_episode`` does). It is a zoo ``Agent``
     (``rover_train.zoo.load`` returns one for an RL entry).
 
+    :param deterministic: True: the policy's most likely action; False: an action sampled from
+        the policy, as in training, from a generator seeded once with ``seed`` (the same seed
+        and episodes in the same order drive the same actions; the global torch RNG is left
+        as it was). A memoryless policy that sees part of the world can do better sampled: a
+        deterministic one repeats its choice wherever its observations look alike (the
+        camera agents, docs/decisions.md).
     :param observe: applied to each observation before the model sees it (a model trained
         with ``rover-train --waypoint`` gets its ``waypoint`` key this way).
     :param act: applied to the model's action before the env gets it (a model trained with
         ``rover-train --relative-table`` drives the continuous env this way).
+    :param seed: seeds the sampled actions (``deterministic=False``).
     """
 
     def __init__(self, model: Any, deterministic: bool = True,
                  observe: Callable[[Any], Any] | None = None,
-                 act: Callable[[Any], Any] | None = None) -> None:  # fmt: skip
+                 act: Callable[[Any], Any] | None = None, seed: int = 0) -> None:  # fmt: skip
         self.model = model
         self.deterministic = deterministic
         self.observe = observe
         self.act_map = act
+        self._rng = np.random.default_rng(seed)
         self.reset()
 
     def reset(self) -> None:
@@ -82,12 +90,23 @@ class ModelAgent:
     def __call__(self, obs: Any) -> Any:
         if self.observe is not None:
             obs = self.observe(obs)
+        if self.deterministic:
+            action = self._predict(obs)
+        else:
+            import torch
+
+            with torch.random.fork_rng(devices=[]):
+                torch.manual_seed(int(self._rng.integers(2**62)))
+                action = self._predict(obs)
+        self._episode_start = np.zeros((1,), dtype=bool)
+        return action if self.act_map is None else self.act_map(action)
+
+    def _predict(self, obs: Any) -> Any:
         action, self._state = self.model.predict(
             obs, state=self._state, episode_start=self._episode_start,
             deterministic=self.deterministic,
         )  # fmt: skip
-        self._episode_start = np.zeros((1,), dtype=bool)
-        return action if self.act_map is None else self.act_map(action)
+        return action
 
     act = __call__
 

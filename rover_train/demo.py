@@ -11,7 +11,10 @@ rover's state through an MLP, and drives the seed's 60-action table relative to 
 checkpoint is kept every ``--timesteps / --points`` steps. Then a seeded random policy and
 every checkpoint drive the same ``--episodes`` evaluation episodes (reset seeds from 100000,
 never used in training; each ends at the first goal, a collision or ``--max-steps``): the
-learning curve, measured on the evaluation episodes.
+learning curve, measured on the evaluation episodes. The checkpoints act as in training, by
+sampling their policy (from a generator seeded with ``--seed``): the camera agent sees part
+of the world, and its most likely action, repeated wherever its observations look alike,
+drives it in circles and off the map (docs/decisions.md, "RL").
 
 Leaves under ``--out`` (default ``runs/demo``):
 - ``run/``: rover-train's run directory (``model.zip``, the checkpoints, ``metrics.json``,
@@ -242,7 +245,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for i, ck in enumerate(found):
             steps = int(ck.state["num_timesteps"])
             last = i == len(found) - 1
-            agent = load_policy(ck.model_path, env, "ppo")
+            agent = load_policy(ck.model_path, env, "ppo", deterministic=False, seed=args.seed)
             summary = summarise(evaluate_agent(
                 env, agent, args.episodes, EVAL_SEED_BASE, args.max_steps,
                 frames if last else None, args.video_episodes if last else 0,

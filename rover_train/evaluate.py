@@ -122,12 +122,14 @@ class PolicyLoadError(ValueError):
     says which and what to do)."""
 
 
-def load_policy(model: Path, env: Any, algo: str | None = None) -> ModelAgent:
+def load_policy(model: Path, env: Any, algo: str | None = None,
+                deterministic: bool = True, seed: int = 0) -> ModelAgent:  # fmt: skip
     """The rover-train model at ``model`` as an agent for ``env``: a
     :class:`~rover_train.algos.ModelAgent` (``reset()`` per episode, ``act(obs)``, also
-    callable), deterministic, driving ``env`` as the model was trained (its recipe's
-    waypoint, dropped image, relative table; a recurrent model keeps its LSTM state).
-    ``algo``: default from ``metrics.json`` beside it. Raises :class:`PolicyLoadError`.
+    callable), deterministic or sampling its policy from a seeded generator, driving ``env``
+    as the model was trained (its recipe's waypoint, dropped image, relative table; a
+    recurrent model keeps its LSTM state). ``algo``: default from ``metrics.json`` beside
+    it; ``seed``: of the sampled actions. Raises :class:`PolicyLoadError`.
     """
     if not model.is_file():
         raise PolicyLoadError(_no_model_file(model))
@@ -145,7 +147,8 @@ def load_policy(model: Path, env: Any, algo: str | None = None) -> ModelAgent:
         recipe = _recipe(model)
         check_spaces(model, loaded, _as_trained(recipe, env))
         observe, act = agent_io(recipe)
-        return ModelAgent(loaded, observe=observe, act=act)
+        return ModelAgent(loaded, deterministic=deterministic, observe=observe, act=act,
+                          seed=seed)
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
 
 
@@ -677,6 +680,10 @@ def _parser() -> argparse.ArgumentParser:
                         "teacher)")  # fmt: skip
     p.add_argument("--algo", choices=ALGOS,
                    help="a model's algorithm (default: from metrics.json beside it)")
+    p.add_argument("--sample", action="store_true",
+                   help="a model's actions sampled from its policy, as in training (from a "
+                        "generator seeded with --seed), not its most likely ones; an RL zoo "
+                        "entry acts as it says (the rl-fused entries sample)")  # fmt: skip
     p.add_argument("--task", choices=tuple(TASKS), default=None,
                    help="a model's episode, as rover-train --task: seed (the env's own "
                         f"length) or nav ({NAV_LENGTH} steps); default: the model's "
@@ -755,7 +762,7 @@ def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
             args.task = run_metrics(args.model).get("task", DEFAULT_TASK)
         model = args.model
         source = random if args.random else AgentSource(
-            str(model), lambda env: _model_agent(model, env, args.algo))
+            str(model), lambda env: _model_agent(model, env, args.algo, args.sample, args.seed))
         return _Plan(source, None, args.world)
     spec = zoo.ENTRIES[entry]
     given = [f for f, v in (("--env", args.env), ("--world", args.world), ("--task", args.task),
@@ -799,9 +806,9 @@ def _student_entry(path: Path, p: argparse.ArgumentParser) -> str:
     return str(made_like)
 
 
-def _model_agent(model: Path, env: Any, algo: str | None) -> Agent:
+def _model_agent(model: Path, env: Any, algo: str | None, sample: bool, seed: int) -> Agent:
     try:
-        return load_policy(model, env, algo)
+        return load_policy(model, env, algo, deterministic=not sample, seed=seed)
     except PolicyLoadError as exc:
         raise _EvalError(f"rover-eval: {exc}") from exc
 

@@ -136,3 +136,33 @@ def test_shipped_rl_entries_carry_the_recipe_their_command_trains() -> None:
                                                               recipe["timesteps"])  # fmt: skip
         assert again.logdir == Path(f"runs/{name}")
         assert isinstance(zoo.load(name), ModelAgent)
+
+
+def _actions(agent: ModelAgent, steps: int = 40) -> list[int]:
+    env = zoo.make_env("rl-lidar-inspect")
+    try:
+        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+        agent.reset()
+        out = []
+        for _ in range(steps):
+            action = agent.act(obs)
+            out.append(int(action))
+            obs, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                break
+        return out
+    finally:
+        env.close()
+
+
+def test_a_sampling_agent_repeats_itself_from_its_seed_and_leaves_torch_rng_alone() -> None:
+    import torch
+
+    model = zoo.load("rl-lidar-inspect").model
+    torch.manual_seed(123)
+    before = torch.get_rng_state()
+    first = _actions(ModelAgent(model, deterministic=False, seed=7))
+    assert torch.equal(torch.get_rng_state(), before)  # the caller's draws are not moved
+    assert _actions(ModelAgent(model, deterministic=False, seed=7)) == first
+    assert _actions(ModelAgent(model, deterministic=False, seed=8)) != first
+    assert _actions(ModelAgent(model)) != first  # the most likely actions are another drive

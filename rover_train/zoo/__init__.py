@@ -139,7 +139,7 @@ def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent 
     recipe = read_recipe(file)
     model = algo_class(recipe["algo"]).load(file, device="cpu")
     observe, act = agent_io(recipe)
-    return ModelAgent(model, observe=observe, act=act)
+    return ModelAgent(model, deterministic=not spec.sampled, observe=observe, act=act)
 
 
 __all__ = [

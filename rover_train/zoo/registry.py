@@ -68,6 +68,9 @@ class EntrySpec:
         (``<name>.zip``); ``finetune``: a student fine-tuned on the env's reward by PPO from
         the entry ``start`` (``rover_train.imitation.finetune``; ``<name>.pt``).
     :param start: for ``finetune``: the student entry it starts from.
+    :param sampled: an ``rl`` entry that acts by sampling its policy (seeded,
+        ``rover_train.algos.ModelAgent``), not by its most likely action: the camera agents,
+        which see part of the world and do better sampled (docs/decisions.md, "RL").
     """
 
     name: str
@@ -76,6 +79,7 @@ class EntrySpec:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     trainer: str = DAGGER
     start: str | None = None
+    sampled: bool = False
 
     @property
     def path(self) -> Path:
