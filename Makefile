@@ -35,7 +35,7 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 # the reward, from scratch, over the camera scan (4 envs, a daemon slot each), then random
 # and each checkpoint drive the same 20 evaluation episodes: the learning curve, the table
 # and a video land in runs/demo/ (the same command continues a stopped run).
-DEMO_STEPS ?= 400000
+DEMO_STEPS ?= 600000
 demo: setup
 	$(PY) launch/run_pair.py --name roverav_demo --slots 4 --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --episodes 20 --out runs/demo
 

@@ -2,7 +2,7 @@
 
 Run under the supervisor so the daemon is there, one slot per env (``make demo`` does this):
 
-    rover-pair --slots 4 -- python -m rover_train.demo --timesteps 300000
+    rover-pair --slots 4 -- python -m rover_train.demo --timesteps 600000
 
 PPO trains from scratch on RoverEnvFused's nav task (``rover-train``'s camera recipe,
 :func:`camera_args`): the policy reads the camera scan (a rover-frame memory of what the
@@ -174,9 +174,9 @@ def _parser() -> argparse.ArgumentParser:
     add_group(p, Episodes, only=("world", "episodes", "max_steps")).description = (
         "the world trained in (inspect or maze; default inspect); a random policy and each "
         "checkpoint are evaluated on the same evaluation episodes")
-    p.add_argument("--timesteps", type=int, default=300_000,
+    p.add_argument("--timesteps", type=int, default=600_000,
                    help="PPO env steps over all envs (0: evaluate the run in --out as it is)")
-    p.add_argument("--points", type=int, default=5,
+    p.add_argument("--points", type=int, default=6,
                    help="checkpoints evaluated along the run (the curve's points after random)")
     p.add_argument("--seed", type=int, default=0, help="seeds training and the random policy")
     p.add_argument("--video-episodes", type=int, default=2)
