@@ -222,8 +222,17 @@ def dagger_steps(recipe: dict) -> int:
     return int(recipe["members"]) * int(recipe["iterations"]) * int(recipe["steps"])
 
 
+def _rl_entry(model: Path, world: str) -> str:
+    """The zoo RL entry a model is evaluated as: the camera agents' (``rl-fused-WORLD``: the
+    fused env with the camera scan, actions sampled) for a model trained on a fused env,
+    else the LIDAR agents' (``rl-lidar-WORLD``)."""
+    from rover_train.recipe import read_recipe
+
+    return f"rl-{'fused' if read_recipe(model)['env'].startswith('fused') else 'lidar'}-{world}"
+
+
 def table_source(source: str, world: str) -> tuple[str, object, int, str]:
-    """A table row's (env kind, agent, env steps, training wall-clock)."""
+    """A table row's (zoo entry whose env it drives, agent, env steps, training wall-clock)."""
     import json
 
     from rover_train import zoo
@@ -237,33 +246,31 @@ def table_source(source: str, world: str) -> tuple[str, object, int, str]:
         if not model.is_file():  # a run stopped early: its newest checkpoint
             model = max((path / "checkpoints").glob("*_steps.zip"),
                         key=lambda f: int(f.stem.split("_")[-2]))  # fmt: skip
-        agent = zoo.load(f"rl-lidar-{world}", model)
+        entry = _rl_entry(model, world)
+        agent = zoo.load(entry, model)
         # metrics.json times the last part of a resumed run; run.json has every part
         parts = json.loads((path / "run.json").read_text()).get("history", [])
         done = [p["ended_at"] - p["started_at"] for p in parts if p.get("ended_at")]
         minutes = (sum(done) if done else float(metrics["wall_time_s"])) / 60
-        return metrics["env"], agent, int(metrics["timesteps"]), f"{minutes:.0f} min"
+        return entry, agent, int(metrics["timesteps"]), f"{minutes:.0f} min"
     if path.suffix == ".zip":
-        agent = zoo.load(f"rl-lidar-{world}", path)
-        from rover_train.recipe import read_recipe
-
-        return read_recipe(path)["env"], agent, int(agent.model.num_timesteps), "-"
+        entry = _rl_entry(path, world)
+        agent = zoo.load(entry, path)
+        return entry, agent, int(agent.model.num_timesteps), "-"
     agent = zoo.StudentAgent.load(path)
     recipe = agent.meta.get("recipe") or {}
+    entry = str(agent.meta.get("name") or f"lidar-{world}")
     if "finetune" in agent.meta:
         start = zoo.StudentAgent.read_meta(zoo.ENTRIES[recipe["start"]].path)["recipe"]
         done = agent.meta["finetune"]
         clock = f"DAgger's + {float(done['wall_s']) / 60:.0f} min"
-        return "lidar", agent, dagger_steps(start) + int(done["steps"]), clock
-    return "lidar", agent, dagger_steps(recipe), "-"
+        return entry, agent, dagger_steps(start) + int(done["steps"]), clock
+    return entry, agent, dagger_steps(recipe), "-"
 
 
 def table(world: str, rows: list[str], episodes: int, seed: int) -> None:
-    """Evaluate each ``LABEL=SOURCE`` on the same episodes and print one table."""
-    import gymnasium as gym
-
-    import rover_env  # noqa: F401  (registers the ids)
-    from rover_train.envs import ENV_IDS
+    """Evaluate each ``LABEL=SOURCE`` on the same episodes and print one table (a fused row
+    attaches to the daemon of ``$ROVERAV_SHM_NAME``: run under rover-pair)."""
     from rover_train.suite import wilson_interval
 
     def pct(k: int, n: int) -> str:
@@ -276,8 +283,8 @@ def table(world: str, rows: list[str], episodes: int, seed: int) -> None:
           "| timeouts | SPL |\n|---|---:|---:|---|---|---:|---:|", flush=True)  # fmt: skip
     for row in rows:
         label, _, source = row.partition("=")
-        kind, agent, steps, clock = table_source(source, world)
-        env = gym.make(ENV_IDS[kind], world_n=world)
+        entry, agent, steps, clock = table_source(source, world)
+        env = evaluate.entry_env(entry, world_n=world)
         try:
             s = evaluate.summarise(evaluate.evaluate_agent(env, agent, episodes, seed))
         finally:
