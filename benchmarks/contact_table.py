@@ -61,7 +61,8 @@ TARGET = {3: 0.03, 10: 0.07}  # the zoo's safety target: most pedestrian contact
 EPISODES = 200
 # the LIDAR entries first (seconds a row), then the fused ones (the daemon's network: slow)
 ORDER = (
-    "lidar-inspect", "lidar-maze", "rl-lidar-inspect", "rl-lidar-maze",
+    "lidar-inspect", "lidar-maze", "rl-lidar-inspect", "rl-lidar-maze", "rl-fused-inspect",
+    "rl-fused-maze",
     "fused-maze", "fused-inspect", "fused-moon", "discrete-inspect", "fused-inspect-10",
     "fused-gaze-inspect", "fused-gaze-moon", "fused-gaze-discrete-inspect",
     "fused-gaze-inspect-10", "fused-moon-rl", "fused-inspect-10-rl", "fused-gaze-moon-rl",

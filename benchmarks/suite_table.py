@@ -51,23 +51,25 @@ EPISODES = 200
 # entry -> the --suite argument: "" is a bare --suite (every scenario of the entry's world)
 PLAN = {
     "lidar-inspect": "", "lidar-maze": "", "rl-lidar-inspect": "", "rl-lidar-maze": "",
-    "fused-maze": "",
+    "fused-maze": "", "rl-fused-inspect": "", "rl-fused-maze": "",
 }  # fmt: skip
 COLUMNS = ["entry", *SUITE_COLUMNS]
 SECTION = "the-scenario-suite"
-LOAD = "beside other runs (seeded, deterministic episodes: load does not move them)"
+LOAD = "beside other runs (seeded episodes: load does not move them)"
 NOTES = (
     "Each entry's rows are one `rover-eval ENTRY --suite --episodes 200 --json` (under "
     "rover-pair for fused-maze: the av-daemon at its default precision, which the row "
-    "names, one slot), its cells as rover-eval prints them. Episode i of a scenario is reset "
-    "with seed 100000 + i (the zoo's evaluation seeds) and ends at the goal, a termination "
-    "or 600 steps. "
+    "names, one slot; the rl-fused entries likewise), its cells as rover-eval prints them. "
+    "Episode i of a scenario is reset with seed 100000 + i (the zoo's evaluation seeds) and "
+    "ends at the goal, a termination or 600 steps. "
     "Collisions: episodes with a collision step in the seed's sense (the LIDAR under 0.3 m) "
     "or any touch of a person or the scenery, the headline the zoo's targets count; ped. "
     "contact (with its 95 % interval) and scenery contact are the touches alone; intimate: "
     "a pedestrian within 0.45 m at some step; intrusion: share of steps with a pedestrian "
-    "within 1.2 m. Targets at the default density (3 people): lidar-inspect ≥ 90 / ≤ 10, "
-    "lidar-maze ≥ 85 / ≤ 15, fused-maze ≥ 70 / ≤ 20. The other fused entries among 3 and 10 "
+    "within 1.2 m. The rl-fused entries sample their policy from a seeded generator, the "
+    "others take its most likely action. Targets at the default density (3 people): "
+    "lidar-inspect ≥ 90 / ≤ 10, lidar-maze ≥ 85 / ≤ 15, fused-maze ≥ 70 / ≤ 20, the "
+    "rl-fused entries ≥ 90 / ≤ 10. The other fused entries among 3 and 10 "
     "people: [pedestrian contact](#pedestrian-contact-for-every-zoo-entry)."
 )
 

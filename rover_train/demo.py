@@ -6,8 +6,8 @@ Run under the supervisor so the daemon is there, one slot per env (``make demo``
 
 PPO trains from scratch on RoverEnvFused's nav task (``rover-train``'s camera recipe,
 :func:`camera_args`): the policy reads the camera scan (a rover-frame memory of what the
-camera has seen, built from the daemon's fused images; ``rover_env.camera_scan``) and the
-rover's state through an MLP, and drives the seed's 60-action table relative to the yaw. A
+camera has seen, built from the daemon's fused images; ``rover_env.camera_scan``), the map
+planner's next waypoint and the rover's state through an MLP, and drives the seed's 60-action table relative to the yaw. A
 checkpoint is kept every ``--timesteps / --points`` steps. Then a seeded random policy and
 every checkpoint drive the same ``--episodes`` evaluation episodes (reset seeds from 100000,
 never used in training; each ends at the first goal, a collision or ``--max-steps``): the
@@ -59,22 +59,22 @@ from shm_protocol import default_name
 from shm_protocol.names import default_slots
 
 DEMO_WORLDS = ("inspect", "maze")
-"""Worlds the demo trains in (the maze with the map planner's waypoint)."""
+"""Worlds the demo trains in."""
 _LABEL_ROWS = 24  # video rows holding the panels' names (rover_train.evaluate.label_frame)
 
 
 def camera_args(world: str, timesteps: int, slots: int, seed: int, logdir: Path,
                 checkpoint_every: int) -> TrainArgs:  # fmt: skip
-    """rover-train's camera recipe: PPO on RoverEnvFused's nav task, the camera scan and the
-    state through an MLP (the image dropped from the policy), the relative table, a discount
-    of 0.995 and 512-step rollouts per env; the maze adds the planner's waypoint.
+    """rover-train's camera recipe: PPO on RoverEnvFused's nav task, the camera scan, the
+    map planner's waypoint and the state through an MLP (the image dropped from the policy),
+    the relative table, a discount of 0.995 and 512-step rollouts per env.
 
     The same as ``rover-train --env fused --world WORLD --task nav --camera-scan
-    --drop-image --relative-table [--waypoint] --gamma 0.995 --n-steps 512``.
+    --drop-image --relative-table --waypoint --gamma 0.995 --n-steps 512``.
     """
     return TrainArgs(
         env="fused", world=world, task="nav", camera_scan=True, drop_image=True,
-        relative_table=True, waypoint=world == "maze", gamma=0.995, n_steps=512,
+        relative_table=True, waypoint=True, gamma=0.995, n_steps=512,
         timesteps=timesteps, slots=slots, seed=seed, logdir=logdir,
         checkpoint_every=checkpoint_every, progress=False, name=default_name(),
     )  # fmt: skip

@@ -122,7 +122,7 @@ def test_rover_eval_scores_an_rl_model_and_refuses_the_expert_for_it(
 
 def test_shipped_rl_entries_carry_the_recipe_their_command_trains() -> None:
     shipped = [n for n in zoo.names() if zoo.ENTRIES[n].trainer == zoo.RL]
-    assert shipped == ["rl-lidar-inspect", "rl-lidar-maze"]
+    assert shipped == ["rl-fused-inspect", "rl-fused-maze", "rl-lidar-inspect", "rl-lidar-maze"]
     for name in shipped:
         spec = zoo.ENTRIES[name]
         recipe = read_recipe(spec.path)
@@ -135,7 +135,12 @@ def test_shipped_rl_entries_carry_the_recipe_their_command_trains() -> None:
         assert (again.env, again.world, again.timesteps) == (spec.kind, spec.world,
                                                               recipe["timesteps"])  # fmt: skip
         assert again.logdir == Path(f"runs/{name}")
-        assert isinstance(zoo.load(name), ModelAgent)
+        agent = zoo.load(name)
+        assert isinstance(agent, ModelAgent)
+        # the camera agents sample their policy (seeded), the LIDAR agents take its mode
+        assert agent.deterministic is (not spec.sampled) and spec.sampled is (spec.kind == "fused")
+        if spec.kind == "fused":  # the camera scan they were trained on, in the entry's env
+            assert recipe["camera_scan"] and spec.env_kwargs["camera_scan"]
 
 
 def _actions(agent: ModelAgent, steps: int = 40) -> list[int]:

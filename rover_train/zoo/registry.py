@@ -124,6 +124,12 @@ ENTRIES.update(
      EntrySpec(f"rl-lidar-{world}", "lidar-discrete", world, {"world_n": world}, trainer=RL))
     for world in ("inspect", "maze")
 )  # fmt: skip
+ENTRIES.update(
+    (f"rl-fused-{world}",
+     EntrySpec(f"rl-fused-{world}", "fused", world, {"world_n": world, "camera_scan": True},
+               trainer=RL, sampled=True))
+    for world in ("inspect", "maze")
+)  # fmt: skip  # the camera agents learnt from the reward: PPO over the camera scan
 LOOKING_PAIRS = {
     "fused-moon": (Scenario("moon", "crossing", 3), "fused"),
     "fused-gaze-moon": (Scenario("moon", "crossing", 3), "fused-gaze"),
