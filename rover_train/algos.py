@@ -53,6 +53,19 @@ def algo_class(name: str) -> Any:
     return {"ppo": PPO, "sac": SAC, "dqn": DQN}[name]
 
 
+def observation_seed(seed: int, obs: Any) -> int:
+    """A 63-bit seed from ``seed`` and the bytes of ``obs`` (an array or a dict of them, keys
+    in order): the same observation, the same draw."""
+    import hashlib
+
+    h = hashlib.blake2b(str(seed).encode(), digest_size=8)
+    items = sorted(obs.items()) if isinstance(obs, dict) else [("", obs)]
+    for key, value in items:
+        h.update(key.encode())
+        h.update(np.ascontiguousarray(value).tobytes())
+    return int.from_bytes(h.digest(), "little") >> 1
+
+
 class ModelAgent:
     """A Stable-Baselines3 model driving one env, deterministic by default: ``act(obs)`` (or
     calling it) -> action, keeping a recurrent policy's LSTM state from step to step;
@@ -61,11 +74,11 @@ class ModelAgent:
     (``rover_train.zoo.load`` returns one for an RL entry).
 
     :param deterministic: True: the policy's most likely action; False: an action sampled from
-        the policy, as in training, from a generator seeded once with ``seed`` (the same seed
-        and episodes in the same order drive the same actions; the global torch RNG is left
-        as it was). A memoryless policy that sees part of the world can do better sampled: a
-        deterministic one repeats its choice wherever its observations look alike (the
-        camera agents, docs/decisions.md).
+        the policy, as in training, its draw seeded by ``seed`` and the observation, so that
+        an episode (a reset seed) is driven the same whatever ran before it, on any slot
+        (the global torch RNG is left as it was). A memoryless policy that sees part of the
+        world can do better sampled: a deterministic one repeats its choice wherever its
+        observations look alike (the camera agents, docs/decisions.md).
     :param observe: applied to each observation before the model sees it (a model trained
         with ``rover-train --waypoint`` gets its ``waypoint`` key this way).
     :param act: applied to the model's action before the env gets it (a model trained with
@@ -80,7 +93,7 @@ class ModelAgent:
         self.deterministic = deterministic
         self.observe = observe
         self.act_map = act
-        self._rng = np.random.default_rng(seed)
+        self.seed = seed
         self.reset()
 
     def reset(self) -> None:
@@ -96,7 +109,7 @@ class ModelAgent:
             import torch
 
             with torch.random.fork_rng(devices=[]):
-                torch.manual_seed(int(self._rng.integers(2**62)))
+                torch.manual_seed(observation_seed(self.seed, obs))
                 action = self._predict(obs)
         self._episode_start = np.zeros((1,), dtype=bool)
         return action if self.act_map is None else self.act_map(action)
@@ -119,5 +132,6 @@ __all__ = [
     "ModelAgent",
     "algo_class",
     "contrib_missing",
+    "observation_seed",
     "policy_name",
 ]

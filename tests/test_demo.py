@@ -1,6 +1,7 @@
 """The DAgger fine-tune that was the main job (`make demo-finetune` runs
-``rover_train.imitation.demo`` under rover-pair): a short run against a real daemon writes its outputs, prints the same random row twice, and its table puts the
-zoo entry before fine-tuning beside the student file it leaves behind and random."""
+``rover_train.imitation.demo`` under rover-pair): a short run against a real daemon writes
+its outputs, prints the same random row twice, and its table puts the zoo entry before
+fine-tuning beside the student file it leaves behind and random."""
 
 from __future__ import annotations
 
