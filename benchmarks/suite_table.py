@@ -66,9 +66,9 @@ NOTES = (
     "or any touch of a person or the scenery, the headline the zoo's targets count; ped. "
     "contact (with its 95 % interval) and scenery contact are the touches alone; intimate: "
     "a pedestrian within 0.45 m at some step; intrusion: share of steps with a pedestrian "
-    "within 1.2 m. The rl-fused entries sample their policy from a seeded generator, the "
-    "others take its most likely action. Targets at the default density (3 people): "
-    "lidar-inspect ≥ 90 / ≤ 10, lidar-maze ≥ 85 / ≤ 15, fused-maze ≥ 70 / ≤ 20, the "
+    "within 1.2 m. The rl-fused entries sample their policy (a draw seeded by the "
+    "observation), the others take its most likely action. Targets at the default density "
+    "(3 people): lidar-inspect ≥ 90 / ≤ 10, lidar-maze ≥ 85 / ≤ 15, fused-maze ≥ 70 / ≤ 20, the "
     "rl-fused entries ≥ 90 / ≤ 10. The other fused entries among 3 and 10 "
     "people: [pedestrian contact](#pedestrian-contact-for-every-zoo-entry)."
 )

@@ -9,10 +9,10 @@ PPO trains from scratch on RoverEnvFused's nav task (``rover-train``'s camera re
 camera has seen, built from the daemon's fused images; ``rover_env.camera_scan``), the map
 planner's next waypoint and the rover's state through an MLP, and drives the seed's
 60-action table relative to the yaw. A checkpoint is kept every ``--timesteps / --points``
-steps. Then a seeded random policy and
-every checkpoint drive the same ``--episodes`` evaluation episodes (reset seeds from 100000,
-never used in training; each ends at the first goal, a collision or ``--max-steps``): the
-learning curve, measured on the evaluation episodes. The checkpoints act as in training, by
+steps. Then a seeded random policy and every checkpoint drive the same ``--episodes``
+evaluation episodes (reset seeds from 100000, never used in training; each ends at the first
+goal, a collision or ``--max-steps``): the learning curve, measured on the evaluation
+episodes. The checkpoints act as in training, by
 sampling their policy (seeded by ``--seed`` and each observation): the camera agent sees part
 of the world, and its most likely action, repeated wherever its observations look alike,
 drives it in circles and off the map (docs/decisions.md, "RL").

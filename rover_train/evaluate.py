@@ -126,10 +126,10 @@ def load_policy(model: Path, env: Any, algo: str | None = None,
                 deterministic: bool = True, seed: int = 0) -> ModelAgent:  # fmt: skip
     """The rover-train model at ``model`` as an agent for ``env``: a
     :class:`~rover_train.algos.ModelAgent` (``reset()`` per episode, ``act(obs)``, also
-    callable), deterministic or sampling its policy from a seeded generator, driving ``env``
-    as the model was trained (its recipe's waypoint, dropped image, relative table; a
-    recurrent model keeps its LSTM state). ``algo``: default from ``metrics.json`` beside
-    it; ``seed``: of the sampled actions. Raises :class:`PolicyLoadError`.
+    callable), deterministic or sampling its policy (each draw seeded by ``seed`` and the
+    observation), driving ``env`` as the model was trained (its recipe's waypoint, dropped
+    image, relative table; a recurrent model keeps its LSTM state). ``algo``: default from
+    ``metrics.json`` beside it; ``seed``: of the sampled actions. Raises :class:`PolicyLoadError`.
     """
     if not model.is_file():
         raise PolicyLoadError(_no_model_file(model))
@@ -681,9 +681,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--algo", choices=ALGOS,
                    help="a model's algorithm (default: from metrics.json beside it)")
     p.add_argument("--sample", action="store_true",
-                   help="a model's actions sampled from its policy, as in training (from a "
-                        "generator seeded with --seed), not its most likely ones; an RL zoo "
-                        "entry acts as it says (the rl-fused entries sample)")  # fmt: skip
+                   help="a model's actions sampled from its policy, as in training (each "
+                        "draw seeded by --seed and the observation), not its most likely ones; "
+                        "an RL zoo entry acts as it says (rl-fused entries sample)")  # fmt: skip
     p.add_argument("--task", choices=tuple(TASKS), default=None,
                    help="a model's episode, as rover-train --task: seed (the env's own "
                         f"length) or nav ({NAV_LENGTH} steps); default: the model's "
