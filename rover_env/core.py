@@ -587,6 +587,21 @@ class RoverEnvBase(gym.Env):
         self._check_open("camera_frame")
         return self.sim.render_camera().rgb
 
+    def set_reward_config(self, reward_config: RewardConfig) -> None:
+        """Replace the reward constants from the next step on (a curriculum's switch, e.g.
+        ``rover-train --clearance-from``; through a vector env:
+        ``venv.env_method("set_reward_config", cfg)``). ``stuck_window`` sizes the episode's
+        position history, so it must stay as it was."""
+        if not isinstance(reward_config, RewardConfig):
+            raise TypeError(f"set_reward_config takes a RewardConfig, got {type(reward_config)!r}")
+        if reward_config.stuck_window != self.reward_config.stuck_window:
+            raise ValueError(
+                f"set_reward_config cannot change stuck_window ({self.reward_config.stuck_window} "
+                f"-> {reward_config.stuck_window}) on a built env: pass it as reward_config "
+                "when the env is made"
+            )
+        self.reward_config = reward_config
+
     @property
     def closed(self) -> bool:
         """True after :meth:`close` (then reset/step/render raise :class:`EnvClosedError`)."""

@@ -18,6 +18,7 @@ seconds and exits with status 130 or 143; ``--resume RUN_DIR`` continues that ru
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import logging
@@ -58,6 +59,7 @@ from rover_train.envs import (
     NAV_LENGTH,
     TASKS,
     env_factory,
+    get_task,
 )
 from rover_train.recipe import (
     OPERATIONAL_FIELDS,
@@ -114,6 +116,12 @@ class TrainArgs:
     """--env fused or fused-gaze: Discrete(60) actions, the seed's 5 speeds x 12 headings
     relative to the yaw (RoverEnvDiscrete's table; the gaze env's camera stays ahead), for
     PPO and DQN from scratch. rover_train.wrappers.RelativeTable."""
+    clearance_from: int | None = None
+    """Fused envs, --task nav: charge the LIDAR envs' clearance term (NAV_CLEARANCE_PENALTY
+    per metre of the LIDAR minimum inside NAV_CLEARANCE, from a scan the simulator casts for
+    the reward, never an input) from this many training steps on; 0 charges it from the
+    start. Off by default on the fused kinds: from the start a camera agent learnt to stand
+    still. A curriculum: first to reach the goal, then to keep off the scenery."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), recurrent-ppo (all envs: PPO with an LSTM policy, from sb3-contrib),
     sac (lidar, fused) or dqn (discrete)."""
@@ -346,6 +354,12 @@ def validate(args: TrainArgs) -> str | None:
     if args.relative_table and args.env not in ("fused", "fused-gaze"):
         return ("--relative-table puts Discrete(60) over a continuous fused env: use --env fused "
                 "or fused-gaze (lidar-discrete has the same table already)")
+    if args.clearance_from is not None and (args.env not in FUSED_KINDS or args.task != "nav"
+                                            or args.clearance_from < 0):
+        return (f"--clearance-from adds the nav task's clearance term to a fused env from a step "
+                f"count >= 0: use it with a fused --env and --task nav (LIDAR envs pay it from "
+                f"the start), got --env {args.env} --task {args.task} "
+                f"--clearance-from {args.clearance_from}")  # fmt: skip
     if args.slots < 1 or args.timesteps < 1:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
     if args.task not in TASKS:  # the CLI's choices say so too; TrainArgs built in code
@@ -621,6 +635,39 @@ def make_metrics_callback() -> Any:
     return RoverMetrics()
 
 
+def make_clearance_switch(at_steps: int, task: str) -> Any:
+    """A callback that adds ``task``'s LIDAR-only reward terms (the nav task's clearance term)
+    to every env once the run has taken ``at_steps`` steps (at once on a run resumed past
+    them); the rest of each env's reward constants stay its own."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    terms = get_task(task).lidar_reward
+
+    class ClearanceSwitch(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.switched = False
+
+        def _switch(self) -> None:
+            venv = self.training_env
+            for i, cfg in enumerate(venv.get_attr("reward_config")):
+                venv.env_method("set_reward_config", dataclasses.replace(cfg, **terms),
+                                indices=[i])  # fmt: skip
+            self.switched = True
+            log.info("step %d: the clearance term is on (%s)", self.num_timesteps, terms)
+
+        def _on_training_start(self) -> None:
+            if self.num_timesteps >= at_steps:
+                self._switch()
+
+        def _on_step(self) -> bool:
+            if not self.switched and self.num_timesteps >= at_steps:
+                self._switch()
+            return True
+
+    return ClearanceSwitch()
+
+
 def save_learning_curve(episodes: list[dict[str, Any]], path: Path, title: str) -> None:
     import matplotlib
 
@@ -699,6 +746,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
             record.save(run_dir)
             remaining = args.timesteps - start_steps
             callbacks = [metrics_cb, make_checkpoint_callback(checkpointer)]
+            if args.clearance_from is not None:
+                callbacks.append(make_clearance_switch(args.clearance_from, args.task))
             if args.algo in ON_POLICY and args.update_threads != args.threads:
                 callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
             start = time.perf_counter()

@@ -3,6 +3,7 @@ rover-eval, and ``--algo recurrent-ppo`` (a tiny run that checkpoints and resume
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -236,3 +237,79 @@ def test_recurrent_ppo_nav_run_checkpoints_and_resumes(
                           "--max-steps", "20", "--json"])  # fmt: skip
     assert code == 0
     assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["episodes"] == 1
+
+
+def test_set_reward_config_turns_the_clearance_term_on_mid_episode() -> None:
+    """The nav task's fused constants (no clearance term) on a LIDAR env, driven at a wall:
+    nothing is charged until ``set_reward_config`` adds the term, then every step inside
+    NAV_CLEARANCE pays it."""
+    fused_nav = get_task("nav").reward_config("fused")
+    assert fused_nav is not None and fused_nav.clearance_penalty == 0
+    env = RoverEnv(world_n="maze", n_pedestrians=0, goal_ends_episode=True,
+                   reward_config=fused_nav)  # fmt: skip
+    try:
+        env.reset(seed=0)
+        before, after = [], []
+        for step in range(NAV_LENGTH):
+            if step == 10:
+                env.set_reward_config(dataclasses.replace(
+                    env.reward_config, **get_task("nav").lidar_reward))
+            obs, _, terminated, truncated, info = env.step(FORWARD)
+            (before if step < 10 else after).append((float(obs["lidar"].min()), info))
+            if terminated or truncated:
+                break
+    finally:
+        env.close()
+    assert all(info["reward_clearance"] == 0.0 for _, info in before)
+    charged = [info["reward_clearance"] for lidar_min, info in after[:-1]
+               if lidar_min < NAV_CLEARANCE]  # fmt: skip
+    assert len(charged) >= 3 and all(c < 0 for c in charged)  # charged on the approach
+    assert after[-1][1]["collision"]  # the same drive ends at the wall
+
+
+def test_set_reward_config_refuses_what_it_cannot_change() -> None:
+    env = RoverEnv(world_n="inspect", n_pedestrians=0)
+    try:
+        with pytest.raises(ValueError, match="cannot change stuck_window"):
+            env.set_reward_config(dataclasses.replace(env.reward_config, stuck_window=7))
+        with pytest.raises(TypeError, match="takes a RewardConfig"):
+            env.set_reward_config({"clearance_penalty": -2.0})  # type: ignore[arg-type]
+        assert env.reward_config == RewardConfig()  # unchanged
+    finally:
+        env.close()
+
+
+def test_clearance_from_is_for_the_fused_nav_task() -> None:
+    ok = TrainArgs(env="fused", task="nav", clearance_from=400_000)
+    assert validate(ok) is None
+    for bad in (TrainArgs(env="lidar", task="nav", clearance_from=0),
+                TrainArgs(env="fused", task="seed", clearance_from=0),
+                TrainArgs(env="fused", task="nav", clearance_from=-1)):  # fmt: skip
+        problem = validate(bad)
+        assert problem is not None and "--clearance-from" in problem and "--task nav" in problem
+    args = parse_args(["--env", "fused", "--task", "nav", "--clearance-from", "5"])
+    assert args.clearance_from == 5
+
+
+@pytest.mark.parametrize("at_steps, switched", [(64, True), (1_000, False)])
+def test_clearance_switch_adds_the_term_to_every_env_at_its_step(
+    at_steps: int, switched: bool
+) -> None:
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from rover_train.train import make_clearance_switch
+
+    start = get_task("nav").reward_config("fused")
+    venv = DummyVecEnv([lambda: RoverEnv(world_n="inspect", n_pedestrians=0,
+                                         reward_config=start)] * 2)  # fmt: skip
+    try:
+        model = PPO("MultiInputPolicy", venv, n_steps=32, batch_size=32, n_epochs=1, seed=0)
+        callback = make_clearance_switch(at_steps, "nav")
+        model.learn(total_timesteps=128, callback=callback)
+        for cfg in venv.get_attr("reward_config"):
+            assert cfg.clearance_penalty == (NAV_CLEARANCE_PENALTY if switched else 0.0)
+            assert cfg.distance_delta_scale == NAV_PROGRESS_SCALE  # the rest is unchanged
+        assert callback.switched is switched
+    finally:
+        venv.close()
