@@ -194,28 +194,27 @@ class CameraScan:
     def update(self, fused: np.ndarray, x: float, y: float, yaw: float, pan: float = 0.0) -> None:
         """Take one fused image (H, W, 3) seen from pose (x, y, yaw) with the camera panned
         ``pan`` rad left of the heading. Non-finite depth or pose leaves the scan's readings
-        as they were for this step (with one warning per scan)."""
+        as they were for this step (with one warning per scan); the gray channel is not read."""
         cfg = self.config
         self._t += self.control_dt
         if fused.shape != self._shape:
             raise ValueError(f"fused image of shape {fused.shape}; this scan reads "
                              f"{self._shape} images (its size)")  # fmt: skip
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(yaw)
-                and math.isfinite(pan) and np.isfinite(fused).all()):  # fmt: skip
-            if not self._warned:
-                log.warning("camera scan: a non-finite pose or fused image; the scan keeps its "
-                            "readings for this step (warned once)")  # fmt: skip
-                self._warned = True
-            kernel.scan_ages(self._seen_t, yaw if math.isfinite(yaw) else float(self._pose[2]),
-                             self._t, cfg.memory_s, self.observation)  # fmt: skip
-            return
-        self._params[8] = self._t
-        self._pose[:] = (x, y, yaw, pan)
         image = fused if fused.dtype == np.float32 else fused.astype(np.float32)
-        kernel.scan_update(image, self._fwd, self._up, self._left, self._params, self._pose,
-                           self._grid_t, self._grid_i, self._occ, self._occ_n,
-                           self._person, self._person_t,
-                           self._seen_t, self.observation, self.columns)  # fmt: skip
+        if math.isfinite(x) and math.isfinite(y) and math.isfinite(yaw) and math.isfinite(pan):
+            self._params[8] = self._t
+            self._pose[:] = (x, y, yaw, pan)
+            if kernel.scan_update(image, self._fwd, self._up, self._left, self._params,
+                                  self._pose, self._grid_t, self._grid_i, self._occ, self._occ_n,
+                                  self._person, self._person_t, self._seen_t, self.observation,
+                                  self.columns):  # fmt: skip
+                return
+        if not self._warned:
+            log.warning("camera scan: a non-finite pose or fused image; the scan keeps its "
+                        "readings for this step (warned once)")  # fmt: skip
+            self._warned = True
+        kernel.scan_ages(self._seen_t, yaw if math.isfinite(yaw) else float(self._pose[2]),
+                         self._t, cfg.memory_s, self.observation)  # fmt: skip
 
     def points(self, which: str) -> tuple[np.ndarray, np.ndarray]:
         """The remembered ``"obstacle"`` readings (the centres of the occupied scenery

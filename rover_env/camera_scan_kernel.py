@@ -29,6 +29,25 @@ def _sector(bearing: float, n: int) -> int:
     return int(math.floor((bearing + math.pi) / (TWO_PI / n))) % n
 
 
+@njit(cache=True, inline="always")
+def _fast_atan2(y: float, x: float) -> float:
+    """``math.atan2`` to within 2e-6 rad (an odd minimax polynomial on [0, 1], reflected to
+    the octant): a sector is 0.2 rad wide, and libm's atan2 was most of reading the grid."""
+    ax, ay = abs(x), abs(y)
+    big, small = max(ax, ay), min(ax, ay)
+    if big == 0.0:
+        return 0.0
+    z = small / big
+    z2 = z * z
+    a = z * (0.99997726 + z2 * (-0.33262347 + z2 * (0.19354346 + z2 * (
+        -0.11643287 + z2 * (0.05265332 + z2 * -0.01172120)))))  # fmt: skip
+    if ay > ax:
+        a = 0.5 * math.pi - a
+    if x < 0.0:
+        a = math.pi - a
+    return -a if y < 0.0 else a
+
+
 @njit(cache=True)
 def _rebin(pts: np.ndarray, stamps: np.ndarray, rng: np.ndarray, x: float, y: float,
            yaw: float) -> None:  # fmt: skip
@@ -122,6 +141,21 @@ def _quantile_index(values: np.ndarray, n: int, k: int, counts: np.ndarray) -> i
     return at
 
 
+@njit(cache=True)
+def _median(values: np.ndarray, n: int, scratch: np.ndarray) -> float:
+    """The median of ``values[:n]`` (n >= 1) as numpy's (the mean of the two middle values
+    for an even n), sorted in ``scratch`` by insertion: n is at most an image's height, and
+    np.median allocates on every call."""
+    for i in range(n):
+        v, j = values[i], i
+        while j > 0 and scratch[j - 1] > v:
+            scratch[j] = scratch[j - 1]
+            j -= 1
+        scratch[j] = v
+    half = n // 2
+    return scratch[half] if n % 2 else 0.5 * (scratch[half - 1] + scratch[half])
+
+
 @njit(cache=True, inline="always")
 def _cell(coord: float, res: float) -> int:
     return int(math.floor(coord / res))
@@ -167,28 +201,33 @@ def _clear_in_view(grid_t: np.ndarray, grid_i: np.ndarray, occ: np.ndarray, occ_
 @njit(cache=True)
 def _read_grid(grid_t: np.ndarray, grid_i: np.ndarray, occ: np.ndarray, occ_n: np.ndarray,
                res: float, x: float, y: float, yaw: float, now: float, memory_s: float,
-               keep_m: float, rng: np.ndarray) -> None:  # fmt: skip
-    """Each sector's nearest remembered scenery (``rng``, inf where none); cells freed,
-    older than ``memory_s`` or farther than ``keep_m`` leave the list."""
+               keep_m: float, max_range: float, rng: np.ndarray) -> None:  # fmt: skip
+    """Each sector's nearest remembered scenery within ``max_range`` (``rng``, inf where
+    none); cells freed, older than ``memory_s`` or farther than ``keep_m`` leave the list."""
     n = rng.shape[0]
     for k in range(n):
-        rng[k] = np.inf
+        rng[k] = np.inf  # squared ranges until the end
+    keep2, seen2 = keep_m * keep_m, max_range * max_range
     i = 0
     while i < occ_n[0]:
         flat = occ[i]
         t = grid_t[flat]
         dx = (grid_i[flat, 0] + 0.5) * res - x
         dy = (grid_i[flat, 1] + 0.5) * res - y
-        r = math.hypot(dx, dy)
-        if t == -np.inf or now - t > memory_s or r > keep_m:
+        r2 = dx * dx + dy * dy
+        if t == -np.inf or now - t > memory_s or r2 > keep2:
             grid_t[flat] = -np.inf
             occ_n[0] -= 1
             occ[i] = occ[occ_n[0]]
             continue
-        k = _sector(math.atan2(dy, dx) - yaw, n)
-        if r < rng[k]:
-            rng[k] = r
         i += 1
+        if r2 >= seen2:  # kept for later, but reads as the range like an empty sector
+            continue
+        k = _sector(_fast_atan2(dy, dx) - yaw, n)
+        if r2 < rng[k]:
+            rng[k] = r2
+    for k in range(n):
+        rng[k] = math.sqrt(rng[k])
 
 
 @njit(cache=True)
@@ -208,8 +247,9 @@ def scan_update(
     seen_t: np.ndarray,
     out: np.ndarray,
     columns: np.ndarray,
-) -> None:
-    """One update of the scan's memory and its observation.
+) -> bool:
+    """One update of the scan's memory and its observation; False, with nothing changed,
+    when a heatmap or depth pixel of ``fused`` is not finite.
 
     ``fused`` (H, W, 3) float32; ``fwd_row``/``up_row`` (H,) and ``left_col`` (W,): a pixel at
     optical depth d lies d * (fwd_row[r], left_col[u], up_row[r]) from the camera in its
@@ -235,24 +275,23 @@ def scan_update(
     width_s = TWO_PI / n
     look = yaw + pan
     cam_x, cam_y = x + camera_x * math.cos(yaw), y + camera_x * math.sin(yaw)
-    for k in range(n):  # the world-bearing sectors in view are seen now
-        if abs(_wrap(-math.pi + (k + 0.5) * width_s - look)) <= half_fov:
-            seen_t[k] = now
-    obstacle_r = np.empty(n)
-    person_r = np.empty(n)
-    _rebin(person, person_t, person_r, x, y, yaw)
-    _forget_in_view(person, person_t, person_r, cam_x, cam_y, look, half_fov, max_range)
     cos_l, sin_l = math.cos(look), math.sin(look)
     quantile, margin = params[11], params[12]
     counts = np.empty(QUANTILE_BINS + 1, dtype=np.int64)
     far = depth_max * 0.999
     hot = np.empty(height)
+    scratch = np.empty(max(height, width))
     ahead = np.empty(height)
     row_at = np.empty(height, dtype=np.int64)
     hit_x, hit_y, free_r = np.empty(width), np.empty(width), np.empty(width)
+    cols = np.empty((3, width))
+    # the image first, into locals: a non-finite heatmap or depth pixel returns False
+    # before anything the scan keeps has changed
     for u in range(width):
         best_s, row_s, m, ms = np.inf, -1, 0, 0
         for r in range(height):
+            if not math.isfinite(fused[r, u, 1] + fused[r, u, 2]):
+                return False
             d = (1.0 - fused[r, u, 2]) * depth_max
             if d >= far or d * up_row[r] <= high_from:  # beyond the range, or the ground
                 continue
@@ -267,10 +306,10 @@ def scan_update(
             # nearest of 30-60 noisy pixels reads 0.1-0.2 m short of a wall 1-2 m away)
             row_s = row_at[_quantile_index(ahead, ms, int(quantile * (ms - 1)), counts)]
             best_s = (1.0 - fused[row_s, u, 2]) * depth_max
-        columns[0, u], columns[1, u] = best_s, row_s
+        cols[0, u], cols[1, u] = best_s, row_s
         # a person's depth is the median of its hot pixels' (the network's depth is noisy at
         # a figure's edges, and the nearest of them reads a metre short)
-        columns[2, u] = np.median(hot[:m]) if m else np.inf
+        cols[2, u] = _median(hot, m, scratch) if m else np.inf
         # the column sees through to its obstacle (a margin short of it: the network's
         # depth is noisy), or to the range when it shows none
         if row_s >= 0:
@@ -281,6 +320,14 @@ def scan_update(
         else:
             hit_x[u] = np.nan
             free_r[u] = max_range
+    columns[:] = cols
+    for k in range(n):  # the world-bearing sectors in view are seen now
+        if abs(_wrap(-math.pi + (k + 0.5) * width_s - look)) <= half_fov:
+            seen_t[k] = now
+    obstacle_r = np.empty(n)
+    person_r = np.empty(n)
+    _rebin(person, person_t, person_r, x, y, yaw)
+    _forget_in_view(person, person_t, person_r, cam_x, cam_y, look, half_fov, max_range)
     _clear_in_view(grid_t, grid_i, occ, occ_n, res, cam_x, cam_y, look, half_fov, left_col,
                    fwd_row[height // 2], free_r)  # fmt: skip
     for u in range(width):
@@ -297,7 +344,7 @@ def scan_update(
         start = u
         while u < width and math.isfinite(columns[2, u]):
             u += 1
-        d = np.median(columns[2, start:u])
+        d = _median(columns[2, start:u], u - start, scratch)
         mid = 0.5 * (start + u - 1)
         lo = int(math.floor(mid))
         left_factor = left_col[lo] + (mid - lo) * (left_col[min(lo + 1, width - 1)] - left_col[lo])
@@ -305,7 +352,7 @@ def scan_update(
         _insert(person, person_t, person_r, cam_x + fwd * cos_l - left * sin_l,
                 cam_y + fwd * sin_l + left * cos_l, now, x, y, yaw)
     _read_grid(grid_t, grid_i, occ, occ_n, res, x, y, yaw, now, memory_s, max_range + 1.0,
-               obstacle_r)  # fmt: skip
+               max_range, obstacle_r)  # fmt: skip
     for k in range(n):  # readings older than their memory are dropped
         if now - person_t[k] > person_memory_s:
             person[k, 0] = np.nan
@@ -315,6 +362,7 @@ def scan_update(
         out[1, k] = min(person_r[k], max_range)
         world = _sector(-math.pi + (k + 0.5) * width_s + yaw, n)
         out[2, k] = min(now - seen_t[world], memory_s)
+    return True
 
 
 @njit(cache=True)
