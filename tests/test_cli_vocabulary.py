@@ -217,3 +217,21 @@ def test_spawn_daemon_failure_names_the_reason_with_the_log_tail(shm_name: str) 
     text = str(err.value)
     assert "before it was ready" in text and "avnet.pt" in text and "log tail" in text
     assert existing_segments(shm_name) == []
+
+
+def test_off_policy_update_schedule_is_the_library_default_unless_given() -> None:
+    from rover_train.train import TrainArgs, hyperparameters, parse_args, validate
+
+    plain = hyperparameters(TrainArgs(algo="sac", env="fused"))
+    assert "train_freq" not in plain and "gradient_steps" not in plain  # SB3's own: 1 / 1
+    args = parse_args(["--algo", "sac", "--env", "fused", "--train-freq", "4",
+                       "--gradient-steps", "2"])  # fmt: skip
+    hp = hyperparameters(args)
+    assert (hp["train_freq"], hp["gradient_steps"]) == (4, 2)
+    assert "train_freq" not in hyperparameters(TrainArgs(algo="ppo"))  # on-policy: no such knob
+    sac = {"algo": "sac", "env": "fused"}
+    for bad, flag in ((TrainArgs(**sac, gradient_steps=0), "--gradient-steps"),
+                      (TrainArgs(**sac, gradient_steps=-2), "--gradient-steps"),
+                      (TrainArgs(**sac, train_freq=0), "--train-freq")):  # fmt: skip
+        problem = validate(bad)
+        assert problem is not None and flag in problem
