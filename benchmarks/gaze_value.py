@@ -56,7 +56,13 @@ termination or ``--max-steps`` (600, the zoo's). Columns, with 90 % intervals ov
 - nearest in view: share of steps with the nearest pedestrian inside the camera's
   horizontal field of view within 10 m (``info["nearest_pedestrian_in_view"]``, as the
   fused envs report it; bootstrap over episodes);
-- time to goal: mean simulated seconds of the successful episodes (bootstrap).
+- time to goal: mean simulated seconds of the successful episodes (bootstrap);
+- contacts never in view before: of the episodes with a contact, those whose first contact
+  was with a person who had not been inside the row's camera view (within 10 m, a
+  geometric test) at any earlier step; the others' median distance and |bearing| from the
+  rover when first in view. For the fixed rows this bounds what looking could win: a
+  contact with a person the fixed camera saw is one that looking elsewhere cannot prevent
+  by seeing them sooner.
 
 Under each scenario's table: the gaze teacher minus the fixed teacher, paired on the same
 episodes (bootstrap over episodes).
@@ -75,13 +81,20 @@ from typing import Any
 from benchmarks.machine import cpu_name
 from rover_env.scenarios import select_scenarios
 from rover_train.imitation.expert import MANNERS
-from rover_train.imitation.gaze_value import clip_episode, compare, student_path, write_clip
+from rover_train.imitation.gaze_value import (
+    TEACHERS,
+    clip_episode,
+    compare,
+    student_path,
+    write_clip,
+)
 from rover_train.zoo import EVAL_MAX_STEPS, EVAL_SEED_BASE
 
 DEFAULT_SCENARIOS = "moon-crossing-3,inspect-crowd-3"
+TEACHER_ROWS = tuple(TEACHERS)
 DEFAULT_EPISODES = 100
 COLUMNS = ("row", "episodes", "success", "ped. collisions", "intrusion", "nearest in view",
-           "time to goal (s)")  # fmt: skip
+           "time to goal (s)", "contacts never in view before")  # fmt: skip
 
 
 # --- table ----------------------------------------------------------------------------------
@@ -98,12 +111,22 @@ def _num(v: list[float] | None) -> str:
     return f"{v[0]:.1f} [{v[1]:.1f}-{v[2]:.1f}]"
 
 
+def _never(s: dict[str, Any]) -> str:
+    """'k of m' contact episodes whose person had never been in the camera's view before,
+    and where the others were first seen (median distance, median |bearing|)."""
+    k, m = s["contacts_never_in_view"]
+    where = s["contacts_first_seen_median"]
+    seen = f"; the others first seen {where[0]:.1f} m, {where[1]:.0f}°" if where else ""
+    return f"{k} of {m}{seen}" if m else "no contact"
+
+
 def format_table(rows: list[tuple[str, dict[str, Any]]]) -> str:
     cells = [list(COLUMNS)]
     for label, s in rows:
         cells.append([
             label, str(s["episodes"]), _pct(s["success"]), _pct(s["pedestrian_collisions"]),
             _pct(s["intrusion"], 1), _pct(s["nearest_in_view"], 1), _num(s["time_to_goal_s"]),
+            _never(s),
         ])  # fmt: skip
     lines = ["| " + " | ".join(cells[0]) + " |", "|---|" + "---:|" * (len(COLUMNS) - 1)]
     lines += ["| " + " | ".join(row) + " |" for row in cells[1:]]
@@ -143,6 +166,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--hold-camera", action="store_true",
                    help="also the gaze student with its camera held ahead (pan head overruled)")
     p.add_argument("--json", type=Path, help="write the rows and differences here")
+    p.add_argument("--no-all-seeing", action="store_true",
+                   help="leave out the all-seeing teacher's row (the fixed and gaze rows only)")
     p.add_argument("--table", action="store_true",
                    help="every row through the seed's Discrete(180) table (the teachers "
                         "labelling its nearest action); students must be discrete ones")
@@ -170,9 +195,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     report: dict[str, Any] = {"args": {k: str(v) for k, v in vars(args).items()}, "scenarios": {}}
     t0 = time.monotonic()
     for scenario in scenarios:
+        rows = TEACHER_ROWS[:2] if args.no_all_seeing else TEACHER_ROWS
         c = compare(scenario, args.episodes, args.seed, args.max_steps, args.manners,
                     args.student_fixed, args.student_gaze, args.hold_camera,
-                    args.table)  # fmt: skip
+                    args.table, rows)  # fmt: skip
         print(f"\n{scenario.name}\n")
         print(format_table(c.rows))
         print("\n" + format_difference(c.gaze_minus_fixed))

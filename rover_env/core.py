@@ -27,7 +27,7 @@ from rover_env import constants as c
 from rover_env import reward as rw
 from rover_env.controller import HeadingPID, wrap_angle
 from rover_env.errors import EnvClosedError, closed_env_message
-from rover_env.pedestrians import DEFAULT_MODE, pedestrian_count, pedestrian_mode
+from rover_env.pedestrians import CROSSING_MODES, DEFAULT_MODE, pedestrian_count, pedestrian_mode
 from rover_env.reward import RewardConfig
 from rover_env.simulation import PHYSICS_DT, RoverSim
 from rover_env.worlds import canonical_world_name
@@ -457,7 +457,7 @@ class RoverEnvBase(gym.Env):
             self.set_goal(*options["goal"])
         else:
             self._sample_goal()
-        if self.pedestrian_mode == "crossing":
+        if self.pedestrian_mode in CROSSING_MODES:
             start = (float(self.position[0]), float(self.position[1]))
             self.sim.pedestrians.lay_crossings(self.np_random, start, self.goal)
         self._clear_episode()

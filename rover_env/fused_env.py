@@ -216,7 +216,8 @@ class RoverEnvFused(RoverEnvBase):
     ``reward_config`` (default ``RewardConfig.fused()``), ``render_mode``
     (``"rgb_array"``: chase camera), ``render_size``, ``n_pedestrians`` (0-20, default
     the world's 3), ``pedestrian_mode`` ``"crowd"`` (default), ``"pacing"``,
-    ``"oblivious"``, ``"crossing"`` or ``"groups"`` (see ``RoverEnv``), ``pedestrian_appearance``
+    ``"oblivious"``, ``"crossing"``, ``"groups"`` or ``"blind-crossing"`` (see ``RoverEnv``),
+    ``pedestrian_appearance``
     ``"fixed"`` (default, the seed's figures) or ``"random"`` (clothing colours, height,
     girth and gait phase drawn per episode from the reset seed), ``goal_ends_episode``
     (False, the seed's: a new goal after each; True: the first goal ends the episode).

@@ -163,7 +163,9 @@ class RoverEnv(RoverEnvBase):
     crowd walking to goals around the scenery, making room for the rover; ``"pacing"``:
     out-and-back walkers who wait for the rover; ``"oblivious"``: the same crowd, blind to the
     rover; ``"crossing"``: the crowd walking across the line from the start to the first goal,
-    from the side; ``"groups"``: the crowd in groups of 2-3; ``"walk"`` is the deprecated name
+    from the side; ``"blind-crossing"``: those crossings by walkers blind to the rover (they
+    come from outside a forward camera's view and do not give way); ``"groups"``: the crowd
+    in groups of 2-3; ``"walk"`` is the deprecated name
     of ``"pacing"``), ``pedestrian_appearance`` (``"fixed"``, or ``"random"``: clothing
     colours, height, girth and gait phase drawn per episode from the reset seed),
     ``goal_ends_episode`` (False, the seed's: a new goal after each; True: the first goal ends

@@ -58,7 +58,11 @@ _BATCH = 32  # candidate paths checked per batch
 _MAX_BATCHES = 20
 _PATH_SAMPLES = 33  # clearance checks along a path (every 0.25 m on an 8 m path)
 
-PEDESTRIAN_MODES = ("pacing", "crowd", "oblivious", "crossing", "groups")
+PEDESTRIAN_MODES = ("pacing", "crowd", "oblivious", "crossing", "groups", "blind-crossing")
+CROSSING_MODES = ("crossing", "blind-crossing")
+"""Modes whose walkers cross the rover's start-goal line (:meth:`Pedestrians.lay_crossings`)."""
+BLIND_MODES = ("oblivious", "blind-crossing")
+"""Modes whose walkers do not see the rover: they neither give way nor stop for it."""
 DEFAULT_MODE = "crowd"  # people who walk to goals and make room for the rover
 RENAMED_MODES = {"walk": "pacing"}  # old name -> new, accepted with a warning for one release
 # crossing mode: each pedestrian walks across the rover's start-goal line
@@ -232,7 +236,9 @@ class Pedestrians:
         """:param mode: one of :data:`PEDESTRIAN_MODES`: ``pacing`` walks the out-and-back
         paths below; the others are a :class:`~rover_env.crowd.Crowd` (``oblivious``: blind
         to the rover; ``groups``: in groups of 2-3; ``crossing``: across the rover's way,
-        see :meth:`lay_crossings`). The model's bodies (``pedestrian<i>``) say how many."""
+        see :meth:`lay_crossings`; ``blind-crossing``: the same crossings, blind to the
+        rover, so they come from outside a forward camera's view and do not give way). The
+        model's bodies (``pedestrian<i>``) say how many."""
         mode = pedestrian_mode(mode)
         if appearance not in APPEARANCES:
             raise ValueError(
@@ -286,7 +292,7 @@ class Pedestrians:
         self._crowd: Crowd | None = None
         if mode != "pacing":
             self._crowd = Crowd(
-                world, self.n, sees_rover=mode != "oblivious", groups=mode == "groups"
+                world, self.n, sees_rover=mode not in BLIND_MODES, groups=mode == "groups"
             )
 
     @property

@@ -23,6 +23,7 @@ that an agent or teacher made for those drives it (the lab's DAgger stage 1, ben
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
@@ -130,6 +131,19 @@ def takes_pan(env: object) -> bool:
     return isinstance(space, spaces.Box) and space.shape == (3,)
 
 
+@dataclass(frozen=True)
+class FirstContact:
+    """An episode's first pedestrian contact, as :class:`WithPanHead` saw it."""
+
+    step: int
+    seen_before: bool
+    """Whether the person touched had been inside the camera's view (within 10 m, a
+    geometric test) at any step of the episode before the contact."""
+    first_seen: tuple[float, float] | None
+    """Where they were when first in view: (m from the rover, bearing in degrees from its
+    heading, left positive); None when never."""
+
+
 class WithPanHead(gym.Wrapper):
     """An env without a pan action (RoverEnv) driven as RoverEnvFusedGaze is: the action is
     ``[speed, relative heading, pan target]``, after each step the sim's camera head turns
@@ -137,7 +151,9 @@ class WithPanHead(gym.Wrapper):
     servo), and it faces ahead again at every reset. The observation gains ``gaze`` (the pan,
     rad) and ``info`` the gaze env's ``pan``, ``pan_target``, ``pedestrian_in_view`` and
     ``nearest_pedestrian_in_view``. The episode's counts are :attr:`steps` and
-    :attr:`nearest_in_view_steps`.
+    :attr:`nearest_in_view_steps`; :attr:`first_contact` says, for the episode's first
+    pedestrian contact, whether the person touched had been in the camera's view before it
+    and where (:class:`FirstContact`).
 
     The inner env must render nothing in ``step`` (RoverEnv): a fused env would render its
     frame before the head turns. For a fused image of the turned camera the lab wraps this
@@ -156,14 +172,22 @@ class WithPanHead(gym.Wrapper):
         self.pan_target = 0.0
         self.steps = 0
         self.nearest_in_view_steps = 0
+        self.first_contact: FirstContact | None = None
+        self._first_seen = np.zeros((0, 2))
+        self._in_view = np.zeros(0, dtype=bool)
 
     def reset(self, **kwargs: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         base = self.env.unwrapped
         base.sim.set_camera_pan(0.0)  # type: ignore[attr-defined]
         self.pan_target = 0.0
         self.steps = self.nearest_in_view_steps = 0
+        self.first_contact = None
         obs, info = self.env.reset(**kwargs)
-        return self._observation(obs), self._info(info)
+        n = len(base.sim.pedestrian_positions)  # type: ignore[attr-defined]
+        self._first_seen = np.full((n, 2), np.nan)  # (m, deg) from the rover when first in view
+        info = self._info(info)
+        self._note_views()
+        return self._observation(obs), info
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         a = np.asarray(action, dtype=np.float64).reshape(-1)
@@ -180,7 +204,24 @@ class WithPanHead(gym.Wrapper):
         info = self._info(info)
         self.steps += 1
         self.nearest_in_view_steps += info["nearest_pedestrian_in_view"]
+        if info.get("pedestrian_collision") and self.first_contact is None:
+            who = self.env.unwrapped.nearest_pedestrian_index()  # type: ignore[attr-defined]
+            seen = self._first_seen[who]
+            self.first_contact = FirstContact(
+                self.steps, bool(np.isfinite(seen[0])),
+                None if not np.isfinite(seen[0]) else (float(seen[0]), float(seen[1])))
+        self._note_views()
         return self._observation(obs), float(reward), terminated, truncated, info
+
+    def _note_views(self) -> None:
+        """Where each pedestrian in view now was first seen from (distance, bearing)."""
+        base: Any = self.env.unwrapped
+        new = self._in_view & ~np.isfinite(self._first_seen[:, 0])
+        if new.any():
+            rel = base.sim.pedestrian_positions[new] - base.position[:2]
+            bearing = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]) - base.orientation[2])
+            self._first_seen[new, 0] = np.hypot(rel[:, 0], rel[:, 1])
+            self._first_seen[new, 1] = (bearing + 180.0) % 360.0 - 180.0
 
     def _observation(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         pan = self.env.unwrapped.sim.camera_pan  # type: ignore[attr-defined]
@@ -188,7 +229,7 @@ class WithPanHead(gym.Wrapper):
 
     def _info(self, info: dict[str, Any]) -> dict[str, Any]:
         base: Any = self.env.unwrapped
-        in_view = base.sim.pedestrians_in_view()
+        in_view = self._in_view = base.sim.pedestrians_in_view()
         nearest = base.nearest_pedestrian_index()
         return {
             **info,

@@ -42,7 +42,7 @@ WORLD_CHOICES = ("inspect", "moon", "maze", "island")
 """``rover_env.worlds.WORLD_CHOICES``: every accepted world name (``island`` is ``moon``)."""
 DEFAULT_WORLD = "inspect"
 """``rover_env.constants.DEFAULT_WORLD``."""
-PEDESTRIAN_MODES = ("pacing", "crowd", "oblivious", "crossing", "groups")
+PEDESTRIAN_MODES = ("pacing", "crowd", "oblivious", "crossing", "groups", "blind-crossing")
 """``rover_env.pedestrians.PEDESTRIAN_MODES``."""
 DEFAULT_PEDESTRIAN_MODE = "crowd"
 """``rover_env.pedestrians.DEFAULT_MODE``."""

@@ -143,6 +143,32 @@ def test_density_extremes(n: int) -> None:
         env.close()
 
 
+def test_blind_crossers_cross_the_rovers_line_from_the_side_and_do_not_see_it() -> None:
+    """``blind-crossing`` lays the crossing mode's walks (out and back across the start-goal
+    line), walked by a crowd that is blind to the rover as ``oblivious`` is; ``crossing``'s
+    walkers see it."""
+    for mode, sees in (("crossing", True), ("blind-crossing", False), ("oblivious", False)):
+        env = RoverEnv(world_n="moon", n_pedestrians=3, pedestrian_mode=mode)
+        try:
+            env.reset(seed=4)
+            crowd = env.sim.pedestrians.crowd
+            assert crowd is not None and crowd.sees_rover is sees
+            crossers = np.isfinite(crowd.alternate[:, 0])
+            assert crossers.any() == (mode != "oblivious")
+            if mode == "oblivious":
+                continue
+            # each crosser's walk spans the line: its two ends lie either side of it
+            (sx, sy), (gx, gy) = env.position[:2], env.goal
+            span = math.hypot(gx - sx, gy - sy)
+            ux, uy = (gx - sx) / span, (gy - sy) / span
+            for i in np.flatnonzero(crossers):
+                ends = [crowd.alternate[i], crowd.goal[i]]
+                sides = [np.sign(ux * (ey - sy) - uy * (ex - sx)) for ex, ey in ends]
+                assert sides[0] == -sides[1]
+        finally:
+            env.close()
+
+
 @pytest.mark.parametrize(
     ("value", "error", "words"),
     [(-1, ValueError, "0 to 20"), (21, ValueError, "0 to 20"), (2.5, TypeError, "an int"),
@@ -185,7 +211,8 @@ def test_groups_start_where_a_leader_leaves_its_members_no_room(
         assert np.all(np.hypot(*(crowd.pos[members] - leaders).T) < 0.75)
 
 
-@pytest.mark.parametrize("mode", ["pacing", "crowd", "oblivious", "crossing", "groups"])
+@pytest.mark.parametrize("mode", ["pacing", "crowd", "oblivious", "crossing", "groups",
+                                  "blind-crossing"])  # fmt: skip
 def test_the_lidar_sees_a_pedestrian_ahead_in_every_mode(mode: str) -> None:
     """A person stood 1.5 m ahead shows in the forward points at about 1.5 m less their
     half width (the crowd modes' transparent proxy once let every ray through)."""

@@ -233,6 +233,15 @@ def test_gaze_value_reports_every_teacher_with_intervals() -> None:
     assert set(report["gaze_minus_fixed"]) == {"success", "pedestrian_collisions",
                                                "nearest_in_view"}  # fmt: skip
     assert report["gaze_student_minus_fixed_student"] is None
+    for row in report["rows"].values():  # the diagnostic counts the episodes with a contact
+        never, contacts = row["contacts_never_in_view"]
+        assert 0 <= never <= contacts <= 2
+    two = compare(select_scenarios("inspect-crowd-3")[0], episodes=2, seed=EVAL_SEED_BASE,
+                  max_steps=10, teachers=("fixed teacher", "gaze teacher"))  # fmt: skip
+    assert [label for label, _ in two.rows] == ["fixed teacher", "gaze teacher"]
+    with pytest.raises(ValueError, match="unknown teacher row"):
+        compare(select_scenarios("inspect-crowd-3")[0], episodes=2, seed=EVAL_SEED_BASE,
+                max_steps=10, teachers=("psychic teacher",))  # fmt: skip
 
 
 def test_gaze_value_holds_a_gaze_students_camera_ahead_only_when_asked() -> None:

@@ -181,3 +181,37 @@ def test_the_fused_envs_charge_the_nav_tasks_personal_space_wherever_the_camera_
             assert charges[1][1] == pytest.approx(charges[0][1], abs=0.02)
     finally:
         env.close()
+
+
+@pytest.mark.parametrize(("start", "seen"), [((-4.0, 0.0), False), ((-1.0, 4.0), True)])
+def test_first_contact_says_whether_the_person_was_in_view_before(
+    start: tuple[float, float], seen: bool
+) -> None:
+    """An oblivious walker walks through the parked rover from its left side (never in the
+    forward camera's 90° view) or from ahead, a little left (in view from the start, 4 m off):
+    WithPanHead's first contact records which, and where the walker was first seen."""
+    from rover_train.wrappers import WithPanHead
+
+    rx, ry, _ = ROVER_AT
+    env = WithPanHead(RoverEnv(world_n="moon", n_pedestrians=1, pedestrian_mode="oblivious"))
+    try:
+        env.reset(seed=1, options={"rover_pose": ROVER_AT, "goal": (3.0, 3.0)})
+        a = (rx + start[0], ry + start[1])
+        b = (rx - start[0], ry - start[1])
+        env.unwrapped.sim.pedestrians.crowd.lay_crossing(0, a, b, a, 1.2)
+        env._first_seen[:] = np.nan  # the walker was elsewhere at the reset
+        hold = np.zeros(3, dtype=np.float32)
+        for _ in range(140):
+            env.step(hold)
+            if env.first_contact is not None:
+                break
+    finally:
+        env.close()
+    contact = env.first_contact
+    assert contact is not None and contact.seen_before is seen
+    if seen:
+        assert contact.first_seen is not None
+        distance, bearing = contact.first_seen
+        assert 3.5 < distance < 4.5 and 5.0 < bearing < 20.0  # ahead and left, where it started
+    else:
+        assert contact.first_seen is None

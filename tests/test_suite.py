@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from rover_env import RoverEnv
-from rover_env.scenarios import SCENARIOS, Scenario, select_scenarios
+from rover_env.scenarios import LOOKING_SCENARIOS, SCENARIOS, Scenario, select_scenarios
 from rover_train import evaluate
 from rover_train.evaluate import run_episode
 from rover_train.suite import SUITE_COLUMNS, format_suite_row, wilson_interval
@@ -51,6 +51,12 @@ def test_select_scenarios() -> None:
     assert [s.name for s in select_scenarios(",".join(names))] == names
     with pytest.raises(ValueError, match="unknown scenario.*inspect-crowd-99.*maze-crowd-6"):
         select_scenarios("inspect-crowd-99")
+    # the looking presets are chosen by name, and stay out of the suite's table
+    looking = select_scenarios("inspect-blind-crossing-3,moon-crossing-3")
+    assert [(s.world, s.mode, s.n_pedestrians) for s in looking] == [
+        ("inspect", "blind-crossing", 3), ("moon", "crossing", 3)]  # fmt: skip
+    assert not set(LOOKING_SCENARIOS) & set(SCENARIOS)
+    assert all(s.mode != "blind-crossing" for s in select_scenarios("all"))
 
 
 def test_wilson_interval() -> None:

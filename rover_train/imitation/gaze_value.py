@@ -32,7 +32,7 @@ from rover_env.scenarios import Scenario
 from rover_train.evaluate import EpisodeResult, run_episode
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert
 from rover_train.suite import wilson_interval
-from rover_train.wrappers import WithPanHead, WithSeedTable
+from rover_train.wrappers import FirstContact, WithPanHead, WithSeedTable
 
 CONFIDENCE = 0.90
 Z = 1.6449  # two-sided 90 % normal quantile
@@ -51,6 +51,8 @@ class Episode:
 
     result: EpisodeResult
     in_view_steps: int
+    first_contact: FirstContact | None = None
+    """The episode's first pedestrian contact: whether that person had been in view before."""
 
 
 HELD_ROW = "gaze student, camera held ahead"
@@ -154,7 +156,7 @@ def run_row(
         for i in range(episodes):
             reset()
             result = run_episode(env, act, seed + i, max_steps, None)
-            out.append(Episode(result, head.nearest_in_view_steps))
+            out.append(Episode(result, head.nearest_in_view_steps, head.first_contact))
     finally:
         env.close()
     wall = time.monotonic() - t0
@@ -268,8 +270,15 @@ def summarise(episodes: list[Episode]) -> dict[str, Any]:
         times = ttg[ok]
         samples = bootstrap(lambda i: times[i].mean(1), len(times))
         time_to_goal = [float(times.mean()), *percentile_interval(samples)]
+    contacts = [e.first_contact for e in episodes if e.first_contact is not None]
+    unseen = [c for c in contacts if not c.seen_before]
+    seen_at = np.array([c.first_seen for c in contacts if c.first_seen is not None]).reshape(-1, 2)
     return {
         "episodes": n,
+        "contacts_never_in_view": [len(unseen), len(contacts)],
+        "contacts_first_seen_median": (None if not len(seen_at) else
+                                       [float(np.median(seen_at[:, 0])),
+                                        float(np.median(np.abs(seen_at[:, 1])))]),  # fmt: skip
         "success": share(success),
         "pedestrian_collisions": share(contact),
         "intrusion": ratio(intrude),
@@ -334,8 +343,11 @@ class Comparison:
             "rows": dict(self.rows), "gaze_minus_fixed": self.gaze_minus_fixed,
             "gaze_student_minus_fixed_student": self.student_diff,
             "held_camera_minus_looking": self.held_diff,
-            "episodes": {k: [dataclasses.asdict(e.result) | {"in_view_steps": e.in_view_steps}
-                             for e in v] for k, v in self.results.items()},
+            "episodes": {k: [dataclasses.asdict(e.result) | {
+                "in_view_steps": e.in_view_steps,
+                "first_contact": None if e.first_contact is None
+                else dataclasses.asdict(e.first_contact)} for e in v]
+                for k, v in self.results.items()},
         }  # fmt: skip
 
 
@@ -349,8 +361,10 @@ def compare(
     student_gaze: Path | None = None,
     hold_camera: bool = False,
     table: bool = False,
+    teachers: tuple[str, ...] = tuple(TEACHERS),
 ) -> Comparison:
-    """The three teachers (``manners``) and the students given on episodes ``seed`` ..
+    """The ``teachers`` (labels of :data:`TEACHERS`, all three by default; the fixed and
+    the gaze teacher always) with ``manners`` and the students given on episodes ``seed`` ..
     ``seed + episodes - 1`` of ``scenario``; ``hold_camera`` adds the gaze student with its
     camera held ahead; ``table`` drives every row through the seed's Discrete(180) table.
 
@@ -361,7 +375,12 @@ def compare(
     if hold_camera and student_gaze is None:
         raise ValueError("hold_camera overrules a gaze student's pan: give student_gaze too")
     results: dict[str, list[Episode]] = {}
+    unknown = set(teachers) - set(TEACHERS)
+    if unknown:
+        raise ValueError(f"unknown teacher row(s) {sorted(unknown)}: choose from {list(TEACHERS)}")
     for label, fields in TEACHERS.items():
+        if label not in teachers and label not in ("fixed teacher", "gaze teacher"):
+            continue
         config = ExpertConfig.with_manners(manners, **fields)
 
         def teacher(env: Any, world: str = scenario.world, config: ExpertConfig = config) -> Any:
