@@ -294,7 +294,8 @@ class RoverEnvBase(gym.Env):
         terms["reward_velocity"] = rw.velocity_bonus(float(self.odometry[0]), cfg)
         terms["reward_turn"] = rw.turn_penalty(float(self.odometry[1]), cfg)
         terms["reward_collision"] = rw.collision_penalty(self.collided, cfg)
-        terms["reward_clearance"] = rw.clearance_penalty(self.nearest_range, cfg)
+        terms["reward_clearance"] = (rw.clearance_penalty(self.clearance_range(self.nearest_range),
+                                                          cfg) if cfg.clearance_penalty else 0.0)
         terms["reward_personal_space"] = rw.personal_space_penalty(self.nearest_pedestrian, cfg)
         return (
             terms["reward_goal"]
@@ -586,6 +587,15 @@ class RoverEnvBase(gym.Env):
         (``rover_train.imitation.dagger.FusedView``)."""
         self._check_open("camera_frame")
         return self.sim.render_camera().rgb
+
+    def clearance_range(self, lidar_min: float) -> float:
+        """The range the clearance term charges: the LIDAR minimum ``lidar_min``, or with
+        ``reward_config.clearance_footprints`` the rover centre's distance to the nearest
+        obstacle footprint where that is nearer."""
+        if not self.reward_config.clearance_footprints:
+            return lidar_min
+        x, y = float(self.position[0]), float(self.position[1])
+        return min(lidar_min, float(self.world.clearance_many(np.array([x]), np.array([y]))[0]))
 
     def set_reward_config(self, reward_config: RewardConfig) -> None:
         """Replace the reward constants from the next step on (a curriculum's switch, e.g.

@@ -552,7 +552,7 @@ class RoverEnvFused(RoverEnvBase):
         clear = 0.0
         if cfg.clearance_penalty:  # the simulator's LIDAR: the trainer's signal, not an input
             nearest = float(self.sim.lidar(self.lidar_points, self.max_lidar_range).min())
-            clear = rw.clearance_penalty(nearest, cfg)
+            clear = rw.clearance_penalty(self.clearance_range(nearest), cfg)
         return progress + heat + near + self._add_reward_term("clearance", clear)
 
     def _info(self, reward: float, reason: str) -> dict[str, Any]:

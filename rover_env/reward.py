@@ -62,6 +62,12 @@ class RewardConfig:
     so that RL learns to keep off the panels before it touches one."""
     clearance_penalty: float = 0.0
     """Per metre of the LIDAR minimum inside ``clearance_distance``, per step (negative)."""
+    clearance_footprints: bool = False
+    """Measure the clearance term from the world's obstacle footprints too: the rover
+    centre's distance to the nearest footprint where that is nearer than the LIDAR minimum.
+    A footprint covers what the LIDAR's plane (0.30 m up) passes under: the inspect world's
+    panels overhang their plinths from 0.45 m up, and the rover's body touches them while the
+    LIDAR still reads their plinth 0.3 m or more away. The simulator's map, never an input."""
     personal_space_distance: float = 0.0
     """Every env: a step whose nearest pedestrian stands closer than this (m, rover centre to
     person centre on the ground) pays ``personal_space_penalty`` per metre inside it. Not in

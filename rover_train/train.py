@@ -122,6 +122,10 @@ class TrainArgs:
     the reward, never an input) from this many training steps on; 0 charges it from the
     start. Off by default on the fused kinds: from the start a camera agent learnt to stand
     still. A curriculum: first to reach the goal, then to keep off the scenery."""
+    clearance_footprints: bool = False
+    """With --clearance-from: measure the clearance term from the map's obstacle footprints
+    too (RewardConfig.clearance_footprints), which cover what the LIDAR's plane passes under,
+    as the inspect world's panel edges."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), recurrent-ppo (all envs: PPO with an LSTM policy, from sb3-contrib),
     sac (lidar, fused) or dqn (discrete)."""
@@ -371,6 +375,9 @@ def validate(args: TrainArgs) -> str | None:
                 f"count >= 0: use it with a fused --env and --task nav (LIDAR envs pay it from "
                 f"the start), got --env {args.env} --task {args.task} "
                 f"--clearance-from {args.clearance_from}")  # fmt: skip
+    if args.clearance_footprints and args.clearance_from is None:
+        return ("--clearance-footprints measures the clearance term --clearance-from adds: give "
+                "--clearance-from STEPS too")  # fmt: skip
     if args.slots < 1 or args.timesteps < 1:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
     if args.task not in TASKS:  # the CLI's choices say so too; TrainArgs built in code
@@ -650,13 +657,16 @@ def make_metrics_callback() -> Any:
     return RoverMetrics()
 
 
-def make_clearance_switch(at_steps: int, task: str) -> Any:
-    """A callback that adds ``task``'s LIDAR-only reward terms (the nav task's clearance term)
-    to every env once the run has taken ``at_steps`` steps (at once on a run resumed past
-    them); the rest of each env's reward constants stay its own."""
+def make_clearance_switch(at_steps: int, task: str, footprints: bool = False) -> Any:
+    """A callback that adds ``task``'s LIDAR-only reward terms (the nav task's clearance term;
+    measured from the map's footprints too with ``footprints``) to every env once the run has
+    taken ``at_steps`` steps (at once on a run resumed past them); the rest of each env's
+    reward constants stay its own."""
     from stable_baselines3.common.callbacks import BaseCallback
 
-    terms = get_task(task).lidar_reward
+    terms: dict[str, Any] = {**get_task(task).lidar_reward}
+    if footprints:
+        terms["clearance_footprints"] = True
 
     class ClearanceSwitch(BaseCallback):
         def __init__(self) -> None:
@@ -762,7 +772,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
             remaining = args.timesteps - start_steps
             callbacks = [metrics_cb, make_checkpoint_callback(checkpointer)]
             if args.clearance_from is not None:
-                callbacks.append(make_clearance_switch(args.clearance_from, args.task))
+                callbacks.append(make_clearance_switch(args.clearance_from, args.task,
+                                                       args.clearance_footprints))  # fmt: skip
             if args.algo in ON_POLICY and args.update_threads != args.threads:
                 callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
             start = time.perf_counter()

@@ -289,6 +289,10 @@ def test_clearance_from_is_for_the_fused_nav_task() -> None:
         assert problem is not None and "--clearance-from" in problem and "--task nav" in problem
     args = parse_args(["--env", "fused", "--task", "nav", "--clearance-from", "5"])
     assert args.clearance_from == 5
+    alone = validate(TrainArgs(env="fused", task="nav", clearance_footprints=True))
+    assert alone is not None and "give --clearance-from" in alone
+    both = TrainArgs(env="fused", task="nav", clearance_from=0, clearance_footprints=True)
+    assert validate(both) is None
 
 
 @pytest.mark.parametrize("at_steps, switched", [(64, True), (1_000, False)])
@@ -313,3 +317,23 @@ def test_clearance_switch_adds_the_term_to_every_env_at_its_step(
         assert callback.switched is switched
     finally:
         venv.close()
+
+
+def test_clearance_footprints_charge_what_the_lidar_plane_passes_under() -> None:
+    """Inspect's panels overhang their plinths above the LIDAR's plane: 0.4 m from a panel's
+    footprint the LIDAR reads the plinth about 0.3 m farther. With ``clearance_footprints``
+    the clearance term charges the footprint's distance; without it, the LIDAR's."""
+    cfg = dataclasses.replace(get_task("nav").reward_config("lidar"), clearance_footprints=True)
+    env = RoverEnv(world_n="inspect", n_pedestrians=0, reward_config=cfg)
+    try:
+        env.reset(seed=0, options={"rover_pose": (-23.5, -25.0 - 0.544 - 0.4, math.pi / 2)})
+        obs, _, _, _, info = env.step(np.zeros(2, dtype=np.float32))
+        lidar_min = float(obs["lidar"].min())
+        footprint = env.clearance_range(lidar_min)
+        assert lidar_min > footprint + 0.2 and 0.3 < footprint < 0.5
+        assert info["reward_clearance"] == pytest.approx(
+            NAV_CLEARANCE_PENALTY * (NAV_CLEARANCE - footprint), abs=0.02)
+        env.set_reward_config(dataclasses.replace(cfg, clearance_footprints=False))
+        assert env.clearance_range(lidar_min) == lidar_min
+    finally:
+        env.close()
