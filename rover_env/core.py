@@ -595,7 +595,7 @@ class RoverEnvBase(gym.Env):
         if not self.reward_config.clearance_footprints:
             return lidar_min
         x, y = float(self.position[0]), float(self.position[1])
-        return min(lidar_min, float(self.world.clearance_many(np.array([x]), np.array([y]))[0]))
+        return min(lidar_min, self.world.clearance(x, y))
 
     def set_reward_config(self, reward_config: RewardConfig) -> None:
         """Replace the reward constants from the next step on (a curriculum's switch, e.g.

@@ -136,12 +136,15 @@ class FirstContact:
     """An episode's first pedestrian contact, as :class:`WithPanHead` saw it."""
 
     step: int
-    seen_before: bool
-    """Whether the person touched had been inside the camera's view (within 10 m, a
-    geometric test) at any step of the episode before the contact."""
     first_seen: tuple[float, float] | None
-    """Where they were when first in view: (m from the rover, bearing in degrees from its
-    heading, left positive); None when never."""
+    """Where the person touched was when first inside the camera's view (within 10 m, a
+    geometric test) this episode: (m from the rover, bearing in degrees from its heading,
+    left positive); None when never before the contact."""
+
+    @property
+    def seen_before(self) -> bool:
+        """Whether the person touched had been in the camera's view before the contact."""
+        return self.first_seen is not None
 
 
 class WithPanHead(gym.Wrapper):
@@ -208,8 +211,7 @@ class WithPanHead(gym.Wrapper):
             who = self.env.unwrapped.nearest_pedestrian_index()  # type: ignore[attr-defined]
             seen = self._first_seen[who]
             self.first_contact = FirstContact(
-                self.steps, bool(np.isfinite(seen[0])),
-                None if not np.isfinite(seen[0]) else (float(seen[0]), float(seen[1])))
+                self.steps, (float(seen[0]), float(seen[1])) if np.isfinite(seen[0]) else None)
         self._note_views()
         return self._observation(obs), float(reward), terminated, truncated, info
 

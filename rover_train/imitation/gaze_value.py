@@ -346,7 +346,8 @@ class Comparison:
             "episodes": {k: [dataclasses.asdict(e.result) | {
                 "in_view_steps": e.in_view_steps,
                 "first_contact": None if e.first_contact is None
-                else dataclasses.asdict(e.first_contact)} for e in v]
+                else dataclasses.asdict(e.first_contact)
+                | {"seen_before": e.first_contact.seen_before}} for e in v]
                 for k, v in self.results.items()},
         }  # fmt: skip
 
