@@ -18,6 +18,7 @@ seconds and exits with status 130 or 143; ``--resume RUN_DIR`` continues that ru
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import functools
 import json
@@ -73,11 +74,22 @@ from rover_train.recipe import (
 # validating the arguments imports neither MuJoCo nor torch (a usage error is refused in a
 # fraction of a second); both load when a run starts
 from roverav_cli import DEFAULT_PEDESTRIAN_MODE as DEFAULT_MODE
-from roverav_cli import DEFAULT_WORLD, Connection, Episodes, shared_field
+from roverav_cli import DEFAULT_WORLD, Connection, Episodes, pedestrian_count, shared_field
 
 log = logging.getLogger("rover_train")
 
 EXIT_NO_DAEMON = 1
+
+
+def crowd_sizes_arg(text: str) -> str:
+    """Parse ``--crowd-sizes``: pedestrian counts, comma-separated (returned normalised)."""
+    try:
+        sizes = [pedestrian_count(part) for part in text.split(",")]
+    except (argparse.ArgumentTypeError, ValueError) as exc:
+        raise argparse.ArgumentTypeError(
+            f"--crowd-sizes takes pedestrian counts separated by commas, e.g. 3,10 ({exc})"
+        ) from None
+    return ",".join(str(n) for n in sizes)
 
 
 @dataclass
@@ -94,6 +106,12 @@ class TrainArgs:
     """How the pedestrians walk (roverav_cli.Episodes; None is the recipe's or DEFAULT_MODE)."""
     n_pedestrians: int | None = shared_field(Episodes, "n_pedestrians")
     """Pedestrians per world, 0 to 20 (default: the world's 3)."""
+    crowd_sizes: str | None = field(default=None, metadata={"parse": crowd_sizes_arg,
+                                                            "metavar": "N,N,..."})
+    """Train among crowds of several sizes: a comma-separated list of pedestrian counts (0 to
+    20), env i walking among the (i mod length)-th, e.g. 3,10 (half the envs among the default
+    crowd, half among 10). In place of --n-pedestrians; with --slots a multiple of its length
+    each size gets the same share of the steps."""
     task: str = field(default=DEFAULT_TASK, metadata={"choices": tuple(TASKS)})
     """What an episode is: seed (the seed's: goal after goal until a failure or the env's
     length, 2000 lidar / 6000 fused) or nav (the RL task, the evaluators' episode: it ends
@@ -378,12 +396,24 @@ def validate(args: TrainArgs) -> str | None:
     if args.clearance_footprints and args.clearance_from is None:
         return ("--clearance-footprints measures the clearance term --clearance-from adds: give "
                 "--clearance-from STEPS too")  # fmt: skip
+    if args.crowd_sizes is not None and (args.n_pedestrians is not None or args.ray is not None):
+        return ("--crowd-sizes gives each env its own crowd: leave out --n-pedestrians (every "
+                "env the same) and --ray (its workers take one --n-pedestrians)")  # fmt: skip
     if args.slots < 1 or args.timesteps < 1:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
     if args.task not in TASKS:  # the CLI's choices say so too; TrainArgs built in code
         return f"--task must be one of {', '.join(TASKS)}, got {args.task!r}"
     return (contrib_missing(args.algo) or _validate_ray(args) or _validate_values(args)
             or _validate_device(args))  # fmt: skip
+
+
+def crowd_size(args: TrainArgs, env_index: int) -> int | None:
+    """The pedestrian count of env ``env_index``: its share of --crowd-sizes, else
+    --n-pedestrians (None: the world's own)."""
+    if args.crowd_sizes is None:
+        return args.n_pedestrians
+    sizes = [int(n) for n in args.crowd_sizes.split(",")]
+    return sizes[env_index % len(sizes)]
 
 
 def n_envs(args: TrainArgs) -> int:
@@ -507,7 +537,7 @@ def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = Fal
             monitor_dir=str(monitor_dir),
             world=args.world,
             pedestrian_mode=args.pedestrian_mode,
-            n_pedestrians=args.n_pedestrians,
+            n_pedestrians=crowd_size(args, i),
             slot=i,
             name=args.name,
             length=args.length,

@@ -235,3 +235,27 @@ def test_off_policy_update_schedule_is_the_library_default_unless_given() -> Non
                       (TrainArgs(**sac, train_freq=0), "--train-freq")):  # fmt: skip
         problem = validate(bad)
         assert problem is not None and flag in problem
+
+
+def test_crowd_sizes_give_each_training_env_its_own_crowd(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from rover_train.train import build_vec_env, crowd_size, parse_args
+
+    args = parse_args(["--env", "lidar", "--crowd-sizes", "3,10", "--slots", "4"])
+    assert args.crowd_sizes == "3,10"
+    assert [crowd_size(args, i) for i in range(4)] == [3, 10, 3, 10]
+    venv = build_vec_env(args, tmp_path)
+    try:
+        assert [e.unwrapped.options.n_pedestrians for e in venv.envs] == [3, 10, 3, 10]
+    finally:
+        venv.close()
+    plain = parse_args(["--env", "lidar", "--n-pedestrians", "5"])
+    assert crowd_size(plain, 2) == 5
+    with pytest.raises(SystemExit):
+        parse_args(["--env", "lidar", "--crowd-sizes", "3,10", "--n-pedestrians", "5"])
+    assert "leave out --n-pedestrians" in capsys.readouterr().err
+    for bad in ("3,x", "3,21", ""):
+        with pytest.raises(SystemExit):
+            parse_args(["--env", "lidar", "--crowd-sizes", bad])
+        assert "--crowd-sizes" in capsys.readouterr().err
