@@ -84,16 +84,33 @@ class ModelAgent:
     :param act: applied to the model's action before the env gets it (a model trained with
         ``rover-train --relative-table`` drives the continuous env this way).
     :param seed: seeds the sampled actions (``deterministic=False``).
+    :param temperature: sampled actions only: the policy's spread is scaled by it before the
+        draw (a categorical's logits divided by it, a Gaussian's standard deviation
+        multiplied by it). 1 draws from the policy as trained; below 1 the draws keep nearer
+        its most likely action while still breaking the ties a deterministic policy loops
+        on. Feed-forward actor-critic policies (PPO) only.
     """
 
     def __init__(self, model: Any, deterministic: bool = True,
                  observe: Callable[[Any], Any] | None = None,
-                 act: Callable[[Any], Any] | None = None, seed: int = 0) -> None:  # fmt: skip
+                 act: Callable[[Any], Any] | None = None, seed: int = 0,
+                 temperature: float = 1.0) -> None:  # fmt: skip
+        if not temperature > 0:
+            raise ValueError(f"temperature must be > 0 (1: the policy as trained), got "
+                             f"{temperature}")  # fmt: skip
+        tempered = temperature != 1.0
+        policy = model.policy
+        if tempered and (deterministic or hasattr(policy, "lstm_actor")
+                         or not hasattr(policy, "get_distribution")):
+            raise ValueError("a sampling temperature applies to the sampled actions of a "
+                             "feed-forward actor-critic (PPO): give deterministic=False, and a "
+                             f"PPO model (got a {type(policy).__name__})")  # fmt: skip
         self.model = model
         self.deterministic = deterministic
         self.observe = observe
         self.act_map = act
         self.seed = seed
+        self.temperature = temperature
         self.reset()
 
     def reset(self) -> None:
@@ -115,11 +132,36 @@ class ModelAgent:
         return action if self.act_map is None else self.act_map(action)
 
     def _predict(self, obs: Any) -> Any:
+        if self.temperature != 1.0:
+            return self._tempered(obs)
         action, self._state = self.model.predict(
             obs, state=self._state, episode_start=self._episode_start,
             deterministic=self.deterministic,
         )  # fmt: skip
         return action
+
+    def _tempered(self, obs: Any) -> Any:
+        """One action drawn from the policy with its spread scaled by the temperature, shaped
+        as ``model.predict`` shapes it for one observation."""
+        import torch
+
+        policy = self.model.policy
+        with torch.no_grad():
+            obs_tensor, vectorized = policy.obs_to_tensor(obs)
+            dist = policy.get_distribution(obs_tensor).distribution
+            if isinstance(dist, torch.distributions.Categorical):
+                draw = torch.distributions.Categorical(logits=dist.logits / self.temperature)
+            elif isinstance(dist, torch.distributions.Normal):
+                draw = torch.distributions.Normal(dist.mean, dist.stddev * self.temperature)
+            else:
+                raise TypeError(f"no sampling temperature for a {type(dist).__name__} policy")
+            action = draw.sample().cpu().numpy()
+        space = policy.action_space
+        action = action.reshape((-1, *space.shape))
+        if hasattr(space, "low"):  # a Box: squash or clip as predict does
+            action = (policy.unscale_action(action) if policy.squash_output
+                      else np.clip(action, space.low, space.high))  # fmt: skip
+        return action if vectorized else action.squeeze(axis=0)
 
     act = __call__
 

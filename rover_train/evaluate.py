@@ -123,7 +123,8 @@ class PolicyLoadError(ValueError):
 
 
 def load_policy(model: Path, env: Any, algo: str | None = None,
-                deterministic: bool = True, seed: int = 0) -> ModelAgent:  # fmt: skip
+                deterministic: bool = True, seed: int = 0,
+                temperature: float = 1.0) -> ModelAgent:  # fmt: skip
     """The rover-train model at ``model`` as an agent for ``env``: a
     :class:`~rover_train.algos.ModelAgent` (``reset()`` per episode, ``act(obs)``, also
     callable), deterministic or sampling its policy (each draw seeded by ``seed`` and the
@@ -147,8 +148,11 @@ def load_policy(model: Path, env: Any, algo: str | None = None,
         recipe = _recipe(model)
         check_spaces(model, loaded, _as_trained(recipe, env))
         observe, act = agent_io(recipe)
-        return ModelAgent(loaded, deterministic=deterministic, observe=observe, act=act,
-                          seed=seed)
+        try:
+            return ModelAgent(loaded, deterministic=deterministic, observe=observe, act=act,
+                              seed=seed, temperature=temperature)
+        except ValueError as exc:
+            raise PolicyLoadError(f"{model}: {exc}") from None
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
 
 
@@ -684,6 +688,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="a model's actions sampled from its policy, as in training (each "
                         "draw seeded by --seed and the observation), not its most likely ones; "
                         "an RL zoo entry acts as it says (rl-fused entries sample)")  # fmt: skip
+    p.add_argument("--temperature", type=float, default=None, metavar="T",
+                   help="with sampled actions (--sample, or an entry that samples): scale the "
+                        "policy's spread by T before each draw (logits / T); 1 is the policy as "
+                        "trained, below 1 nearer its most likely action (default: the entry's "
+                        "own, else 1)")  # fmt: skip
     p.add_argument("--task", choices=tuple(TASKS), default=None,
                    help="a model's episode, as rover-train --task: seed (the env's own "
                         f"length) or nav ({NAV_LENGTH} steps); default: the model's "
@@ -762,7 +771,8 @@ def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
             args.task = run_metrics(args.model).get("task", DEFAULT_TASK)
         model = args.model
         source = random if args.random else AgentSource(
-            str(model), lambda env: _model_agent(model, env, args.algo, args.sample, args.seed))
+            str(model), lambda env: _model_agent(model, env, args.algo, args.sample, args.seed,
+                                      args.temperature))
         return _Plan(source, None, args.world)
     spec = zoo.ENTRIES[entry]
     given = [f for f, v in (("--env", args.env), ("--world", args.world), ("--task", args.task),
@@ -784,8 +794,8 @@ def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
     else:
         file = args.file if args.file is not None else student
         try:
-            loaded = zoo.load(entry, file)
-        except (FileNotFoundError, RecipeError, zoo.StudentFileError) as exc:
+            loaded = zoo.load(entry, file, temperature=args.temperature)
+        except (FileNotFoundError, RecipeError, zoo.StudentFileError, ValueError) as exc:
             p.error(f"--file: {exc}" if args.file is not None else str(exc))
         source = AgentSource(f"zoo {entry}" if file is None else str(file),
                              lambda env: loaded)  # fmt: skip
@@ -806,9 +816,11 @@ def _student_entry(path: Path, p: argparse.ArgumentParser) -> str:
     return str(made_like)
 
 
-def _model_agent(model: Path, env: Any, algo: str | None, sample: bool, seed: int) -> Agent:
+def _model_agent(model: Path, env: Any, algo: str | None, sample: bool, seed: int,
+                 temperature: float | None = None) -> Agent:  # fmt: skip
     try:
-        return load_policy(model, env, algo, deterministic=not sample, seed=seed)
+        return load_policy(model, env, algo, deterministic=not sample, seed=seed,
+                           temperature=1.0 if temperature is None else temperature)
     except PolicyLoadError as exc:
         raise _EvalError(f"rover-eval: {exc}") from exc
 

@@ -173,3 +173,37 @@ def test_a_sampling_agent_drives_an_episode_the_same_whatever_ran_before() -> No
     assert _actions(agent) == first
     assert _actions(ModelAgent(model, deterministic=False, seed=8)) != first
     assert _actions(ModelAgent(model)) != first  # the most likely actions are another drive
+
+
+def test_a_sampling_temperature_narrows_the_draws_toward_the_most_likely_action() -> None:
+    import numpy as np
+
+    model = zoo.load("rl-lidar-inspect").model
+    env = zoo.make_env("rl-lidar-inspect")
+    try:
+        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+    finally:
+        env.close()
+    best = int(ModelAgent(model).act(obs))
+
+    def share_of_best(temperature: float) -> float:
+        draws = [int(ModelAgent(model, deterministic=False, seed=s, temperature=temperature)
+                     .act(obs)) for s in range(300)]  # fmt: skip
+        return float(np.mean([d == best for d in draws]))
+
+    cold, as_trained, hot = share_of_best(0.2), share_of_best(1.0), share_of_best(5.0)
+    assert cold > as_trained > hot  # the spread follows the temperature
+    assert cold > 0.9
+    # the draw is still seeded by the observation: the same seed, the same action
+    agent = ModelAgent(model, deterministic=False, seed=3, temperature=0.5)
+    assert int(agent.act(obs)) == int(agent.act(obs))
+
+
+def test_a_temperature_is_refused_where_it_means_nothing() -> None:
+    model = zoo.load("rl-lidar-inspect").model
+    with pytest.raises(ValueError, match="deterministic=False"):
+        ModelAgent(model, temperature=0.5)  # the most likely action has no spread to scale
+    with pytest.raises(ValueError, match="> 0"):
+        ModelAgent(model, deterministic=False, temperature=0.0)
+    with pytest.raises(ValueError, match="entries that sample"):
+        zoo.load("rl-lidar-inspect", temperature=0.5)

@@ -108,12 +108,15 @@ def make_env(name: str, **overrides: Any) -> gym.Env:
     return gym.make(ENV_IDS[spec.kind], **{**spec.env_kwargs, **overrides})
 
 
-def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent | ModelAgent:
+def load(name: str, path: str | os.PathLike[str] | None = None,
+         temperature: float | None = None) -> StudentAgent | ModelAgent:  # fmt: skip
     """The agent of entry ``name``: ``agent.reset()`` per episode, ``agent.act(obs)`` (an
     :class:`Agent`). A student comes as a :class:`StudentAgent`, which also saves, fine-tunes
     and says what it is in ``meta``; an RL entry as a :class:`rover_train.algos.ModelAgent`.
 
     :param path: another file made like the entry (a candidate) instead of the shipped one.
+    :param temperature: a sampled RL entry's sampling temperature instead of its own
+        (``EntrySpec.temperature``).
     :raises FileNotFoundError: no file; :class:`StudentFileError`: a student file that does
         not read (cut short, say). Both name the file and the command that remakes it.
     """
@@ -139,7 +142,12 @@ def load(name: str, path: str | os.PathLike[str] | None = None) -> StudentAgent 
     recipe = read_recipe(file)
     model = algo_class(recipe["algo"]).load(file, device="cpu")
     observe, act = agent_io(recipe)
-    return ModelAgent(model, deterministic=not spec.sampled, observe=observe, act=act)
+    if temperature is not None and not spec.sampled:
+        raise ValueError(f"a sampling temperature is for the entries that sample their policy "
+                         f"({', '.join(n for n, e in ENTRIES.items() if e.sampled)}), not "
+                         f"{name}")  # fmt: skip
+    return ModelAgent(model, deterministic=not spec.sampled, observe=observe, act=act,
+                      temperature=spec.temperature if temperature is None else temperature)
 
 
 __all__ = [
