@@ -144,6 +144,10 @@ class TrainArgs:
     """With --clearance-from: measure the clearance term from the map's obstacle footprints
     too (RewardConfig.clearance_footprints), which cover what the LIDAR's plane passes under,
     as the inspect world's panel edges."""
+    clearance_distance: float | None = None
+    """With --clearance-from: the distance (m, from the rover's centre) inside which the
+    clearance term charges, instead of the nav task's NAV_CLEARANCE (0.6 m). The rover's
+    half-diagonal is 0.31 m."""
     algo: str = field(default="ppo", metadata={"choices": ALGOS})
     """ppo (all envs), recurrent-ppo (all envs: PPO with an LSTM policy, from sb3-contrib),
     sac (lidar, fused) or dqn (discrete)."""
@@ -393,6 +397,11 @@ def validate(args: TrainArgs) -> str | None:
                 f"count >= 0: use it with a fused --env and --task nav (LIDAR envs pay it from "
                 f"the start), got --env {args.env} --task {args.task} "
                 f"--clearance-from {args.clearance_from}")  # fmt: skip
+    if args.clearance_distance is not None and (args.clearance_from is None
+                                                or not args.clearance_distance > 0):
+        return (f"--clearance-distance sets the reach of the term --clearance-from adds: give "
+                f"--clearance-from STEPS too, and a distance > 0 m (got "
+                f"{args.clearance_distance})")  # fmt: skip
     if args.clearance_footprints and args.clearance_from is None:
         return ("--clearance-footprints measures the clearance term --clearance-from adds: give "
                 "--clearance-from STEPS too")  # fmt: skip
@@ -687,7 +696,8 @@ def make_metrics_callback() -> Any:
     return RoverMetrics()
 
 
-def make_clearance_switch(at_steps: int, task: str, footprints: bool = False) -> Any:
+def make_clearance_switch(at_steps: int, task: str, footprints: bool = False,
+                          distance: float | None = None) -> Any:  # fmt: skip
     """A callback that adds ``task``'s LIDAR-only reward terms (the nav task's clearance term;
     measured from the map's footprints too with ``footprints``) to every env once the run has
     taken ``at_steps`` steps (at once on a run resumed past them); the rest of each env's
@@ -697,6 +707,8 @@ def make_clearance_switch(at_steps: int, task: str, footprints: bool = False) ->
     terms: dict[str, Any] = {**get_task(task).lidar_reward}
     if footprints:
         terms["clearance_footprints"] = True
+    if distance is not None:
+        terms["clearance_distance"] = distance
 
     class ClearanceSwitch(BaseCallback):
         def __init__(self) -> None:
@@ -803,7 +815,8 @@ def train(args: TrainArgs) -> dict[str, Any]:
             callbacks = [metrics_cb, make_checkpoint_callback(checkpointer)]
             if args.clearance_from is not None:
                 callbacks.append(make_clearance_switch(args.clearance_from, args.task,
-                                                       args.clearance_footprints))  # fmt: skip
+                                                       args.clearance_footprints,
+                                                       args.clearance_distance))  # fmt: skip
             if args.algo in ON_POLICY and args.update_threads != args.threads:
                 callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
             start = time.perf_counter()

@@ -293,6 +293,13 @@ def test_clearance_from_is_for_the_fused_nav_task() -> None:
     assert alone is not None and "give --clearance-from" in alone
     both = TrainArgs(env="fused", task="nav", clearance_from=0, clearance_footprints=True)
     assert validate(both) is None
+    reach = TrainArgs(env="fused", task="nav", clearance_from=0, clearance_distance=0.8)
+    assert validate(reach) is None
+    for bad_reach in (TrainArgs(env="fused", task="nav", clearance_distance=0.8),
+                      TrainArgs(env="fused", task="nav", clearance_from=0,
+                                clearance_distance=0.0)):  # fmt: skip
+        problem = validate(bad_reach)
+        assert problem is not None and "--clearance-distance" in problem
 
 
 @pytest.mark.parametrize("at_steps, switched", [(64, True), (1_000, False)])
@@ -309,10 +316,11 @@ def test_clearance_switch_adds_the_term_to_every_env_at_its_step(
                                          reward_config=start)] * 2)  # fmt: skip
     try:
         model = PPO("MultiInputPolicy", venv, n_steps=32, batch_size=32, n_epochs=1, seed=0)
-        callback = make_clearance_switch(at_steps, "nav")
+        callback = make_clearance_switch(at_steps, "nav", distance=0.8)
         model.learn(total_timesteps=128, callback=callback)
         for cfg in venv.get_attr("reward_config"):
             assert cfg.clearance_penalty == (NAV_CLEARANCE_PENALTY if switched else 0.0)
+            assert cfg.clearance_distance == (0.8 if switched else 0.0)  # its reach, given
             assert cfg.distance_delta_scale == NAV_PROGRESS_SCALE  # the rest is unchanged
         assert callback.switched is switched
     finally:
