@@ -629,6 +629,12 @@ def validate(args: argparse.Namespace) -> str | None:
         return f"--name: {exc}"
     if args.manners is not None and not args.expert:
         return "--manners is the planner expert's: give it with --expert"
+    if args.temperature is not None:
+        if not args.temperature > 0:
+            return f"--temperature must be > 0 (1: the policy as trained), got {args.temperature}"
+        if args.agent not in zoo.ENTRIES and not args.sample:
+            return ("--temperature scales a model's sampled actions: add --sample (a zoo entry "
+                    "that samples takes it alone)")  # fmt: skip
     if args.suite is not None:
         for flag, what in (("--video", args.video), ("--record", args.record),
                            ("--dump", args.dump)):  # fmt: skip

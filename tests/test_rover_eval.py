@@ -86,8 +86,12 @@ def test_a_bare_suite_is_the_worlds_scenarios_for_a_model_or_random_too(
     (["runs/x/model.zip", "--expert"], ["go with a zoo entry"]),
     (["lidar-mazz"], ["neither a zoo entry", "lidar-maze"]),
     (["lidar-maze", "--suite", "--dump", "x.json"], ["--dump", "--suite"]),
+    (["runs/x/model.zip", "--temperature", "0.5"], ["--temperature", "add --sample"]),
+    (["rl-fused-maze", "--temperature", "0"], ["--temperature", "> 0"]),
+    (["rl-lidar-maze", "--temperature", "0.5"], ["entries that sample", "rl-fused-maze"]),
 ], ids=["no_agent", "world", "manners", "bad_manners", "expert_model", "typo",
-        "dump_suite"])  # fmt: skip
+        "dump_suite", "temperature_unsampled", "temperature_zero",
+        "temperature_greedy_entry"])  # fmt: skip
 def test_rover_eval_usage_errors(argv: list[str], words: list[str],
                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     with pytest.raises(SystemExit) as exc:
