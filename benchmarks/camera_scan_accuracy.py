@@ -16,6 +16,9 @@ episodes, and every step the scan is checked against the simulator's truth:
   ``BESIDE_M`` and that the camera has looked towards within the scan's memory, the share
   where the scan reads that range within 0.5 m (``known``): what the memory keeps of the
   walls the rover passes;
+- scenery at arm's length: of all the sectors whose LIDAR scenery lies within ``CLOSE_M``
+  (where the rover's corners touch things), seen or not, the share where the scan reads
+  that range within ``CLOSE_TOLERANCE_M`` (``close known``);
 - people found: of the pedestrians inside the camera's view within 6 m (a geometric test:
   one behind a wall counts too), the share with a scan person reading within 0.5 m of them;
 - false people: the share of the scan's person readings (taken this step) with no
@@ -48,6 +51,8 @@ NEAR_M = 0.5  # a person reading counts as finding a pedestrian within this
 VIEW_M = 6.0  # pedestrians in view this near must be found
 SCENERY_NEAR_M = 5.0
 BESIDE_M = 2.0  # scenery this near, out of view, should still be known
+CLOSE_M = 1.0  # scenery this near is where the rover's corners touch things
+CLOSE_TOLERANCE_M = 0.25  # a close sector is known when the scan reads it this well
 
 
 @dataclass
@@ -59,6 +64,8 @@ class Tally:
     sectors_now: int = 0
     beside: int = 0
     beside_known: int = 0
+    close: int = 0
+    close_known: int = 0
     people_in_view: int = 0
     people_found: int = 0
     readings: int = 0
@@ -77,6 +84,8 @@ class Tally:
             "missed_share": self.missed / max(self.sectors_now, 1),
             "beside_known_share": self.beside_known / max(self.beside, 1),
             "beside_sectors": self.beside,
+            "close_known_share": self.close_known / max(self.close, 1),
+            "close_sectors": self.close,
             "phantom_share": self.phantom / max(self.sectors_now, 1),
             "people_found": self.people_found / max(self.people_in_view, 1),
             "people_in_view": self.people_in_view,
@@ -103,6 +112,9 @@ def check_step(env: RoverEnvFused, obs: dict, tally: Tally) -> None:
     beside = ~now & kept & (lidar < BESIDE_M)
     tally.beside += int(beside.sum())
     tally.beside_known += int((beside & (np.abs(s[0] - lidar) < 0.5)).sum())
+    close = lidar < CLOSE_M
+    tally.close += int(close.sum())
+    tally.close_known += int((close & (np.abs(s[0] - lidar) < CLOSE_TOLERANCE_M)).sum())
     tally.missed += int((now & (lidar < SCENERY_NEAR_M) & (s[0] >= scan.config.max_range)).sum())
     tally.phantom += int((now & (s[0] < SCENERY_NEAR_M) & (lidar >= scan.config.max_range)).sum())
     peds = sim.pedestrian_positions
@@ -195,15 +207,16 @@ def main() -> None:
     print(f"\nCPU: {cpu_name()}; {args.episodes} episodes x {args.steps} steps, seeds "
           f"{args.seed}..; planner expert driving\n")
     print("| world | people | range err. now, median / p90 (m) | kept, median / p90 (m) | "
-          "missed / phantom (sectors in view) | scenery beside known | people found ≤ 0.5 m | "
-          "false people | scan update (ms) |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+          "missed / phantom (sectors in view) | scenery beside known | scenery within 1 m "
+          "known | people found ≤ 0.5 m | false people | scan update (ms) |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         print(f"| {r['world']} | {r['people']} | {r['range_err_now_median_m']:.2f} / "
               f"{r['range_err_now_p90_m']:.2f} | {r['range_err_kept_median_m']:.2f} / "
               f"{r['range_err_kept_p90_m']:.2f} | {100 * r['missed_share']:.1f} / "
               f"{100 * r['phantom_share']:.1f} % | {100 * r['beside_known_share']:.0f} % "
-              f"(of {r['beside_sectors']}) | {100 * r['people_found']:.0f} % "
+              f"(of {r['beside_sectors']}) | {100 * r['close_known_share']:.0f} % "
+              f"(of {r['close_sectors']}) | {100 * r['people_found']:.0f} % "
               f"(of {r['people_in_view']}) | {100 * r['false_people']:.1f} % "
               f"(of {r['person_readings']}) | {r['update_ms_median']:.3f} |")
     if args.json:
