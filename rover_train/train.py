@@ -144,6 +144,9 @@ class TrainArgs:
     """With --clearance-from: measure the clearance term from the map's obstacle footprints
     too (RewardConfig.clearance_footprints), which cover what the LIDAR's plane passes under,
     as the inspect world's panel edges."""
+    personal_space_distance: float | None = None
+    """--task nav: the distance (m, rover centre to person centre) inside which the nav task's
+    personal-space term charges, from the first step, instead of NAV_PERSONAL_SPACE (1.2 m)."""
     clearance_distance: float | None = None
     """With --clearance-from: the distance (m, from the rover's centre) inside which the
     clearance term charges, instead of the nav task's NAV_CLEARANCE (0.6 m). The rover's
@@ -402,6 +405,11 @@ def validate(args: TrainArgs) -> str | None:
         return (f"--clearance-distance sets the reach of the term --clearance-from adds: give "
                 f"--clearance-from STEPS too, and a distance > 0 m (got "
                 f"{args.clearance_distance})")  # fmt: skip
+    if args.personal_space_distance is not None and (args.task != "nav"
+                                                     or not args.personal_space_distance > 0):
+        return (f"--personal-space-distance sets the reach of the nav task's personal-space "
+                f"term: use it with --task nav and a distance > 0 m (got --task {args.task}, "
+                f"{args.personal_space_distance})")  # fmt: skip
     if args.clearance_footprints and args.clearance_from is None:
         return ("--clearance-footprints measures the clearance term --clearance-from adds: give "
                 "--clearance-from STEPS too")  # fmt: skip
@@ -699,18 +707,24 @@ def make_metrics_callback() -> Any:
 def make_clearance_switch(at_steps: int, task: str, footprints: bool = False,
                           distance: float | None = None) -> Any:  # fmt: skip
     """A callback that adds ``task``'s LIDAR-only reward terms (the nav task's clearance term;
-    measured from the map's footprints too with ``footprints``) to every env once the run has
-    taken ``at_steps`` steps (at once on a run resumed past them); the rest of each env's
-    reward constants stay its own."""
-    from stable_baselines3.common.callbacks import BaseCallback
-
+    measured from the map's footprints too with ``footprints``, charged inside ``distance``
+    when given) to every env once the run has taken ``at_steps`` steps (at once on a run
+    resumed past them); the rest of each env's reward constants stay its own."""
     terms: dict[str, Any] = {**get_task(task).lidar_reward}
     if footprints:
         terms["clearance_footprints"] = True
     if distance is not None:
         terms["clearance_distance"] = distance
+    return make_reward_switch(at_steps, terms, "the clearance term is on")
 
-    class ClearanceSwitch(BaseCallback):
+
+def make_reward_switch(at_steps: int, terms: dict[str, Any], what: str) -> Any:
+    """A callback that sets the ``RewardConfig`` fields ``terms`` on every env once the run has
+    taken ``at_steps`` steps (at once on a run resumed past them, and at the start with 0),
+    logging ``what``; the env's other reward constants stay its own."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class RewardSwitch(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
             self.switched = False
@@ -721,7 +735,7 @@ def make_clearance_switch(at_steps: int, task: str, footprints: bool = False,
                 venv.env_method("set_reward_config", dataclasses.replace(cfg, **terms),
                                 indices=[i])  # fmt: skip
             self.switched = True
-            log.info("step %d: the clearance term is on (%s)", self.num_timesteps, terms)
+            log.info("step %d: %s (%s)", self.num_timesteps, what, terms)
 
         def _on_training_start(self) -> None:
             if self.num_timesteps >= at_steps:
@@ -732,7 +746,7 @@ def make_clearance_switch(at_steps: int, task: str, footprints: bool = False,
                 self._switch()
             return True
 
-    return ClearanceSwitch()
+    return RewardSwitch()
 
 
 def save_learning_curve(episodes: list[dict[str, Any]], path: Path, title: str) -> None:
@@ -817,6 +831,10 @@ def train(args: TrainArgs) -> dict[str, Any]:
                 callbacks.append(make_clearance_switch(args.clearance_from, args.task,
                                                        args.clearance_footprints,
                                                        args.clearance_distance))  # fmt: skip
+            if args.personal_space_distance is not None:
+                callbacks.append(make_reward_switch(
+                    0, {"personal_space_distance": args.personal_space_distance},
+                    "the personal space's reach"))  # fmt: skip
             if args.algo in ON_POLICY and args.update_threads != args.threads:
                 callbacks.append(PhaseThreads(max(args.threads, 1), max(args.update_threads, 0)))
             start = time.perf_counter()

@@ -19,6 +19,7 @@ from rover_train.envs import (
     NAV_CLEARANCE,
     NAV_CLEARANCE_PENALTY,
     NAV_LENGTH,
+    NAV_PERSONAL_SPACE,
     NAV_PROGRESS_SCALE,
     TASKS,
     env_kwargs,
@@ -295,6 +296,12 @@ def test_clearance_from_is_for_the_fused_nav_task() -> None:
     assert validate(both) is None
     reach = TrainArgs(env="fused", task="nav", clearance_from=0, clearance_distance=0.8)
     assert validate(reach) is None
+    assert validate(TrainArgs(env="lidar", task="nav", personal_space_distance=0.8)) is None
+    for bad_space in (TrainArgs(env="lidar", task="seed", personal_space_distance=0.8),
+                      TrainArgs(env="lidar", task="nav",
+                                personal_space_distance=-1.0)):  # fmt: skip
+        problem = validate(bad_space)
+        assert problem is not None and "--personal-space-distance" in problem
     for bad_reach in (TrainArgs(env="fused", task="nav", clearance_distance=0.8),
                       TrainArgs(env="fused", task="nav", clearance_from=0,
                                 clearance_distance=0.0)):  # fmt: skip
@@ -323,6 +330,34 @@ def test_clearance_switch_adds_the_term_to_every_env_at_its_step(
             assert cfg.clearance_distance == (0.8 if switched else 0.0)  # its reach, given
             assert cfg.distance_delta_scale == NAV_PROGRESS_SCALE  # the rest is unchanged
         assert callback.switched is switched
+    finally:
+        venv.close()
+
+
+def test_a_reward_switch_at_step_0_sets_its_terms_before_the_first_step() -> None:
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from rover_train.train import make_reward_switch
+
+    start = get_task("nav").reward_config("lidar")
+    assert start.personal_space_distance == NAV_PERSONAL_SPACE
+    venv = DummyVecEnv([lambda: RoverEnv(world_n="inspect", reward_config=start)] * 2)
+    try:
+        model = PPO("MultiInputPolicy", venv, n_steps=32, batch_size=32, n_epochs=1, seed=0)
+        seen: list[float] = []
+
+        class Record(BaseCallback):
+            def _on_step(self) -> bool:
+                seen.extend(c.personal_space_distance for c in venv.get_attr("reward_config"))
+                return True
+
+        switch = make_reward_switch(0, {"personal_space_distance": 0.8}, "reach")
+        model.learn(total_timesteps=64, callback=[switch, Record()])
+        assert seen and set(seen) == {0.8}  # every step of every env, from the first
+        assert all(c.clearance_distance == start.clearance_distance  # the rest is unchanged
+                   for c in venv.get_attr("reward_config"))  # fmt: skip
     finally:
         venv.close()
 
