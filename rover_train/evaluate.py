@@ -697,8 +697,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--temperature", type=float, default=None, metavar="T",
                    help="with sampled actions (--sample, or an entry that samples): scale the "
                         "policy's spread by T before each draw (logits / T); 1 is the policy as "
-                        "trained, below 1 nearer its most likely action (default: the entry's "
-                        "own, else 1)")  # fmt: skip
+                        "trained, below 1 nearer its most likely action (default: 1)")  # fmt: skip
     p.add_argument("--task", choices=tuple(TASKS), default=None,
                    help="a model's episode, as rover-train --task: seed (the env's own "
                         f"length) or nav ({NAV_LENGTH} steps); default: the model's "

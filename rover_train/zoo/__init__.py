@@ -115,8 +115,8 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
     and says what it is in ``meta``; an RL entry as a :class:`rover_train.algos.ModelAgent`.
 
     :param path: another file made like the entry (a candidate) instead of the shipped one.
-    :param temperature: a sampled RL entry's sampling temperature instead of its own
-        (``EntrySpec.temperature``).
+    :param temperature: a sampled RL entry's sampling temperature
+        (``rover_train.algos.ModelAgent``; None: 1, the policy as trained).
     :raises FileNotFoundError: no file; :class:`StudentFileError`: a student file that does
         not read (cut short, say). Both name the file and the command that remakes it.
     """
@@ -147,7 +147,7 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
                          f"({', '.join(n for n, e in ENTRIES.items() if e.sampled)}), not "
                          f"{name}")  # fmt: skip
     return ModelAgent(model, deterministic=not spec.sampled, observe=observe, act=act,
-                      temperature=spec.temperature if temperature is None else temperature)
+                      temperature=1.0 if temperature is None else temperature)
 
 
 __all__ = [

@@ -71,8 +71,6 @@ class EntrySpec:
     :param sampled: an ``rl`` entry that acts by sampling its policy (seeded,
         ``rover_train.algos.ModelAgent``), not by its most likely action: the camera agents,
         which see part of the world and do better sampled (docs/decisions.md, "RL").
-    :param temperature: a ``sampled`` entry's sampling temperature
-        (``rover_train.algos.ModelAgent``): 1 draws from the policy as trained.
     """
 
     name: str
@@ -82,7 +80,6 @@ class EntrySpec:
     trainer: str = DAGGER
     start: str | None = None
     sampled: bool = False
-    temperature: float = 1.0
 
     @property
     def path(self) -> Path:
