@@ -89,12 +89,17 @@ class ModelAgent:
         multiplied by it). 1 draws from the policy as trained; below 1 the draws keep nearer
         its most likely action while still breaking the ties a deterministic policy loops
         on. Feed-forward actor-critic policies (PPO) only.
+    :param shield: for a policy over discrete actions: the observation -> a bool mask of the
+        actions allowed now (``rover_train.shield.CollisionShield``). The action is chosen
+        as without it (drawn or most likely) among the allowed ones only; where the policy's
+        own choice is allowed, it is the same choice. Feed-forward actor-critic policies only.
     """
 
     def __init__(self, model: Any, deterministic: bool = True,
                  observe: Callable[[Any], Any] | None = None,
                  act: Callable[[Any], Any] | None = None, seed: int = 0,
-                 temperature: float = 1.0) -> None:  # fmt: skip
+                 temperature: float = 1.0,
+                 shield: Callable[[Any], np.ndarray] | None = None) -> None:  # fmt: skip
         if not temperature > 0:
             raise ValueError(f"temperature must be > 0 (1: the policy as trained), got "
                              f"{temperature}")  # fmt: skip
@@ -105,7 +110,14 @@ class ModelAgent:
             raise ValueError("a sampling temperature applies to the sampled actions of a "
                              "feed-forward actor-critic (PPO): give deterministic=False, and a "
                              f"PPO model (got a {type(policy).__name__})")  # fmt: skip
+        if shield is not None and (hasattr(policy, "lstm_actor")
+                                   or not hasattr(policy, "get_distribution")
+                                   or not hasattr(policy.action_space, "n")):
+            raise ValueError("a shield restricts a discrete feed-forward actor-critic's actions "
+                             f"(PPO over a table); got a {type(policy).__name__} over "
+                             f"{policy.action_space}")  # fmt: skip
         self.model = model
+        self.shield = shield
         self.deterministic = deterministic
         self.observe = observe
         self.act_map = act
@@ -132,7 +144,7 @@ class ModelAgent:
         return action if self.act_map is None else self.act_map(action)
 
     def _predict(self, obs: Any) -> Any:
-        if self.temperature != 1.0:
+        if self.temperature != 1.0 or self.shield is not None:
             return self._tempered(obs)
         action, self._state = self.model.predict(
             obs, state=self._state, episode_start=self._episode_start,
@@ -149,6 +161,8 @@ class ModelAgent:
         with torch.no_grad():
             obs_tensor, vectorized = policy.obs_to_tensor(obs)
             dist = policy.get_distribution(obs_tensor).distribution
+            if self.shield is not None:
+                return self._shielded(obs, dist.logits / self.temperature, vectorized)
             if isinstance(dist, torch.distributions.Categorical):
                 draw = torch.distributions.Categorical(logits=dist.logits / self.temperature)
             elif isinstance(dist, torch.distributions.Normal):
@@ -161,6 +175,23 @@ class ModelAgent:
         if hasattr(space, "low"):  # a Box: squash or clip as predict does
             action = (policy.unscale_action(action) if policy.squash_output
                       else np.clip(action, space.low, space.high))  # fmt: skip
+        return action if vectorized else action.squeeze(axis=0)
+
+    def _shielded(self, obs: Any, logits: Any, vectorized: bool) -> Any:
+        """The policy's choice among the actions the shield allows: its draw (or most likely
+        action) when allowed, else a draw from (or the most likely of) the allowed ones."""
+        import torch
+
+        assert self.shield is not None
+        allowed = torch.as_tensor(np.asarray(self.shield(obs), dtype=bool)).reshape(1, -1)
+        if self.deterministic:
+            action = torch.where(allowed, logits, -torch.inf).argmax(dim=-1)
+        else:
+            action = torch.distributions.Categorical(logits=logits).sample()
+            if not bool(allowed[0, action[0]]):
+                masked = torch.where(allowed, logits, -torch.inf)
+                action = torch.distributions.Categorical(logits=masked).sample()
+        action = action.cpu().numpy()
         return action if vectorized else action.squeeze(axis=0)
 
     act = __call__

@@ -73,6 +73,7 @@ from rover_train.algos import ALGOS, RECURRENT, ModelAgent, algo_class
 from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
 from rover_train.progress import StatusLine
 from rover_train.recipe import RecipeError, read_recipe
+from rover_train.shield import shield_for
 from rover_train.wrappers import agent_io
 from rover_train.zoo.registry import (
     EVAL_MAX_STEPS,
@@ -124,13 +125,15 @@ class PolicyLoadError(ValueError):
 
 def load_policy(model: Path, env: Any, algo: str | None = None,
                 deterministic: bool = True, seed: int = 0,
-                temperature: float = 1.0) -> ModelAgent:  # fmt: skip
+                temperature: float = 1.0, shield: bool = False) -> ModelAgent:  # fmt: skip
     """The rover-train model at ``model`` as an agent for ``env``: a
     :class:`~rover_train.algos.ModelAgent` (``reset()`` per episode, ``act(obs)``, also
     callable), deterministic or sampling its policy (each draw seeded by ``seed`` and the
     observation), driving ``env`` as the model was trained (its recipe's waypoint, dropped
     image, relative table; a recurrent model keeps its LSTM state). ``algo``: default from
-    ``metrics.json`` beside it; ``seed``: of the sampled actions. Raises :class:`PolicyLoadError`.
+    ``metrics.json`` beside it; ``seed``: of the sampled actions; ``shield``: behind the
+    collision shield on its camera scan (``rover_train.shield``). Raises
+    :class:`PolicyLoadError`.
     """
     if not model.is_file():
         raise PolicyLoadError(_no_model_file(model))
@@ -149,8 +152,9 @@ def load_policy(model: Path, env: Any, algo: str | None = None,
         check_spaces(model, loaded, _as_trained(recipe, env))
         observe, act = agent_io(recipe)
         try:
+            guard = shield_for(recipe, str(model)) if shield else None
             return ModelAgent(loaded, deterministic=deterministic, observe=observe, act=act,
-                              seed=seed, temperature=temperature)
+                              seed=seed, temperature=temperature, shield=guard)
         except ValueError as exc:
             raise PolicyLoadError(f"{model}: {exc}") from None
     raise PolicyLoadError(f"could not load {model}: " + "; ".join(errors))
@@ -635,6 +639,9 @@ def validate(args: argparse.Namespace) -> str | None:
         if args.agent not in zoo.ENTRIES and not args.sample:
             return ("--temperature scales a model's sampled actions: add --sample (a zoo entry "
                     "that samples takes it alone)")  # fmt: skip
+    if args.shield is not None and (args.random or args.expert):
+        return ("--shield guards a camera RL policy's own actions: give a zoo entry or a "
+                "model .zip, not --random or --expert")  # fmt: skip
     if args.suite is not None:
         for flag, what in (("--video", args.video), ("--record", args.record),
                            ("--dump", args.dump)):  # fmt: skip
@@ -698,6 +705,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="with sampled actions (--sample, or an entry that samples): scale the "
                         "policy's spread by T before each draw (logits / T); 1 is the policy as "
                         "trained, below 1 nearer its most likely action (default: 1)")  # fmt: skip
+    p.add_argument("--shield", action=argparse.BooleanOptionalAction, default=None,
+                   help="a camera RL entry behind the collision shield on its camera scan, or "
+                        "not (rover_train.shield; default: as the entry ships)")  # fmt: skip
     p.add_argument("--task", choices=tuple(TASKS), default=None,
                    help="a model's episode, as rover-train --task: seed (the env's own "
                         f"length) or nav ({NAV_LENGTH} steps); default: the model's "
@@ -777,7 +787,7 @@ def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
         model = args.model
         source = random if args.random else AgentSource(
             str(model), lambda env: _model_agent(model, env, args.algo, args.sample, args.seed,
-                                      args.temperature))
+                                      args.temperature, args.shield))
         return _Plan(source, None, args.world)
     spec = zoo.ENTRIES[entry]
     given = [f for f, v in (("--env", args.env), ("--world", args.world), ("--task", args.task),
@@ -799,7 +809,7 @@ def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
     else:
         file = args.file if args.file is not None else student
         try:
-            loaded = zoo.load(entry, file, temperature=args.temperature)
+            loaded = zoo.load(entry, file, temperature=args.temperature, shield=args.shield)
         except (FileNotFoundError, RecipeError, zoo.StudentFileError, ValueError) as exc:
             p.error(f"--file: {exc}" if args.file is not None else str(exc))
         source = AgentSource(f"zoo {entry}" if file is None else str(file),
@@ -822,10 +832,12 @@ def _student_entry(path: Path, p: argparse.ArgumentParser) -> str:
 
 
 def _model_agent(model: Path, env: Any, algo: str | None, sample: bool, seed: int,
-                 temperature: float | None = None) -> Agent:  # fmt: skip
+                 temperature: float | None = None,
+                 shield: bool | None = None) -> Agent:  # fmt: skip
     try:
         return load_policy(model, env, algo, deterministic=not sample, seed=seed,
-                           temperature=1.0 if temperature is None else temperature)
+                           temperature=1.0 if temperature is None else temperature,
+                           shield=bool(shield))
     except PolicyLoadError as exc:
         raise _EvalError(f"rover-eval: {exc}") from exc
 

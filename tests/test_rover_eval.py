@@ -89,9 +89,13 @@ def test_a_bare_suite_is_the_worlds_scenarios_for_a_model_or_random_too(
     (["runs/x/model.zip", "--temperature", "0.5"], ["--temperature", "add --sample"]),
     (["rl-fused-maze", "--temperature", "0"], ["--temperature", "> 0"]),
     (["rl-lidar-maze", "--temperature", "0.5"], ["entries that sample", "rl-fused-maze"]),
+    (["--random", "--shield"], ["--shield", "not --random"]),
+    (["rl-lidar-maze", "--shield"], ["collision shield", "camera scan", "rl-lidar-maze"]),
+    (["lidar-maze", "--shield"], ["collision shield", "lidar-maze"]),
 ], ids=["no_agent", "world", "manners", "bad_manners", "expert_model", "typo",
         "dump_suite", "temperature_unsampled", "temperature_zero",
-        "temperature_greedy_entry"])  # fmt: skip
+        "temperature_greedy_entry", "shield_random", "shield_lidar_rl",
+        "shield_student"])  # fmt: skip
 def test_rover_eval_usage_errors(argv: list[str], words: list[str],
                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     with pytest.raises(SystemExit) as exc:

@@ -109,7 +109,8 @@ def make_env(name: str, **overrides: Any) -> gym.Env:
 
 
 def load(name: str, path: str | os.PathLike[str] | None = None,
-         temperature: float | None = None) -> StudentAgent | ModelAgent:  # fmt: skip
+         temperature: float | None = None,
+         shield: bool | None = None) -> StudentAgent | ModelAgent:  # fmt: skip
     """The agent of entry ``name``: ``agent.reset()`` per episode, ``agent.act(obs)`` (an
     :class:`Agent`). A student comes as a :class:`StudentAgent`, which also saves, fine-tunes
     and says what it is in ``meta``; an RL entry as a :class:`rover_train.algos.ModelAgent`.
@@ -117,6 +118,9 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
     :param path: another file made like the entry (a candidate) instead of the shipped one.
     :param temperature: a sampled RL entry's sampling temperature
         (``rover_train.algos.ModelAgent``; None: 1, the policy as trained).
+    :param shield: an RL entry over the relative table with the camera scan: drive behind the
+        collision shield on the scan (``rover_train.shield``) or not; None: as the entry says
+        (``EntrySpec.shield``).
     :raises FileNotFoundError: no file; :class:`StudentFileError`: a student file that does
         not read (cut short, say). Both name the file and the command that remakes it.
     """
@@ -129,6 +133,10 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
             f"zoo entry {name!r} has no file at {file}; make it with: {spec.command}"
         )
     if spec.trainer != RL:
+        if shield:
+            raise ValueError(f"the collision shield guards an RL policy over the relative table "
+                             f"on the camera scan (the rl-fused entries); zoo entry {name} is a "
+                             f"student")  # fmt: skip
         try:
             return StudentAgent.load(file)
         except StudentFileError as exc:
@@ -146,8 +154,13 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
         raise ValueError(f"a sampling temperature is for the entries that sample their policy "
                          f"({', '.join(n for n, e in ENTRIES.items() if e.sampled)}), not "
                          f"{name}")  # fmt: skip
+    guard = None
+    if shield if shield is not None else spec.shield:
+        from rover_train.shield import shield_for
+
+        guard = shield_for(recipe, f"zoo entry {name}")
     return ModelAgent(model, deterministic=not spec.sampled, observe=observe, act=act,
-                      temperature=1.0 if temperature is None else temperature)
+                      temperature=1.0 if temperature is None else temperature, shield=guard)
 
 
 __all__ = [

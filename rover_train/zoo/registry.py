@@ -71,6 +71,9 @@ class EntrySpec:
     :param sampled: an ``rl`` entry that acts by sampling its policy (seeded,
         ``rover_train.algos.ModelAgent``), not by its most likely action: the camera agents,
         which see part of the world and do better sampled (docs/decisions.md, "RL").
+    :param shield: an ``rl`` entry over the relative table on the camera scan that drives
+        behind the collision shield on its scan (``rover_train.shield``); ``zoo.load(name,
+        shield=False)`` gives its policy alone.
     """
 
     name: str
@@ -80,6 +83,7 @@ class EntrySpec:
     trainer: str = DAGGER
     start: str | None = None
     sampled: bool = False
+    shield: bool = False
 
     @property
     def path(self) -> Path:
@@ -127,9 +131,9 @@ ENTRIES.update(
 ENTRIES.update(
     (f"rl-fused-{world}",
      EntrySpec(f"rl-fused-{world}", "fused", world, {"world_n": world, "camera_scan": True},
-               trainer=RL, sampled=True))
+               trainer=RL, sampled=True, shield=True))
     for world in ("inspect", "maze")
-)  # fmt: skip  # the camera agents learnt from the reward: PPO over the camera scan
+)  # fmt: skip  # the camera agents learnt from the reward: PPO over the camera scan, shielded
 LOOKING_PAIRS = {
     "fused-moon": (Scenario("moon", "crossing", 3), "fused"),
     "fused-gaze-moon": (Scenario("moon", "crossing", 3), "fused-gaze"),

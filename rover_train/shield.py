@@ -1,0 +1,163 @@
+"""A collision shield on the camera scan: the table actions whose next half second keeps the
+rover's body off what its own camera has seen.
+
+A learnt policy that sees part of the world touches things it has seen: the camera agents'
+touches are mostly scenery at a front corner while turning (docs/decisions.md, "RL"), and the
+camera scan knows 82-88 % of the scenery within 1 m. Robot stacks keep a last line of defence
+beside the planner for this (Nav2's collision monitor slows or stops on the sensor's points,
+whatever the controller asked). :class:`CollisionShield` is that line for a policy over the
+relative table (``rover-train --relative-table``): it rolls each table action forward for
+``horizon_s`` on the rover's kinematics (the heading PID's yaw rate, the commanded speed) and
+forbids those that bring the rover's outline within ``margin_m`` of a scan reading, unless the
+rover is already that close and the action does not bring it closer. Standing still is always
+allowed. :class:`rover_train.algos.ModelAgent` draws from the policy restricted to the allowed
+actions (``shield=``), so a learnt policy keeps its choice wherever it was safe.
+
+It reads only the observation (the ``camera_scan`` key: ranges and bearings in the rover's
+frame), never the simulator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from rover_env import constants as c
+from rover_env import rover
+from rover_env.camera_scan import SCAN_ROWS, sector_centres
+from rover_train.wrappers import RELATIVE_ANGLES, relative_action
+
+HALF_LENGTH = max(rover.CHASSIS_HALF[0], rover.WHEEL_X + rover.WHEEL_RADIUS)
+"""Metres from the rover's centre to its front (the chassis; the wheels end 0.01 m short)."""
+HALF_WIDTH = max(rover.CHASSIS_HALF[1], rover.WHEEL_Y + rover.WHEEL_WIDTH / 2)
+"""Metres from the rover's centre to its side (the wheels' outer faces)."""
+SCAN_KEY = "camera_scan"
+
+
+@dataclass(frozen=True)
+class ShieldConfig:
+    """How far ahead the shield looks and how close it lets the rover come."""
+
+    horizon_s: float = 0.5
+    """Seconds each action is rolled forward (held, as the table's commands are)."""
+    margin_m: float = 0.05
+    """Metres between the rover's outline and a scan reading that an action may not cross."""
+    reach_m: float = 2.0
+    """Readings farther than this from the rover's centre are not checked (none of them can
+    be reached within the horizon at the table's 1 m/s)."""
+    people: bool = True
+    """Check the scan's person readings as well as its scenery."""
+    person_margin_m: float = 0.3
+    """Metres kept from a person reading: a wider berth than from the scenery, since people
+    walk (on the zoo's episodes 0.3 m cut inspect's person touches from 8 to 6 of 200, the
+    maze's stayed at 11; docs/decisions.md, "RL")."""
+
+    def __post_init__(self) -> None:
+        if not self.horizon_s >= c.CONTROL_DT:
+            raise ValueError(f"horizon_s must be at least one control step ({c.CONTROL_DT} s), "
+                             f"got {self.horizon_s}")  # fmt: skip
+        if not (self.margin_m >= 0 and self.person_margin_m >= 0):
+            raise ValueError(f"margin_m and person_margin_m must be >= 0 m, got "
+                             f"{self.margin_m}, {self.person_margin_m}")  # fmt: skip
+        if not self.reach_m > 0:
+            raise ValueError(f"reach_m must be > 0 m, got {self.reach_m}")
+
+
+def outline_distance(points: np.ndarray) -> np.ndarray:
+    """Signed distance (m) from rover-frame points (..., 2) to the rover's outline: positive
+    outside, negative inside."""
+    dx = np.abs(points[..., 0]) - HALF_LENGTH
+    dy = np.abs(points[..., 1]) - HALF_WIDTH
+    outside = np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
+    return np.where((dx > 0) | (dy > 0), outside, np.maximum(dx, dy))
+
+
+def table_trajectories(horizon_s: float) -> np.ndarray:
+    """Poses (60, N, 3) ``x, y, yaw`` in the rover's frame after each of the N control steps
+    of each relative-table action held: the commanded speed, and the yaw rate the heading PID
+    commands for a constant relative heading (``kp`` times it, clamped)."""
+    steps = max(1, round(horizon_s / c.CONTROL_DT))
+    commands = np.stack([relative_action(a) for a in range(len(RELATIVE_ANGLES) * 5)])
+    speed = commands[:, 0].astype(np.float64)
+    rate = np.clip(c.PID_KP * commands[:, 1], -c.MAX_ANGULAR_VELOCITY, c.MAX_ANGULAR_VELOCITY)
+    poses = np.zeros((len(commands), steps, 3))
+    x = y = yaw = np.zeros(len(commands))
+    for k in range(steps):
+        mid = yaw + 0.5 * rate * c.CONTROL_DT
+        x = x + speed * np.cos(mid) * c.CONTROL_DT
+        y = y + speed * np.sin(mid) * c.CONTROL_DT
+        yaw = yaw + rate * c.CONTROL_DT
+        poses[:, k] = np.stack([x, y, yaw], axis=1)
+    return poses
+
+
+class CollisionShield:
+    """The allowed relative-table actions for one camera-scan observation (see the module
+    docstring): ``shield(obs)`` -> a (60,) bool mask."""
+
+    def __init__(self, config: ShieldConfig | None = None) -> None:
+        self.config = cfg = config or ShieldConfig()
+        self._poses = table_trajectories(cfg.horizon_s)
+        self._cos = np.cos(self._poses[..., 2])[..., None]
+        self._sin = np.sin(self._poses[..., 2])[..., None]
+        self._rows = [SCAN_ROWS.index("obstacle")] + ([SCAN_ROWS.index("person")]
+                                                      if cfg.people else [])  # fmt: skip
+        self._bearings: np.ndarray | None = None
+
+    @property
+    def n_actions(self) -> int:
+        return len(self._poses)
+
+    def points(self, scan: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The rover-frame points (K, 2) of the scan's readings within ``reach_m``, and the
+        margin (K,) each is given."""
+        if self._bearings is None or len(self._bearings) != scan.shape[1]:
+            self._bearings = sector_centres(scan.shape[1])
+        ranges = scan[self._rows].astype(np.float64)
+        near = ranges < self.config.reach_m
+        r = ranges[near]
+        b = np.broadcast_to(self._bearings, ranges.shape)[near]
+        margins = np.array([self.config.margin_m, self.config.person_margin_m])[:len(self._rows)]
+        margin = np.broadcast_to(margins[:, None], ranges.shape)[near]
+        return np.stack([r * np.cos(b), r * np.sin(b)], axis=1), margin
+
+    def allowed(self, scan: np.ndarray) -> np.ndarray:
+        """The (60,) mask of actions whose rolled-forward outline keeps its margin from every
+        reading, or, where the rover is inside a margin already, gets no deeper into one."""
+        pts, margin = self.points(np.asarray(scan))
+        mask = np.ones(self.n_actions, dtype=bool)
+        if not len(pts):
+            return mask
+        now = float((outline_distance(pts) - margin).min())
+        # each reading in the frame of each future pose: (A, N, K)
+        dx = pts[:, 0] - self._poses[..., 0:1]
+        dy = pts[:, 1] - self._poses[..., 1:2]
+        local = np.stack([self._cos * dx + self._sin * dy, -self._sin * dx + self._cos * dy], -1)
+        closest = (outline_distance(local) - margin).min(axis=(1, 2))
+        return closest >= min(now, 0.0) - 1e-9
+
+    def __call__(self, obs: Any) -> np.ndarray:
+        if not isinstance(obs, dict) or SCAN_KEY not in obs:
+            raise ValueError(f"the collision shield reads the {SCAN_KEY!r} observation key: "
+                             f"make the env with camera_scan=True")  # fmt: skip
+        scan = np.asarray(obs[SCAN_KEY])
+        if scan.ndim == 3:  # a batch of one, as a vector env gives it
+            scan = scan[0]
+        return self.allowed(scan)
+
+
+def shield_for(recipe: dict[str, Any], what: str,
+               config: ShieldConfig | None = None) -> CollisionShield:  # fmt: skip
+    """The shield of a model trained with ``recipe`` (its stored rover-train arguments);
+    ``ValueError`` naming ``what`` unless it drives the relative table on the camera scan."""
+    if not (recipe.get("relative_table") and recipe.get("camera_scan")):
+        raise ValueError(f"the collision shield guards a policy over the relative table on the "
+                         f"camera scan (rover-train --camera-scan --relative-table); {what} "
+                         f"is not one")  # fmt: skip
+    return CollisionShield(config)
+
+
+__all__ = ["CollisionShield", "HALF_LENGTH", "HALF_WIDTH", "ShieldConfig", "outline_distance",
+           "shield_for", "table_trajectories"]

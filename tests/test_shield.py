@@ -1,0 +1,140 @@
+"""The collision shield on the camera scan (rover_train.shield) and ModelAgent's shielded choice."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rover_env.camera_scan import CameraScanConfig, sector_of
+from rover_train import zoo
+from rover_train.algos import ModelAgent
+from rover_train.shield import (
+    HALF_LENGTH,
+    HALF_WIDTH,
+    CollisionShield,
+    ShieldConfig,
+    outline_distance,
+    shield_for,
+    table_trajectories,
+)
+from rover_train.wrappers import relative_action
+
+FAR = CameraScanConfig().max_range
+
+
+def _scan(*readings: tuple[float, float], row: int = 0) -> np.ndarray:
+    """A camera-scan observation with nothing known but ``(bearing rad, range m)`` readings."""
+    scan = np.full((3, 32), FAR, dtype=np.float32)
+    scan[2] = 0.0
+    for bearing, rng in readings:
+        scan[row, sector_of(np.array([bearing]), 32)[0]] = rng
+    return scan
+
+
+def _action(speed: float, heading: float) -> int:
+    return next(a for a in range(60) if np.allclose(relative_action(a), [speed, heading]))
+
+
+def test_the_outline_distance_is_signed_from_the_rovers_box() -> None:
+    pts = np.array([[HALF_LENGTH + 0.1, 0.0], [0.0, -(HALF_WIDTH + 0.2)], [0.0, 0.0],
+                    [HALF_LENGTH + 0.3, HALF_WIDTH + 0.4]])  # fmt: skip
+    assert outline_distance(pts) == pytest.approx([0.1, 0.2, -HALF_WIDTH, 0.5])
+
+
+def test_each_action_is_rolled_forward_on_the_rovers_kinematics() -> None:
+    poses = table_trajectories(0.5)
+    assert poses.shape == (60, 10, 3)
+    ahead = poses[_action(1.0, 0.0)]
+    assert ahead[-1] == pytest.approx([0.5, 0.0, 0.0])  # 1 m/s for 0.5 s, no turn
+    assert np.all(poses[_action(0.0, 0.0)] == 0)  # standing still goes nowhere
+    left = poses[_action(0.6, np.pi / 2)][-1]
+    assert left[2] == pytest.approx(np.pi / 2 * 2.0 * 0.5)  # the PID's kp times the heading
+    assert left[1] > 0  # and it curves left
+    assert poses[_action(-0.2, 0.0)][-1, 0] == pytest.approx(-0.1)
+
+
+def test_nothing_known_nearby_allows_every_action() -> None:
+    assert CollisionShield().allowed(_scan()).all()
+    assert CollisionShield().allowed(_scan((0.0, 3.0))).all()  # beyond reach_m
+
+
+def test_a_wall_ahead_forbids_driving_into_it_and_allows_backing_off() -> None:
+    allowed = CollisionShield().allowed(_scan((0.01, 0.45)))
+    assert not allowed[_action(1.0, 0.0)] and not allowed[_action(0.6, 0.0)]
+    assert allowed[_action(0.0, 0.0)] and allowed[_action(-0.2, 0.0)]
+    assert allowed[_action(0.3, -np.pi)]  # turning away from it
+    # a reading close behind the rover forbids the reverse instead
+    behind = CollisionShield().allowed(_scan((np.pi - 0.01, 0.32)))  # 9.5 cm off its back
+    assert not behind[_action(-0.2, 0.0)] and behind[_action(1.0, 0.0)]
+
+
+def test_already_too_close_the_rover_may_keep_or_open_its_clearance() -> None:
+    shield = CollisionShield(ShieldConfig(margin_m=0.1))
+    allowed = shield.allowed(_scan((np.pi / 2, HALF_WIDTH + 0.05)))  # 5 cm off its left side
+    assert allowed[_action(0.0, 0.0)]  # standing still keeps 5 cm
+    assert not allowed[_action(0.3, np.pi / 2)]  # turning in toward it does not
+
+
+def test_people_are_checked_unless_told_not_to() -> None:
+    person_ahead = _scan((0.01, 0.45), row=1)
+    assert not CollisionShield().allowed(person_ahead)[_action(1.0, 0.0)]
+    assert CollisionShield(ShieldConfig(people=False)).allowed(person_ahead).all()
+
+
+def test_people_get_a_wider_berth_than_the_scenery() -> None:
+    at = (0.01, HALF_LENGTH + 0.25)  # 25 cm ahead of the bumper
+    wall, person = _scan(at), _scan(at, row=1)
+    assert CollisionShield().allowed(wall)[_action(0.3, 0.0)]  # 15 cm on: 10 cm left
+    assert not CollisionShield().allowed(person)[_action(0.3, 0.0)]  # within 0.3 m of a person
+    assert CollisionShield().allowed(person)[_action(0.0, 0.0)]  # no closer: allowed
+    assert CollisionShield().allowed(person)[_action(-0.2, 0.0)]
+
+
+def test_bad_settings_and_observations_are_refused() -> None:
+    with pytest.raises(ValueError, match="horizon_s"):
+        ShieldConfig(horizon_s=0.0)
+    with pytest.raises(ValueError, match="margin_m"):
+        ShieldConfig(margin_m=-0.1)
+    with pytest.raises(ValueError, match="person_margin_m"):
+        ShieldConfig(person_margin_m=-0.1)
+    with pytest.raises(ValueError, match="--camera-scan --relative-table"):
+        shield_for({"relative_table": True, "camera_scan": False}, "runs/x/model.zip")
+    with pytest.raises(ValueError, match="camera_scan=True"):
+        CollisionShield()({"lidar": np.zeros(32)})
+
+
+def _fused_obs(model: object, seed: int) -> dict[str, np.ndarray]:
+    space = model.observation_space  # type: ignore[attr-defined]
+    space.seed(seed)
+    return space.sample()
+
+
+def test_a_shielded_agent_chooses_among_the_allowed_actions_only() -> None:
+    model = zoo.load("rl-fused-inspect").model
+    only = np.zeros(60, dtype=bool)
+    only[[_action(0.0, 0.0), _action(-0.2, 0.0)]] = True
+    changed = 0
+    for seed in range(20):
+        obs = _fused_obs(model, seed)
+        free = int(ModelAgent(model, deterministic=False, seed=seed).act(obs))
+        guarded = int(ModelAgent(model, deterministic=False, seed=seed,
+                                 shield=lambda o: only).act(obs))  # fmt: skip
+        assert only[guarded]
+        changed += free != guarded
+        everything = int(ModelAgent(model, deterministic=False, seed=seed,
+                                    shield=lambda o: np.ones(60, dtype=bool)).act(obs))  # fmt: skip
+        assert everything == free  # where the policy's own draw is allowed, it stands
+        best = int(ModelAgent(model, shield=lambda o: only).act(obs))
+        assert only[best]
+    assert changed > 0  # the mask did change draws
+
+
+def test_the_shield_goes_with_the_camera_rl_entries_only() -> None:
+    with pytest.raises(ValueError, match="camera scan"):
+        zoo.load("rl-lidar-inspect", shield=True)
+    with pytest.raises(ValueError, match="student"):
+        zoo.load("fused-inspect", shield=True)
+    for name in ("rl-fused-inspect", "rl-fused-maze"):  # they ship behind it
+        assert isinstance(zoo.load(name).shield, CollisionShield)
+    assert zoo.load("rl-fused-inspect", shield=False).shield is None
+    assert zoo.load("rl-lidar-inspect").shield is None
