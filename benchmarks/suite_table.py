@@ -142,6 +142,8 @@ def run_entry(entry: str, args: argparse.Namespace) -> tuple[list[list[Any]] | N
         return None, f"exit status {proc.returncode} after {wall:.0f} s ({log}): {last}"
     ready = re.search(r"av-daemon ready:.*? precision=(\w+)", proc.stdout + proc.stderr)
     label = f"{entry}, {ready.group(1)} daemon" if ready else entry
+    if zoo.ENTRIES[entry].shield:
+        label += ", shielded"  # behind the collision shield on its scan (rover_train.shield)
     try:
         return suite_rows(label, proc.stdout), ""
     except (ValueError, KeyError) as exc:
