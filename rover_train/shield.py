@@ -27,6 +27,7 @@ import numpy as np
 from rover_env import constants as c
 from rover_env import rover
 from rover_env.camera_scan import SCAN_ROWS, sector_centres
+from rover_env.gaze_discrete_env import PAN_WINDOWS
 from rover_train.wrappers import RELATIVE_ANGLES, relative_action
 
 HALF_LENGTH = max(rover.CHASSIS_HALF[0], rover.WHEEL_X + rover.WHEEL_RADIUS)
@@ -97,8 +98,11 @@ class CollisionShield:
     """The allowed relative-table actions for one camera-scan observation (see the module
     docstring): ``shield(obs)`` -> a (60,) bool mask."""
 
-    def __init__(self, config: ShieldConfig | None = None) -> None:
+    def __init__(self, config: ShieldConfig | None = None, pan_windows: int = 1) -> None:
         self.config = cfg = config or ShieldConfig()
+        self.pan_windows = int(pan_windows)
+        """Actions per drive in the policy's table: 1 for the relative table, 5 for the gaze
+        env's (``action // 5`` is the drive; the camera's target does not move the rover)."""
         self._poses = table_trajectories(cfg.horizon_s)
         self._cos = np.cos(self._poses[..., 2])[..., None]
         self._sin = np.sin(self._poses[..., 2])[..., None]
@@ -145,7 +149,8 @@ class CollisionShield:
         scan = np.asarray(obs[SCAN_KEY])
         if scan.ndim == 3:  # a batch of one, as a vector env gives it
             scan = scan[0]
-        return self.allowed(scan)
+        allowed = self.allowed(scan)
+        return np.repeat(allowed, self.pan_windows) if self.pan_windows > 1 else allowed
 
 
 def shield_for(recipe: dict[str, Any], what: str,
@@ -156,7 +161,8 @@ def shield_for(recipe: dict[str, Any], what: str,
         raise ValueError(f"the collision shield guards a policy over the relative table on the "
                          f"camera scan (rover-train --camera-scan --relative-table); {what} "
                          f"is not one")  # fmt: skip
-    return CollisionShield(config)
+    looking = recipe.get("env") == "fused-gaze"
+    return CollisionShield(config, pan_windows=len(PAN_WINDOWS) if looking else 1)
 
 
 __all__ = ["CollisionShield", "HALF_LENGTH", "HALF_WIDTH", "ShieldConfig", "outline_distance",

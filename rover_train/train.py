@@ -132,8 +132,10 @@ class TrainArgs:
     perceives every frame). rover_train.wrappers.DropImage."""
     relative_table: bool = False
     """--env fused or fused-gaze: Discrete(60) actions, the seed's 5 speeds x 12 headings
-    relative to the yaw (RoverEnvDiscrete's table; the gaze env's camera stays ahead), for
-    PPO and DQN from scratch. rover_train.wrappers.RelativeTable."""
+    relative to the yaw (RoverEnvDiscrete's table), for PPO and DQN from scratch; on
+    fused-gaze Discrete(300), each with one of the 5 pan windows (-60 to +60 deg) as the
+    camera's target, so the policy learns where to look from the reward.
+    rover_train.wrappers.RelativeTable."""
     clearance_from: int | None = None
     """Fused envs, --task nav: charge the LIDAR envs' clearance term (NAV_CLEARANCE_PENALTY
     per metre of the LIDAR minimum inside NAV_CLEARANCE, from a scan the simulator casts for

@@ -3,7 +3,8 @@ drives the plain env.
 
 - :class:`RelativeTable` (``rover-train --relative-table``): ``Discrete(60)`` over a
   continuous env's ``[speed, relative heading]`` action, the seed's 5 speeds x 12 headings
-  relative to the yaw, exactly ``RoverEnvDiscrete``'s table. PPO from scratch learns the
+  relative to the yaw, exactly ``RoverEnvDiscrete``'s table (on a gaze env ``Discrete(300)``:
+  each of them with each of the 5 pan windows as the camera's target). PPO from scratch learns the
   nav task on that table where Gaussian noise on the box, filtered out by the rover's
   inertia, did not (the LIDAR RL entries); the fused discrete env's table steers to
   absolute compass headings, which a policy must then learn at every yaw.
@@ -38,6 +39,7 @@ from rover_env.discrete_env import (
     N_DIRECTIONS,
     N_SEED_ACTIONS,
     SPEED_LEVELS,
+    action_index,
     decode_action,
 )
 from rover_env.gaze_discrete_env import (
@@ -54,30 +56,47 @@ RELATIVE_ANGLES = np.linspace(-np.pi, np.pi, N_DIRECTIONS, endpoint=False)
 """Heading k of the relative table: ``-pi + k * pi / 6`` rad from the yaw (k = 6 straight on)."""
 
 
+N_LOOKING_ACTIONS = N_SEED_ACTIONS * len(PAN_WINDOWS)
+"""The relative table with a pan target: 60 drives x the 5 pan windows (-60 to +60 deg)."""
+
+
 def relative_action(action: Any) -> np.ndarray:
     """The ``[speed, relative heading]`` float32 command of a table action in ``0..59``."""
     speed_idx, direction_idx = decode_action(action)
     return np.array([SPEED_LEVELS[speed_idx], RELATIVE_ANGLES[direction_idx]], dtype=np.float32)
 
 
+def relative_looking_action(action: Any) -> np.ndarray:
+    """The ``[speed, relative heading, pan target]`` float32 command of an action in
+    ``0..299`` of the relative table with a pan target: ``action // 5`` is the drive (the
+    relative table's action), ``action % 5`` the pan window (``PAN_WINDOWS``, index 0 =
+    -60 deg, right of the heading; 2 = straight ahead)."""
+    index = action_index(action, N_LOOKING_ACTIONS)
+    drive, window = divmod(index, len(PAN_WINDOWS))
+    return np.array([*relative_action(drive), PAN_WINDOWS[window]], dtype=np.float32)
+
+
 class RelativeTable(gym.ActionWrapper):
-    """``Discrete(60)`` over an env whose actions are ``[speed, relative heading, ...]`` (see
-    the module docstring); a gaze env's pan target stays straight ahead."""
+    """The relative table over an env whose actions are ``[speed, relative heading]``:
+    ``Discrete(60)`` (see the module docstring); over a gaze env's ``[speed, relative heading,
+    pan target]``: ``Discrete(300)``, each drive with each of the 5 pan windows as the pan
+    target (:func:`relative_looking_action`), so that one policy chooses how to drive and
+    where to look, each step, with no state in between."""
 
     def __init__(self, env: gym.Env) -> None:
         super().__init__(env)
         box = env.action_space
-        if not isinstance(box, spaces.Box) or box.shape[0] < 2:
+        if not isinstance(box, spaces.Box) or box.shape[0] not in (2, 3):
             raise ValueError(
-                f"the relative table drives a continuous [speed, relative heading] action; "
-                f"this env's action space is {box} (use --env fused or fused-gaze)"
+                f"the relative table drives a continuous [speed, relative heading] action (or "
+                f"with a pan target); this env's action space is {box} (use --env fused or "
+                f"fused-gaze)"
             )
-        self._rest = np.zeros(box.shape[0] - 2, dtype=np.float32)
-        self.action_space = spaces.Discrete(N_SEED_ACTIONS)
+        self.looking = box.shape[0] == 3
+        self.action_space = spaces.Discrete(N_LOOKING_ACTIONS if self.looking else N_SEED_ACTIONS)
 
     def action(self, action: Any) -> np.ndarray:
-        command = relative_action(action)
-        return np.concatenate([command, self._rest]) if len(self._rest) else command
+        return relative_looking_action(action) if self.looking else relative_action(action)
 
 
 class DropImage(gym.ObservationWrapper):
@@ -120,8 +139,10 @@ def agent_io(recipe: dict[str, Any]) -> tuple[Callable[[Any], Any] | None,
             obs = step(obs)
         return obs
 
-    return (observe if steps else None,
-            relative_action if recipe.get("relative_table") else None)  # fmt: skip
+    act = None
+    if recipe.get("relative_table"):
+        act = relative_looking_action if recipe.get("env") == "fused-gaze" else relative_action
+    return (observe if steps else None), act
 
 
 def takes_pan(env: object) -> bool:

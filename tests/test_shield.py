@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
 import pytest
+from gymnasium import spaces
 
 from rover_env.camera_scan import CameraScanConfig, sector_of
+from rover_env.gaze_discrete_env import PAN_WINDOWS
 from rover_train import zoo
 from rover_train.algos import ModelAgent
 from rover_train.shield import (
@@ -17,7 +20,12 @@ from rover_train.shield import (
     shield_for,
     table_trajectories,
 )
-from rover_train.wrappers import relative_action
+from rover_train.wrappers import (
+    RelativeTable,
+    agent_io,
+    relative_action,
+    relative_looking_action,
+)
 
 FAR = CameraScanConfig().max_range
 
@@ -138,3 +146,40 @@ def test_the_shield_goes_with_the_camera_rl_entries_only() -> None:
         assert isinstance(zoo.load(name).shield, CollisionShield)
     assert zoo.load("rl-fused-inspect", shield=False).shield is None
     assert zoo.load("rl-lidar-inspect").shield is None
+
+
+class _Box3Env(gym.Env):
+    """A stand-in with the gaze env's action box, recording what it is sent."""
+
+    action_space = spaces.Box(-np.ones(3, np.float32), np.ones(3, np.float32))
+    observation_space = spaces.Box(0.0, 1.0, shape=(1,))
+
+    def step(self, action: np.ndarray) -> tuple:
+        self.sent = np.asarray(action)
+        return np.zeros(1, np.float32), 0.0, False, False, {}
+
+
+def test_on_a_gaze_env_the_relative_table_also_chooses_the_pan_window() -> None:
+    env = RelativeTable(_Box3Env())
+    assert env.action_space == spaces.Discrete(300)
+    a = 5 * _action(0.6, 0.0) + 0  # 0.6 m/s straight on, the camera 60 deg right
+    env.step(a)
+    assert env.unwrapped.sent == pytest.approx([0.6, 0.0, PAN_WINDOWS[0]])
+    assert PAN_WINDOWS[0] == pytest.approx(-np.pi / 3)
+    for k in range(300):
+        assert relative_looking_action(k) == pytest.approx(
+            [*relative_action(k // 5), PAN_WINDOWS[k % 5]])
+    assert agent_io({"relative_table": True, "env": "fused-gaze"})[1] is relative_looking_action
+    assert agent_io({"relative_table": True, "env": "fused"})[1] is relative_action
+    with pytest.raises(ValueError, match="0..299"):
+        relative_looking_action(300)
+
+
+def test_the_shield_of_a_looking_policy_judges_the_drive_whatever_the_pan() -> None:
+    shield = shield_for({"relative_table": True, "camera_scan": True, "env": "fused-gaze"}, "x")
+    scan = _scan((0.01, 0.45))
+    mask = shield({"camera_scan": scan})
+    assert mask.shape == (300,)
+    drives = CollisionShield().allowed(scan)
+    assert np.array_equal(mask, np.repeat(drives, 5))  # action // 5 is the drive
+    assert not mask[5 * _action(1.0, 0.0) + 4]
