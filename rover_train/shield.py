@@ -19,6 +19,7 @@ frame), never the simulator.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,6 +28,7 @@ import numpy as np
 from rover_env import constants as c
 from rover_env import rover
 from rover_env.camera_scan import SCAN_ROWS, sector_centres
+from rover_env.discrete_env import SPEED_LEVELS
 from rover_env.gaze_discrete_env import PAN_WINDOWS
 from rover_train.wrappers import RELATIVE_ANGLES, relative_action
 
@@ -45,9 +47,6 @@ class ShieldConfig:
     """Seconds each action is rolled forward (held, as the table's commands are)."""
     margin_m: float = 0.05
     """Metres between the rover's outline and a scan reading that an action may not cross."""
-    reach_m: float = 2.0
-    """Readings farther than this from the rover's centre are not checked (none of them can
-    be reached within the horizon at the table's 1 m/s)."""
     people: bool = True
     """Check the scan's person readings as well as its scenery."""
     person_margin_m: float = 0.3
@@ -62,8 +61,6 @@ class ShieldConfig:
         if not (self.margin_m >= 0 and self.person_margin_m >= 0):
             raise ValueError(f"margin_m and person_margin_m must be >= 0 m, got "
                              f"{self.margin_m}, {self.person_margin_m}")  # fmt: skip
-        if not self.reach_m > 0:
-            raise ValueError(f"reach_m must be > 0 m, got {self.reach_m}")
 
 
 def outline_distance(points: np.ndarray) -> np.ndarray:
@@ -109,18 +106,29 @@ class CollisionShield:
         self._rows = [SCAN_ROWS.index("obstacle")] + ([SCAN_ROWS.index("person")]
                                                       if cfg.people else [])  # fmt: skip
         self._bearings: np.ndarray | None = None
+        self._reach = self.reach
+
+    @property
+    def reach(self) -> float:
+        """Metres from the rover's centre beyond which no reading can come within its margin
+        during the horizon (the farthest the table drives in it, plus the outline's
+        half-diagonal and the wider margin); such readings are not checked."""
+        cfg = self.config
+        travel = float(np.abs(SPEED_LEVELS).max()) * self._poses.shape[1] * c.CONTROL_DT
+        return travel + math.hypot(HALF_LENGTH, HALF_WIDTH) + max(cfg.margin_m,
+                                                                  cfg.person_margin_m)
 
     @property
     def n_actions(self) -> int:
         return len(self._poses)
 
     def points(self, scan: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The rover-frame points (K, 2) of the scan's readings within ``reach_m``, and the
+        """The rover-frame points (K, 2) of the scan's readings within :attr:`reach`, and the
         margin (K,) each is given."""
         if self._bearings is None or len(self._bearings) != scan.shape[1]:
             self._bearings = sector_centres(scan.shape[1])
         ranges = scan[self._rows].astype(np.float64)
-        near = ranges < self.config.reach_m
+        near = ranges < self._reach
         r = ranges[near]
         b = np.broadcast_to(self._bearings, ranges.shape)[near]
         margins = np.array([self.config.margin_m, self.config.person_margin_m])[:len(self._rows)]

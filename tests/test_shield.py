@@ -63,7 +63,11 @@ def test_each_action_is_rolled_forward_on_the_rovers_kinematics() -> None:
 
 def test_nothing_known_nearby_allows_every_action() -> None:
     assert CollisionShield().allowed(_scan()).all()
-    assert CollisionShield().allowed(_scan((0.0, 3.0))).all()  # beyond reach_m
+    shield = CollisionShield()
+    assert shield.reach == pytest.approx(0.5 + np.hypot(HALF_LENGTH, HALF_WIDTH) + 0.3)
+    assert shield.allowed(_scan((0.0, shield.reach + 0.01), row=1)).all()  # out of reach
+    # just inside it, a person ahead is the first thing the fastest drive would near
+    assert not shield.allowed(_scan((0.0, HALF_LENGTH + 0.5 + 0.29), row=1))[_action(1.0, 0.0)]
 
 
 def test_a_wall_ahead_forbids_driving_into_it_and_allows_backing_off() -> None:
