@@ -52,6 +52,8 @@ from rover_env import rover
 log = logging.getLogger(__name__)
 
 CAMERA_HEIGHT = rover.REST_HEIGHT + rover.CAMERA_Z  # m above flat ground
+SCAN_KEY = "camera_scan"
+"""The observation key the fused envs give the scan under (their ``camera_scan=`` keyword)."""
 SCAN_ROWS = ("obstacle", "person", "age")
 """The rows of the ``camera_scan`` observation, in order."""
 

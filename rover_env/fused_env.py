@@ -16,7 +16,7 @@ from gymnasium import spaces
 from fused_image import CHANNEL_HEATMAP, FUSED_SIZE, depth_to_channel
 from rover_env import constants as c
 from rover_env import reward as rw
-from rover_env.camera_scan import CameraScan, CameraScanConfig
+from rover_env.camera_scan import SCAN_KEY, CameraScan, CameraScanConfig
 from rover_env.core import RoverEnvBase, float_box, state_spaces
 from rover_env.reward import RewardConfig
 from shm_protocol import (
@@ -310,7 +310,7 @@ class RoverEnvFused(RoverEnvBase):
                 (height, width), self.control_dt,
                 None if camera_scan is True else camera_scan)  # fmt: skip
             self.observation_space = spaces.Dict(
-                {**self.observation_space.spaces, "camera_scan": self.camera_scan.space}
+                {**self.observation_space.spaces, SCAN_KEY: self.camera_scan.space}
             )
         self.action_space = float_box(c.FUSED_ACTION_LOW, c.FUSED_ACTION_HIGH)
         self._frame_latency_ms = 0.0
@@ -524,7 +524,7 @@ class RoverEnvFused(RoverEnvBase):
         if scan is not None:
             scan.update(fused.data, float(self.position[0]), float(self.position[1]),
                         float(self.orientation[2]), self.sim.camera_pan)  # fmt: skip
-            obs["camera_scan"] = scan.observation.copy()
+            obs[SCAN_KEY] = scan.observation.copy()
         return obs
 
     def _collision(self) -> bool:

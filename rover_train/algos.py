@@ -105,14 +105,13 @@ class ModelAgent:
                              f"{temperature}")  # fmt: skip
         tempered = temperature != 1.0
         policy = model.policy
-        if tempered and (deterministic or hasattr(policy, "lstm_actor")
-                         or not hasattr(policy, "get_distribution")):
+        feed_forward = (not hasattr(policy, "lstm_actor")
+                        and hasattr(policy, "get_distribution"))  # fmt: skip
+        if tempered and (deterministic or not feed_forward):
             raise ValueError("a sampling temperature applies to the sampled actions of a "
                              "feed-forward actor-critic (PPO): give deterministic=False, and a "
                              f"PPO model (got a {type(policy).__name__})")  # fmt: skip
-        if shield is not None and (hasattr(policy, "lstm_actor")
-                                   or not hasattr(policy, "get_distribution")
-                                   or not hasattr(policy.action_space, "n")):
+        if shield is not None and not (feed_forward and hasattr(policy.action_space, "n")):
             raise ValueError("a shield restricts a discrete feed-forward actor-critic's actions "
                              f"(PPO over a table); got a {type(policy).__name__} over "
                              f"{policy.action_space}")  # fmt: skip
@@ -145,16 +144,17 @@ class ModelAgent:
 
     def _predict(self, obs: Any) -> Any:
         if self.temperature != 1.0 or self.shield is not None:
-            return self._tempered(obs)
+            return self._drawn(obs)
         action, self._state = self.model.predict(
             obs, state=self._state, episode_start=self._episode_start,
             deterministic=self.deterministic,
         )  # fmt: skip
         return action
 
-    def _tempered(self, obs: Any) -> Any:
-        """One action drawn from the policy with its spread scaled by the temperature, shaped
-        as ``model.predict`` shapes it for one observation."""
+    def _drawn(self, obs: Any) -> Any:
+        """One action from the policy's own distribution, its spread scaled by the temperature
+        and, with a shield, among the allowed actions; shaped as ``model.predict`` shapes it
+        for one observation."""
         import torch
 
         policy = self.model.policy

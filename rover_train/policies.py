@@ -22,6 +22,7 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
+from rover_env.camera_scan import SCAN_KEY  # (obstacle, person, age) x sectors
 from rover_train.waypoint import WAYPOINT_KEY
 
 PROXIMITY_M = 0.5
@@ -30,7 +31,6 @@ PROXIMITY_M = 0.5
 GOAL_NEAR_M = 12.0
 """Metres: the target distance feature is min(distance, GOAL_NEAR_M) scaled to [-1, 1]."""
 LIDAR_KEY = "lidar"
-SCAN_KEY = "camera_scan"  # (obstacle, person, age) x sectors: rover_env.camera_scan
 SCAN_PROXIMITY_M = 1.0
 """Metres: the camera scan's ranges are also seen as exp(-range / SCAN_PROXIMITY_M) (a person
 at 0.6 m 0.55, at 1.2 m 0.30, at 3 m 0.05): its 10 m reach flattens a near person as the

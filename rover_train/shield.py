@@ -27,16 +27,15 @@ import numpy as np
 
 from rover_env import constants as c
 from rover_env import rover
-from rover_env.camera_scan import SCAN_ROWS, sector_centres
-from rover_env.discrete_env import SPEED_LEVELS
+from rover_env.camera_scan import SCAN_KEY, SCAN_ROWS, sector_centres
+from rover_env.discrete_env import N_SEED_ACTIONS, SPEED_LEVELS
 from rover_env.gaze_discrete_env import PAN_WINDOWS
-from rover_train.wrappers import RELATIVE_ANGLES, relative_action
+from rover_train.wrappers import relative_action
 
 HALF_LENGTH = max(rover.CHASSIS_HALF[0], rover.WHEEL_X + rover.WHEEL_RADIUS)
 """Metres from the rover's centre to its front (the chassis; the wheels end 0.01 m short)."""
 HALF_WIDTH = max(rover.CHASSIS_HALF[1], rover.WHEEL_Y + rover.WHEEL_WIDTH / 2)
 """Metres from the rover's centre to its side (the wheels' outer faces)."""
-SCAN_KEY = "camera_scan"
 
 
 @dataclass(frozen=True)
@@ -77,7 +76,7 @@ def table_trajectories(horizon_s: float) -> np.ndarray:
     of each relative-table action held: the commanded speed, and the yaw rate the heading PID
     commands for a constant relative heading (``kp`` times it, clamped)."""
     steps = max(1, round(horizon_s / c.CONTROL_DT))
-    commands = np.stack([relative_action(a) for a in range(len(RELATIVE_ANGLES) * 5)])
+    commands = np.stack([relative_action(a) for a in range(N_SEED_ACTIONS)])
     speed = commands[:, 0].astype(np.float64)
     rate = np.clip(c.PID_KP * commands[:, 1], -c.MAX_ANGULAR_VELOCITY, c.MAX_ANGULAR_VELOCITY)
     poses = np.zeros((len(commands), steps, 3))
@@ -105,18 +104,13 @@ class CollisionShield:
         self._sin = np.sin(self._poses[..., 2])[..., None]
         self._rows = [SCAN_ROWS.index("obstacle")] + ([SCAN_ROWS.index("person")]
                                                       if cfg.people else [])  # fmt: skip
+        self._row_margins = np.array([cfg.margin_m, cfg.person_margin_m])[:len(self._rows), None]
         self._bearings: np.ndarray | None = None
-        self._reach = self.reach
-
-    @property
-    def reach(self) -> float:
+        travel = float(np.abs(SPEED_LEVELS).max()) * self._poses.shape[1] * c.CONTROL_DT
+        self.reach = travel + math.hypot(HALF_LENGTH, HALF_WIDTH) + float(self._row_margins.max())
         """Metres from the rover's centre beyond which no reading can come within its margin
         during the horizon (the farthest the table drives in it, plus the outline's
         half-diagonal and the wider margin); such readings are not checked."""
-        cfg = self.config
-        travel = float(np.abs(SPEED_LEVELS).max()) * self._poses.shape[1] * c.CONTROL_DT
-        return travel + math.hypot(HALF_LENGTH, HALF_WIDTH) + max(cfg.margin_m,
-                                                                  cfg.person_margin_m)
 
     @property
     def n_actions(self) -> int:
@@ -128,11 +122,10 @@ class CollisionShield:
         if self._bearings is None or len(self._bearings) != scan.shape[1]:
             self._bearings = sector_centres(scan.shape[1])
         ranges = scan[self._rows].astype(np.float64)
-        near = ranges < self._reach
+        near = ranges < self.reach
         r = ranges[near]
         b = np.broadcast_to(self._bearings, ranges.shape)[near]
-        margins = np.array([self.config.margin_m, self.config.person_margin_m])[:len(self._rows)]
-        margin = np.broadcast_to(margins[:, None], ranges.shape)[near]
+        margin = np.broadcast_to(self._row_margins, ranges.shape)[near]
         return np.stack([r * np.cos(b), r * np.sin(b)], axis=1), margin
 
     def allowed(self, scan: np.ndarray) -> np.ndarray:
