@@ -1,7 +1,9 @@
 """The algorithms rover-train trains and rover-eval loads, by name.
 
 ``recurrent-ppo`` is sb3-contrib's ``RecurrentPPO`` with its ``MultiInputLstmPolicy`` (an
-LSTM over the ``RoverExtractor`` features, for the Dict observations); the others are
+LSTM over the ``RoverExtractor`` features, for the Dict observations); ``ppo`` trained behind
+the collision shield (``rover-train --shield``) is sb3-contrib's ``MaskablePPO``, the shield's
+mask applied to the policy in the rollouts and the updates; the others are
 Stable-Baselines3's own. Both packages come with ``pip install 'roverav[train]'``.
 """
 
@@ -28,26 +30,30 @@ def policy_name(algo: str) -> str:
     return _POLICIES.get(algo, DEFAULT_POLICY)
 
 
-def contrib_missing(algo: str) -> str | None:
+def contrib_missing(algo: str, masked: bool = False) -> str | None:
     """For an algorithm from sb3-contrib that is not installed: what to do; else None."""
     import importlib.util
 
-    if algo in RECURRENT and importlib.util.find_spec(CONTRIB_PACKAGE) is None:
-        return f"--algo {algo} needs sb3-contrib, which is not installed: {CONTRIB_INSTALL}"
+    if (algo in RECURRENT or masked) and importlib.util.find_spec(CONTRIB_PACKAGE) is None:
+        what = f"--algo {algo}" + (" --shield" if masked else "")
+        return f"{what} needs sb3-contrib, which is not installed: {CONTRIB_INSTALL}"
     return None
 
 
-def algo_class(name: str) -> Any:
-    """The model class of algorithm ``name`` (a member of :data:`ALGOS`)."""
+def algo_class(name: str, masked: bool = False) -> Any:
+    """The model class of algorithm ``name`` (a member of :data:`ALGOS`); ``masked``: trained
+    with an action mask (``rover-train --shield``, PPO only): sb3-contrib's ``MaskablePPO``."""
     if name not in ALGOS:
         raise ValueError(f"unknown algorithm {name!r}; choose one of {ALGOS}")
-    if name == "recurrent-ppo":
-        problem = contrib_missing(name)
+    if masked and name != "ppo":
+        raise ValueError(f"an action mask is trained with ppo (MaskablePPO), not {name}")
+    if name == "recurrent-ppo" or masked:
+        problem = contrib_missing(name, masked)
         if problem:
             raise ImportError(problem)
-        from sb3_contrib import RecurrentPPO
+        from sb3_contrib import MaskablePPO, RecurrentPPO
 
-        return RecurrentPPO
+        return MaskablePPO if masked else RecurrentPPO
     from stable_baselines3 import DQN, PPO, SAC
 
     return {"ppo": PPO, "sac": SAC, "dqn": DQN}[name]

@@ -34,11 +34,13 @@ The previous main job, a DAgger fine-tune of the zoo's fused student, is
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -68,14 +70,15 @@ def camera_args(world: str, timesteps: int, slots: int, seed: int, logdir: Path,
                 checkpoint_every: int) -> TrainArgs:  # fmt: skip
     """rover-train's camera recipe: PPO on RoverEnvFused's nav task, the camera scan, the
     map planner's waypoint and the state through an MLP (the image dropped from the policy),
-    the relative table, a discount of 0.995 and 512-step rollouts per env.
+    the relative table behind the collision shield (MaskablePPO on the shield's masks), a
+    discount of 0.995 and 512-step rollouts per env.
 
     The same as ``rover-train --env fused --world WORLD --task nav --camera-scan
-    --drop-image --relative-table --waypoint --gamma 0.995 --n-steps 512``.
+    --drop-image --relative-table --shield --waypoint --gamma 0.995 --n-steps 512``.
     """
     return TrainArgs(
         env="fused", world=world, task="nav", camera_scan=True, drop_image=True,
-        relative_table=True, waypoint=True, gamma=0.995, n_steps=512,
+        relative_table=True, shield=True, waypoint=True, gamma=0.995, n_steps=512,
         timesteps=timesteps, slots=slots, seed=seed, logdir=logdir,
         checkpoint_every=checkpoint_every, progress=False, name=default_name(),
     )  # fmt: skip
@@ -160,6 +163,89 @@ def plot_curve(curve: list[dict[str, Any]], training: list[dict[str, float]],
     plt.close(fig)
 
 
+@dataclass(frozen=True)
+class PointJob:
+    """One point of the learning curve to measure: a policy (a checkpoint's file, or None for
+    the seeded random policy) on the evaluation episodes, on one daemon slot."""
+
+    world: str
+    name: str
+    slot: int
+    model: str | None
+    seed: int
+    episodes: int
+    max_steps: int
+
+    def run(self, frames: list[Any] | None = None, video_episodes: int = 0) -> dict[str, Any]:
+        """The point's summary (``rover_train.evaluate.summarise``); ``frames`` gets the
+        video of its first ``video_episodes`` episodes."""
+        env = make_env("fused", world=self.world, name=self.name, slot=self.slot, task="nav",
+                       camera_scan=True, render_mode="rgb_array" if frames is not None else None)
+        try:
+            agent = (RandomAgent(env.action_space, self.seed) if self.model is None else
+                     load_policy(Path(self.model), env, "ppo", deterministic=False,
+                                 seed=self.seed))  # fmt: skip
+            label = "random" if self.model is None else Path(self.model).stem
+            return summarise(evaluate_agent(
+                env, agent, self.episodes, EVAL_SEED_BASE, self.max_steps, frames,
+                video_episodes, StatusLine(f"demo eval ({label})",
+                                           self.episodes * self.max_steps)))  # fmt: skip
+        finally:
+            env.close()
+
+
+_worker_slot = 0  # the daemon slot of this evaluation worker process (_take_slot)
+
+
+def _take_slot(slots: Any) -> None:
+    """A worker's initializer: its own daemon slot for as long as it lives."""
+    global _worker_slot
+    _worker_slot = int(slots.get())
+    quiet_logs()
+    import torch
+
+    torch.set_num_threads(1)
+
+
+def _run_point(job: PointJob) -> dict[str, Any]:
+    return dataclasses.replace(job, slot=_worker_slot).run()
+
+
+def evaluate_points(jobs: list[PointJob], slots: int, frames: list[Any],
+                    video_episodes: int) -> tuple[list[dict[str, Any]], float]:  # fmt: skip
+    """Each job's summary, in order, and the env's frame rate. The last job (the trained
+    agent) runs here, on slot 0, keeping its video; the others run at the same time in
+    worker processes on slots 1 to ``slots - 1`` (one at a time here when there is one slot).
+    Each episode is driven the same on any slot (its reset seed, and each sampled action
+    seeded by the observation), so the curve does not depend on how the points were spread.
+    """
+    import concurrent.futures
+    import multiprocessing
+
+    last = dataclasses.replace(jobs[-1], slot=0)
+    others = jobs[:-1]
+    summaries: list[dict[str, Any] | None] = [None] * len(jobs)
+    if slots > 1 and others:
+        ctx = multiprocessing.get_context("forkserver")
+        free = ctx.Queue()
+        for slot in range(1, slots):
+            free.put(slot)
+        with concurrent.futures.ProcessPoolExecutor(slots - 1, mp_context=ctx,
+                                                    initializer=_take_slot,
+                                                    initargs=(free,)) as pool:  # fmt: skip
+            futures = {pool.submit(_run_point, j): i for i, j in enumerate(others)}
+            summaries[-1] = last.run(frames, video_episodes)
+            for future in concurrent.futures.as_completed(futures):
+                summaries[futures[future]] = future.result()
+    else:
+        for i, job in enumerate(others):
+            summaries[i] = job.run()
+        summaries[-1] = last.run(frames, video_episodes)
+    from rover_env import constants
+
+    return [s for s in summaries if s is not None], 1.0 / constants.CONTROL_DT
+
+
 def format_curve(curve: list[dict[str, Any]]) -> str:
     """The learning curve as a Markdown table (one row per evaluated policy)."""
     lines = ["| training steps | policy | success | touched something | timeouts |",
@@ -232,30 +318,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"no checkpoint in {run_dir}: train first (--timesteps)")
     t_train = time.monotonic() - t_start
 
-    env = make_env("fused", world=args.world, name=default_name(), task="nav",
-                   camera_scan=True, render_mode="rgb_array")  # fmt: skip
-    curve: list[dict[str, Any]] = []
-    frames: list[Any] = []
     seeds = f"seeds {EVAL_SEED_BASE}..{EVAL_SEED_BASE + args.episodes - 1}"
-    try:
-        total = args.episodes * args.max_steps
-        random = summarise(evaluate_agent(
-            env, RandomAgent(env.action_space, args.seed), args.episodes, EVAL_SEED_BASE,
-            args.max_steps, status=StatusLine("demo eval (random)", total)))  # fmt: skip
-        curve.append({"steps": 0, "policy": f"random (seed {args.seed})", **random})
-        for i, ck in enumerate(found):
-            steps = int(ck.state["num_timesteps"])
-            last = i == len(found) - 1
-            agent = load_policy(ck.model_path, env, "ppo", deterministic=False, seed=args.seed)
-            summary = summarise(evaluate_agent(
-                env, agent, args.episodes, EVAL_SEED_BASE, args.max_steps,
-                frames if last else None, args.video_episodes if last else 0,
-                StatusLine(f"demo eval ({steps:,} steps)", total)))  # fmt: skip
-            curve.append({"steps": steps, "policy": ck.model_path.name, **summary})
-        fps = 1.0 / float(getattr(env.unwrapped, "control_dt", 0.05))
-    finally:
-        env.close()
-    trained = curve[-1]
+    jobs = [PointJob(args.world, default_name(), 0, None, args.seed, args.episodes,
+                     args.max_steps)]  # fmt: skip
+    jobs += [PointJob(args.world, default_name(), 0, str(ck.model_path), args.seed,
+                      args.episodes, args.max_steps) for ck in found]  # fmt: skip
+    frames: list[Any] = []
+    summaries, fps = evaluate_points(jobs, default_slots(), frames, args.video_episodes)
+    curve = [{"steps": 0, "policy": f"random (seed {args.seed})", **summaries[0]}]
+    curve += [{"steps": int(ck.state["num_timesteps"]), "policy": ck.model_path.name, **sm}
+              for ck, sm in zip(found, summaries[1:], strict=True)]  # fmt: skip
+    random, trained = curve[0], curve[-1]
     title = f"RoverEnvFused ({args.world}) nav task, {seeds}, at most {args.max_steps} steps"
     report = "\n\n".join([
         format_comparison([(f"PPO, {trained['steps']:,} steps", trained),

@@ -125,15 +125,15 @@ class PolicyLoadError(ValueError):
 
 def load_policy(model: Path, env: Any, algo: str | None = None,
                 deterministic: bool = True, seed: int = 0,
-                temperature: float = 1.0, shield: bool = False) -> ModelAgent:  # fmt: skip
+                temperature: float = 1.0, shield: bool | None = None) -> ModelAgent:  # fmt: skip
     """The rover-train model at ``model`` as an agent for ``env``: a
     :class:`~rover_train.algos.ModelAgent` (``reset()`` per episode, ``act(obs)``, also
     callable), deterministic or sampling its policy (each draw seeded by ``seed`` and the
     observation), driving ``env`` as the model was trained (its recipe's waypoint, dropped
     image, relative table; a recurrent model keeps its LSTM state). ``algo``: default from
     ``metrics.json`` beside it; ``seed``: of the sampled actions; ``shield``: behind the
-    collision shield on its camera scan (``rover_train.shield``). Raises
-    :class:`PolicyLoadError`.
+    collision shield on its camera scan (``rover_train.shield``); None: where it was trained
+    behind it (``rover-train --shield``). Raises :class:`PolicyLoadError`.
     """
     if not model.is_file():
         raise PolicyLoadError(_no_model_file(model))
@@ -142,17 +142,19 @@ def load_policy(model: Path, env: Any, algo: str | None = None,
     # without metrics.json: recurrent first (its load refuses a non-recurrent policy)
     order = [algo] if algo else [*RECURRENT, *(a for a in ALGOS if a not in RECURRENT)]
     errors = []
+    recipe = _recipe(model)
+    masked = bool(recipe.get("shield"))
     for name in order:
         try:
-            loaded = algo_class(name).load(model, device="cpu")
+            loaded = algo_class(name, masked=masked and name == "ppo").load(model, device="cpu")
         except Exception as exc:  # noqa: BLE001 - try the next algorithm
             errors.append(f"{name}: {exc}")
             continue
-        recipe = _recipe(model)
         check_spaces(model, loaded, _as_trained(recipe, env))
         observe, act = agent_io(recipe)
         try:
-            guard = shield_for(recipe, str(model)) if shield else None
+            guard = (shield_for(recipe, str(model))
+                     if (masked if shield is None else shield) else None)  # fmt: skip
             return ModelAgent(loaded, deterministic=deterministic, observe=observe, act=act,
                               seed=seed, temperature=temperature, shield=guard)
         except ValueError as exc:
@@ -837,7 +839,7 @@ def _model_agent(model: Path, env: Any, algo: str | None, sample: bool, seed: in
     try:
         return load_policy(model, env, algo, deterministic=not sample, seed=seed,
                            temperature=1.0 if temperature is None else temperature,
-                           shield=bool(shield))
+                           shield=shield)
     except PolicyLoadError as exc:
         raise _EvalError(f"rover-eval: {exc}") from exc
 

@@ -166,5 +166,54 @@ def shield_for(recipe: dict[str, Any], what: str,
     return CollisionShield(config, pan_windows=len(PAN_WINDOWS) if looking else 1)
 
 
+def shielded_vec_env(venv: Any, shield: CollisionShield) -> Any:
+    """``venv`` (a Stable-Baselines3 VecEnv over camera-scan observations) answering
+    ``env_method("action_masks")`` with the shield's mask for each env's newest observation:
+    what sb3-contrib's ``MaskablePPO`` asks before each step (``rover-train --shield``). The
+    masks are computed here, in the trainer's process, from the observations it already holds:
+    no round trip to the env workers, and the same for subprocess, in-process and Ray envs."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    class ShieldMasks(VecEnvWrapper):  # type: ignore[misc]
+        def __init__(self) -> None:
+            super().__init__(venv)
+            self._obs: Any = None
+
+        @property
+        def reset_infos(self) -> Any:  # the envs' own (the checkpoints keep their episode RNGs)
+            return self.venv.reset_infos
+
+        @reset_infos.setter
+        def reset_infos(self, _: Any) -> None:  # VecEnv.__init__ sets a blank list
+            pass
+
+        def reset(self) -> Any:
+            self._obs = self.venv.reset()
+            return self._obs
+
+        def step_wait(self) -> Any:
+            obs, rewards, dones, infos = self.venv.step_wait()
+            self._obs = obs  # after an episode's end, the next episode's first observation
+            return obs, rewards, dones, infos
+
+        def action_masks(self) -> list[np.ndarray]:
+            if self._obs is None:
+                raise RuntimeError("action masks asked for before the first reset")
+            scans = np.asarray(self._obs[SCAN_KEY])
+            return [shield({SCAN_KEY: scan}) for scan in scans]
+
+        def has_attr(self, attr_name: str) -> bool:
+            return attr_name == "action_masks" or bool(self.venv.has_attr(attr_name))
+
+        def env_method(self, method_name: str, *args: Any, indices: Any = None,
+                       **kwargs: Any) -> list[Any]:  # fmt: skip
+            if method_name != "action_masks":
+                return list(self.venv.env_method(method_name, *args, indices=indices, **kwargs))
+            masks = self.action_masks()
+            return masks if indices is None else [masks[i] for i in self._get_indices(indices)]
+
+    return ShieldMasks()
+
+
 __all__ = ["CollisionShield", "HALF_LENGTH", "HALF_WIDTH", "ShieldConfig", "outline_distance",
-           "shield_for", "table_trajectories"]
+           "shield_for", "shielded_vec_env", "table_trajectories"]

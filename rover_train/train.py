@@ -136,6 +136,12 @@ class TrainArgs:
     fused-gaze Discrete(300), each with one of the 5 pan windows (-60 to +60 deg) as the
     camera's target, so the policy learns where to look from the reward.
     rover_train.wrappers.RelativeTable."""
+    shield: bool = False
+    """With --camera-scan --relative-table and --algo ppo: train behind the collision shield
+    (rover_train.shield): sb3-contrib's MaskablePPO, the shield's mask of the table actions
+    that keep the rover's body off what its camera has seen, applied to the policy in the
+    rollouts and the updates, so the policy learns over the actions it will be allowed.
+    rover-eval and the zoo drive such a model behind the same shield."""
     clearance_from: int | None = None
     """Fused envs, --task nav: charge the LIDAR envs' clearance term (NAV_CLEARANCE_PENALTY
     per metre of the LIDAR minimum inside NAV_CLEARANCE, from a scan the simulator casts for
@@ -396,6 +402,11 @@ def validate(args: TrainArgs) -> str | None:
     if args.relative_table and args.env not in ("fused", "fused-gaze"):
         return ("--relative-table puts Discrete(60) over a continuous fused env: use --env fused "
                 "or fused-gaze (lidar-discrete has the same table already)")
+    if args.shield and not (args.camera_scan and args.relative_table and args.algo == "ppo"):
+        return ("--shield masks the relative table's actions by the camera scan, for PPO: give "
+                "--camera-scan --relative-table with --algo ppo (got "
+                f"--algo {args.algo}{'' if args.camera_scan else ', no --camera-scan'}"
+                f"{'' if args.relative_table else ', no --relative-table'})")  # fmt: skip
     if args.clearance_from is not None and (args.env not in FUSED_KINDS or args.task != "nav"
                                             or args.clearance_from < 0):
         return (f"--clearance-from adds the nav task's clearance term to a fused env from a step "
@@ -422,7 +433,7 @@ def validate(args: TrainArgs) -> str | None:
         return f"--slots and --timesteps must be at least 1, got {args.slots} and {args.timesteps}"
     if args.task not in TASKS:  # the CLI's choices say so too; TrainArgs built in code
         return f"--task must be one of {', '.join(TASKS)}, got {args.task!r}"
-    return (contrib_missing(args.algo) or _validate_ray(args) or _validate_values(args)
+    return (contrib_missing(args.algo, args.shield) or _validate_ray(args) or _validate_values(args)
             or _validate_device(args))  # fmt: skip
 
 
@@ -543,6 +554,17 @@ def _in_worker(thunk: Any) -> Any:
 
 
 def build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool = False) -> Any:
+    """The run's vector env (subprocesses, one process or Ray actors); with --shield it also
+    answers MaskablePPO's action masks."""
+    venv = _build_vec_env(args, monitor_dir, append_monitor)
+    if not args.shield:
+        return venv
+    from rover_train.shield import shield_for, shielded_vec_env
+
+    return shielded_vec_env(venv, shield_for(plain(args), "this run"))
+
+
+def _build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     if args.ray is not None:
@@ -585,7 +607,7 @@ def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
     """A new model for ``args`` (resumed runs are loaded by :func:`resume_model`)."""
     from rover_train.policies import RoverExtractor
 
-    cls = algo_class(args.algo)
+    cls = algo_class(args.algo, masked=args.shield)
     common: dict[str, Any] = {
         "policy": policy_name(args.algo),
         "env": venv,
@@ -601,7 +623,7 @@ def build_model(args: TrainArgs, venv: Any, tb_dir: Path) -> Any:
 def resume_model(args: TrainArgs, venv: Any, tb_dir: Path) -> tuple[Any, dict[str, Any]]:
     """The newest checkpoint of run ``args.logdir``, loaded onto ``venv`` with its RNGs, replay
     buffer and env episode RNGs restored; returns the model and the checkpoint's state."""
-    cls = algo_class(args.algo)
+    cls = algo_class(args.algo, masked=args.shield)
     model, found, skipped = None, None, 0
     for found in find_checkpoints(args.logdir):  # newest first; say why each newer one is not
         if isinstance(found, SkippedCheckpoint):

@@ -321,6 +321,66 @@ def test_a_camera_agent_trains_on_the_scan_and_is_evaluated_with_it(
     assert "--camera-scan is built from the fused image" in capsys.readouterr().err
 
 
+def test_a_camera_agent_trains_behind_the_shield_and_is_driven_behind_it(
+    daemon: Daemon, tmp_path: Path
+) -> None:
+    """rover-train --shield trains MaskablePPO on the shield's masks, computed for each env's
+    newest observation; rover-eval loads the model behind the same shield unless told not to."""
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from rover_train import evaluate
+    from rover_train.envs import make_env
+    from rover_train.shield import CollisionShield, shielded_vec_env
+    from rover_train.train import parse_args, train
+    from rover_train.wrappers import RelativeTable
+
+    shield = CollisionShield()
+    venv = shielded_vec_env(DummyVecEnv([lambda: RelativeTable(make_env(
+        "fused", world="maze", name=daemon.name, task="nav", camera_scan=True))]), shield)
+    try:
+        assert venv.has_attr("action_masks")
+        obs = venv.reset()
+        for _ in range(3):
+            (mask,) = venv.env_method("action_masks")
+            assert mask.shape == (60,) and mask.dtype == bool
+            assert np.array_equal(mask, shield.allowed(obs["camera_scan"][0]))
+            obs, *_ = venv.step(np.array([int(np.flatnonzero(mask)[-1])]))
+        assert venv.reset_infos is venv.venv.reset_infos  # the envs' own, for the checkpoints
+    finally:
+        venv.close()
+
+    args = ["--env", "fused", "--world", "maze", "--task", "nav", "--camera-scan",
+            "--drop-image", "--relative-table", "--waypoint", "--shield", "--name", daemon.name,
+            "--slots", "1", "--n-steps", "32", "--batch-size", "32", "--n-epochs", "1",
+            "--no-progress", "--checkpoint-every", "0", "--timesteps", "32", "--logdir",
+            str(tmp_path)]  # fmt: skip
+    assert train(parse_args(args))["status"] == "complete"
+    model = tmp_path / "model.zip"
+    env = make_env("fused", world="maze", name=daemon.name, task="nav", camera_scan=True)
+    try:
+        agent = evaluate.load_policy(model, env, deterministic=False)
+        assert type(agent.model).__name__ == "MaskablePPO"
+        assert isinstance(agent.shield, CollisionShield)  # as trained
+        assert evaluate.load_policy(model, env, shield=False).shield is None
+    finally:
+        env.close()
+
+
+def test_the_shield_is_trained_with_ppo_over_the_relative_table_on_the_scan(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from rover_train.train import parse_args
+
+    for bad in (["--env", "fused", "--camera-scan", "--shield"],
+                ["--env", "fused", "--relative-table", "--shield"],
+                ["--env", "fused", "--camera-scan", "--relative-table", "--algo", "dqn",
+                 "--shield"]):  # fmt: skip
+        with pytest.raises(SystemExit):
+            parse_args(bad)
+        assert "--shield masks the relative table's actions by the camera scan" in (
+            capsys.readouterr().err)
+
+
 def test_the_relative_table_is_rover_env_discretes_table() -> None:
     from rover_env.lidar_discrete_env import RoverEnvDiscrete
     from rover_train.wrappers import RelativeTable, relative_action

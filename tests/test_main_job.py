@@ -63,12 +63,14 @@ def test_the_main_job_trains_from_scratch_and_evaluates_each_checkpoint(
     metrics = json.loads((out / "run/metrics.json").read_text())
     assert metrics["timesteps"] == STEPS and metrics["args"]["camera_scan"]
     assert metrics["args"]["drop_image"] and metrics["args"]["relative_table"]
+    assert metrics["args"]["shield"]  # trained behind the collision shield (MaskablePPO)
 
     # the last point is the saved model's own performance on the same episodes, its actions
     # sampled from the same seed
     env = make_env("fused", world="inspect", name=paired.name, task="nav", camera_scan=True)
     try:
         agent = load_policy(out / "run/model.zip", env, "ppo", deterministic=False, seed=0)
+        assert agent.shield is not None  # driven behind the shield it was trained behind
         again = summarise(evaluate_agent(env, agent, EPISODES, EVAL_SEED_BASE, MAX_STEPS))
     finally:
         env.close()
@@ -100,3 +102,28 @@ def test_another_world_over_an_earlier_run_is_refused_and_keeps_it(
     err = capsys.readouterr().err
     assert "holds a run in the inspect world" in err and "--world inspect" in err
     assert (run / "run.json").read_text() == saved
+
+
+def test_points_spread_over_the_slots_give_the_curve_one_slot_gives(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """With several daemon slots the curve's points are evaluated at once, one worker process
+    a slot; each episode is driven as on one slot, so the curve is the same."""
+    d = Daemon(f"test_main_job2_{uuid.uuid4().hex[:8]}", slots=2).start()
+    try:
+        monkeypatch.setenv(NAME_ENV_VAR, d.name)
+        monkeypatch.setenv(SLOTS_ENV_VAR, "2")
+        out = tmp_path / "demo"
+        assert demo.main(_args(out, "--timesteps", "2048")) == 0  # two rollouts of 2 x 512
+        curve = json.loads((out / "curve.json").read_text())["curve"]
+        assert len(curve) >= 3  # random and the checkpoints: all but the last in workers
+        jobs = [demo.PointJob("inspect", d.name, 0, None, 0, EPISODES, MAX_STEPS)]
+        jobs += [demo.PointJob("inspect", d.name, 0, str(c.model_path), 0, EPISODES, MAX_STEPS)
+                 for c in demo.checkpoints(out / "run")]  # fmt: skip
+        one_slot, _ = demo.evaluate_points(jobs, 1, [], 0)
+        keys = ("success_rate", "collision_rate", "mean_return")
+        assert [{k: p[k] for k in keys} for p in one_slot] == [
+            {k: p[k] for k in keys} for p in curve]
+    finally:
+        d.stop()
+        d.remove_leftovers()

@@ -120,7 +120,8 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
         (``rover_train.algos.ModelAgent``; None: 1, the policy as trained).
     :param shield: an RL entry over the relative table with the camera scan: drive behind the
         collision shield on the scan (``rover_train.shield``) or not; None: as the entry says
-        (``EntrySpec.shield``).
+        (``EntrySpec.shield``), or behind it where the entry was trained behind it
+        (``rover-train --shield``).
     :raises FileNotFoundError: no file; :class:`StudentFileError`: a student file that does
         not read (cut short, say). Both name the file and the command that remakes it.
     """
@@ -148,14 +149,14 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
     from rover_train.wrappers import agent_io
 
     recipe = read_recipe(file)
-    model = algo_class(recipe["algo"]).load(file, device="cpu")
+    model = algo_class(recipe["algo"], masked=bool(recipe.get("shield"))).load(file, device="cpu")
     observe, act = agent_io(recipe)
     if temperature is not None and not spec.sampled:
         raise ValueError(f"a sampling temperature is for the entries that sample their policy "
                          f"({', '.join(n for n, e in ENTRIES.items() if e.sampled)}), not "
                          f"{name}")  # fmt: skip
     guard = None
-    if shield if shield is not None else spec.shield:
+    if shield if shield is not None else (spec.shield or recipe.get("shield")):
         from rover_train.shield import shield_for
 
         guard = shield_for(recipe, f"zoo entry {name}")
