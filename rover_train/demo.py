@@ -2,17 +2,19 @@
 
 Run under the supervisor so the daemon is there, one slot per env (``make demo`` does this):
 
-    rover-pair --slots 4 -- python -m rover_train.demo --timesteps 600000
+    rover-pair --slots 4 -- python -m rover_train.demo --timesteps 250000 --points 5
 
 PPO trains from scratch on RoverEnvFused's nav task (``rover-train``'s camera recipe,
 :func:`camera_args`): the policy reads the camera scan (a rover-frame memory of what the
 camera has seen, built from the daemon's fused images; ``rover_env.camera_scan``), the map
 planner's next waypoint and the rover's state through an MLP, and drives the seed's
-60-action table relative to the yaw. A checkpoint is kept every ``--timesteps / --points``
+60-action table relative to the yaw, behind the collision shield (``rover_train.shield``:
+the actions that would bring the rover onto what its camera has seen get no probability,
+in training as in evaluation). A checkpoint is kept every ``--timesteps / --points``
 steps. Then a seeded random policy and every checkpoint drive the same ``--episodes``
 evaluation episodes (reset seeds from 100000, never used in training; each ends at the first
-goal, a collision or ``--max-steps``): the learning curve, measured on the evaluation
-episodes. The checkpoints act as in training, by
+goal, a collision or ``--max-steps``), several at once over the daemon's slots: the learning
+curve, measured on the evaluation episodes. The checkpoints act as in training, by
 sampling their policy (seeded by ``--seed`` and each observation): the camera agent sees part
 of the world, and its most likely action, repeated wherever its observations look alike,
 drives it in circles and off the map (docs/decisions.md, "RL").
@@ -261,7 +263,7 @@ def _parser() -> argparse.ArgumentParser:
     add_group(p, Episodes, only=("world", "episodes", "max_steps")).description = (
         "the world trained in (inspect or maze; default inspect); a random policy and each "
         "checkpoint are evaluated on the same evaluation episodes")
-    p.add_argument("--timesteps", type=int, default=600_000,
+    p.add_argument("--timesteps", type=int, default=250_000,
                    help="PPO env steps over all envs (0: evaluate the run in --out as it is)")
     p.add_argument("--points", type=int, default=6,
                    help="checkpoints evaluated along the run (the curve's points after random)")
