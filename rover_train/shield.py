@@ -67,8 +67,7 @@ def outline_distance(points: np.ndarray) -> np.ndarray:
     outside, negative inside."""
     dx = np.abs(points[..., 0]) - HALF_LENGTH
     dy = np.abs(points[..., 1]) - HALF_WIDTH
-    outside = np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
-    return np.where((dx > 0) | (dy > 0), outside, np.maximum(dx, dy))
+    return np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0)) + np.minimum(np.maximum(dx, dy), 0.0)
 
 
 def table_trajectories(horizon_s: float) -> np.ndarray:
@@ -100,8 +99,11 @@ class CollisionShield:
         """Actions per drive in the policy's table: 1 for the relative table, 5 for the gaze
         env's (``action // 5`` is the drive; the camera's target does not move the rover)."""
         self._poses = table_trajectories(cfg.horizon_s)
-        self._cos = np.cos(self._poses[..., 2])[..., None]
-        self._sin = np.sin(self._poses[..., 2])[..., None]
+        x, y, yaw = (self._poses[..., k, None] for k in range(3))
+        self._cos, self._sin = np.cos(yaw), np.sin(yaw)
+        # a reading p in the frame of pose (x, y, yaw): R(-yaw) (p - (x, y)), its offsets here
+        self._u0 = self._cos * x + self._sin * y
+        self._v0 = -self._sin * x + self._cos * y
         self._rows = [SCAN_ROWS.index("obstacle")] + ([SCAN_ROWS.index("person")]
                                                       if cfg.people else [])  # fmt: skip
         self._row_margins = np.array([cfg.margin_m, cfg.person_margin_m])[:len(self._rows), None]
@@ -136,11 +138,18 @@ class CollisionShield:
         if not len(pts):
             return mask
         now = float((outline_distance(pts) - margin).min())
-        # each reading in the frame of each future pose: (A, N, K)
-        dx = pts[:, 0] - self._poses[..., 0:1]
-        dy = pts[:, 1] - self._poses[..., 1:2]
-        local = np.stack([self._cos * dx + self._sin * dy, -self._sin * dx + self._cos * dy], -1)
-        closest = (outline_distance(local) - margin).min(axis=(1, 2))
+        # each reading in the frame of each future pose, (A, N, K), less the outline's half
+        # sizes: the box's signed distance without building the (A, N, K, 2) points
+        px, py = pts[:, 0], pts[:, 1]
+        ex = np.abs(self._cos * px + self._sin * py - self._u0) - HALF_LENGTH
+        ey = np.abs(self._cos * py - self._sin * px - self._v0) - HALF_WIDTH
+        inside = np.minimum(np.maximum(ex, ey), 0.0)
+        np.maximum(ex, 0.0, out=ex)
+        np.maximum(ey, 0.0, out=ey)
+        distance = np.hypot(ex, ey, out=ex)
+        distance += inside
+        distance -= margin
+        closest = distance.min(axis=(1, 2))
         return closest >= min(now, 0.0) - 1e-9
 
     def __call__(self, obs: Any) -> np.ndarray:
