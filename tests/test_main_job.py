@@ -21,7 +21,7 @@ from shm_protocol.names import NAME_ENV_VAR, SLOTS_ENV_VAR
 
 EPISODES = 2
 MAX_STEPS = 15
-STEPS = 1024  # two checkpoints of 512 steps (one env, 512-step rollouts)
+STEPS = 1024  # two checkpoints of 512 steps (one env, 256-step rollouts)
 
 
 @pytest.fixture(scope="module")
@@ -114,7 +114,7 @@ def test_points_spread_over_the_slots_give_the_curve_one_slot_gives(
         monkeypatch.setenv(NAME_ENV_VAR, d.name)
         monkeypatch.setenv(SLOTS_ENV_VAR, "2")
         out = tmp_path / "demo"
-        assert demo.main(_args(out, "--timesteps", "2048")) == 0  # two rollouts of 2 x 512
+        assert demo.main(_args(out, "--timesteps", "2048")) == 0  # checkpoints at 1,024 and 2,048
         curve = json.loads((out / "curve.json").read_text())["curve"]
         assert len(curve) >= 3  # random and the checkpoints: all but the last in workers
         jobs = [demo.PointJob("inspect", d.name, 0, None, 0, EPISODES, MAX_STEPS)]
