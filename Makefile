@@ -36,9 +36,9 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 # daemon slot each), then random and each checkpoint drive the same 20 evaluation episodes,
 # at once over the slots: the learning curve, the table and a video land in runs/demo/ (the
 # same command continues a stopped run).
-DEMO_STEPS ?= 200000
+DEMO_STEPS ?= 250000
 demo: setup
-	$(PY) launch/run_pair.py --name roverav_demo --slots 4 --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --points 3 --episodes 20 --out runs/demo
+	$(PY) launch/run_pair.py --name roverav_demo --slots 4 --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --points 5 --episodes 20 --out runs/demo
 
 # The main job before: DAgger fine-tunes the zoo's fused-maze student with the daemon in the loop.
 demo-finetune: setup

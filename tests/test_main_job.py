@@ -21,7 +21,7 @@ from shm_protocol.names import NAME_ENV_VAR, SLOTS_ENV_VAR
 
 EPISODES = 2
 MAX_STEPS = 15
-STEPS = 1024  # two checkpoints of 512 steps (one env, 256-step rollouts)
+STEPS = 1024  # two checkpoints of 512 steps (one env, 512-step rollouts)
 
 
 @pytest.fixture(scope="module")
