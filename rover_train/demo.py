@@ -46,6 +46,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from rover_env.constants import CONTROL_DT
 from rover_train.agents import RandomAgent
 from rover_train.checkpoint import Checkpoint, ResumeError, RunRecord, find_checkpoints
 from rover_train.envs import make_env
@@ -214,8 +215,8 @@ def _run_point(job: PointJob) -> dict[str, Any]:
 
 
 def evaluate_points(jobs: list[PointJob], slots: int, frames: list[Any],
-                    video_episodes: int) -> tuple[list[dict[str, Any]], float]:  # fmt: skip
-    """Each job's summary, in order, and the env's frame rate. The last job (the trained
+                    video_episodes: int) -> list[dict[str, Any]]:  # fmt: skip
+    """Each job's summary, in order. The last job (the trained
     agent) runs here, on slot 0, keeping its video; the others run at the same time in
     worker processes on slots 1 to ``slots - 1`` (one at a time here when there is one slot).
     Each episode is driven the same on any slot (its reset seed, and each sampled action
@@ -226,7 +227,7 @@ def evaluate_points(jobs: list[PointJob], slots: int, frames: list[Any],
 
     last = dataclasses.replace(jobs[-1], slot=0)
     others = jobs[:-1]
-    summaries: list[dict[str, Any] | None] = [None] * len(jobs)
+    summaries: list[dict[str, Any]] = [{} for _ in jobs]
     if slots > 1 and others:
         ctx = multiprocessing.get_context("forkserver")
         free = ctx.Queue()
@@ -243,9 +244,7 @@ def evaluate_points(jobs: list[PointJob], slots: int, frames: list[Any],
         for i, job in enumerate(others):
             summaries[i] = job.run()
         summaries[-1] = last.run(frames, video_episodes)
-    from rover_env import constants
-
-    return [s for s in summaries if s is not None], 1.0 / constants.CONTROL_DT
+    return summaries
 
 
 def format_curve(curve: list[dict[str, Any]]) -> str:
@@ -326,7 +325,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     jobs += [PointJob(args.world, default_name(), 0, str(ck.model_path), args.seed,
                       args.episodes, args.max_steps) for ck in found]  # fmt: skip
     frames: list[Any] = []
-    summaries, fps = evaluate_points(jobs, default_slots(), frames, args.video_episodes)
+    summaries = evaluate_points(jobs, default_slots(), frames, args.video_episodes)
     curve = [{"steps": 0, "policy": f"random (seed {args.seed})", **summaries[0]}]
     curve += [{"steps": int(ck.state["num_timesteps"]), "policy": ck.model_path.name, **sm}
               for ck, sm in zip(found, summaries[1:], strict=True)]  # fmt: skip
@@ -344,7 +343,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     plot_curve(curve, training, args.out / "learning_curve.png",
                f"PPO from scratch, camera scan, {args.world}: {seeds}")  # fmt: skip
     if frames:
-        write_video(frames, args.out / "eval.mp4", fps)
+        write_video(frames, args.out / "eval.mp4", 1.0 / CONTROL_DT)
         save_still(args.out / "eval.mp4", args.out / "eval_still.png")
     wall = time.monotonic() - t_start
     (args.out / "curve.json").write_text(json.dumps({

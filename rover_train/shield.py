@@ -62,12 +62,17 @@ class ShieldConfig:
                              f"{self.margin_m}, {self.person_margin_m}")  # fmt: skip
 
 
-def outline_distance(points: np.ndarray) -> np.ndarray:
-    """Signed distance (m) from rover-frame points (..., 2) to the rover's outline: positive
-    outside, negative inside."""
-    dx = np.abs(points[..., 0]) - HALF_LENGTH
-    dy = np.abs(points[..., 1]) - HALF_WIDTH
+def box_distance(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Signed distance (m) from rover-frame points ``(x, y)`` (arrays of one shape) to the
+    rover's outline: positive outside, negative inside."""
+    dx = np.abs(x) - HALF_LENGTH
+    dy = np.abs(y) - HALF_WIDTH
     return np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0)) + np.minimum(np.maximum(dx, dy), 0.0)
+
+
+def outline_distance(points: np.ndarray) -> np.ndarray:
+    """:func:`box_distance` of rover-frame points (..., 2)."""
+    return box_distance(points[..., 0], points[..., 1])
 
 
 def table_trajectories(horizon_s: float) -> np.ndarray:
@@ -138,18 +143,11 @@ class CollisionShield:
         if not len(pts):
             return mask
         now = float((outline_distance(pts) - margin).min())
-        # each reading in the frame of each future pose, (A, N, K), less the outline's half
-        # sizes: the box's signed distance without building the (A, N, K, 2) points
+        # each reading in the frame of each future pose, x and y apart: (A, N, K) each
         px, py = pts[:, 0], pts[:, 1]
-        ex = np.abs(self._cos * px + self._sin * py - self._u0) - HALF_LENGTH
-        ey = np.abs(self._cos * py - self._sin * px - self._v0) - HALF_WIDTH
-        inside = np.minimum(np.maximum(ex, ey), 0.0)
-        np.maximum(ex, 0.0, out=ex)
-        np.maximum(ey, 0.0, out=ey)
-        distance = np.hypot(ex, ey, out=ex)
-        distance += inside
-        distance -= margin
-        closest = distance.min(axis=(1, 2))
+        x = self._cos * px + self._sin * py - self._u0
+        y = self._cos * py - self._sin * px - self._v0
+        closest = (box_distance(x, y) - margin).min(axis=(1, 2))
         return closest >= min(now, 0.0) - 1e-9
 
     def __call__(self, obs: Any) -> np.ndarray:
@@ -224,5 +222,5 @@ def shielded_vec_env(venv: Any, shield: CollisionShield) -> Any:
     return ShieldMasks()
 
 
-__all__ = ["CollisionShield", "HALF_LENGTH", "HALF_WIDTH", "ShieldConfig", "outline_distance",
-           "shield_for", "shielded_vec_env", "table_trajectories"]
+__all__ = ["CollisionShield", "HALF_LENGTH", "HALF_WIDTH", "ShieldConfig", "box_distance",
+           "outline_distance", "shield_for", "shielded_vec_env", "table_trajectories"]

@@ -120,7 +120,7 @@ def test_points_spread_over_the_slots_give_the_curve_one_slot_gives(
         jobs = [demo.PointJob("inspect", d.name, 0, None, 0, EPISODES, MAX_STEPS)]
         jobs += [demo.PointJob("inspect", d.name, 0, str(c.model_path), 0, EPISODES, MAX_STEPS)
                  for c in demo.checkpoints(out / "run")]  # fmt: skip
-        one_slot, _ = demo.evaluate_points(jobs, 1, [], 0)
+        one_slot = demo.evaluate_points(jobs, 1, [], 0)
         keys = ("success_rate", "collision_rate", "mean_return")
         assert [{k: p[k] for k in keys} for p in one_slot] == [
             {k: p[k] for k in keys} for p in curve]
