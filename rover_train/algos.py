@@ -72,6 +72,21 @@ def observation_seed(seed: int, obs: Any) -> int:
     return int.from_bytes(h.digest(), "little") >> 1
 
 
+def head_logits(wrapper: Any) -> list[Any] | None:
+    """The logits of each categorical head of an SB3 (or sb3-contrib maskable) action
+    distribution: one for ``Discrete``, one per dimension for ``MultiDiscrete``; None for a
+    continuous one."""
+    import torch
+
+    dists = getattr(wrapper, "distributions", None)  # sb3-contrib's MultiDiscrete
+    if dists is None:
+        dist = wrapper.distribution
+        dists = dist if isinstance(dist, list) else [dist]
+    if not all(isinstance(d, torch.distributions.Categorical) for d in dists):
+        return None
+    return [d.logits for d in dists]
+
+
 class ModelAgent:
     """A Stable-Baselines3 model driving one env, deterministic by default: ``act(obs)`` (or
     calling it) -> action, keeping a recurrent policy's LSTM state from step to step;
@@ -117,7 +132,8 @@ class ModelAgent:
             raise ValueError("a sampling temperature applies to the sampled actions of a "
                              "feed-forward actor-critic (PPO): give deterministic=False, and a "
                              f"PPO model (got a {type(policy).__name__})")  # fmt: skip
-        if shield is not None and not (feed_forward and hasattr(policy.action_space, "n")):
+        tabled = hasattr(policy.action_space, "n") or hasattr(policy.action_space, "nvec")
+        if shield is not None and not (feed_forward and tabled):
             raise ValueError("a shield restricts a discrete feed-forward actor-critic's actions "
                              f"(PPO over a table); got a {type(policy).__name__} over "
                              f"{policy.action_space}")  # fmt: skip
@@ -166,9 +182,11 @@ class ModelAgent:
         policy = self.model.policy
         with torch.no_grad():
             obs_tensor, vectorized = policy.obs_to_tensor(obs)
-            dist = policy.get_distribution(obs_tensor).distribution
-            if self.shield is not None:
-                return self._shielded(obs, dist.logits / self.temperature, vectorized)
+            wrapper = policy.get_distribution(obs_tensor)
+            heads = head_logits(wrapper)
+            if heads is not None and (self.shield is not None or len(heads) > 1):
+                return self._shielded(obs, [h / self.temperature for h in heads], vectorized)
+            dist = wrapper.distribution
             if isinstance(dist, torch.distributions.Categorical):
                 draw = torch.distributions.Categorical(logits=dist.logits / self.temperature)
             elif isinstance(dist, torch.distributions.Normal):
@@ -183,21 +201,28 @@ class ModelAgent:
                       else np.clip(action, space.low, space.high))  # fmt: skip
         return action if vectorized else action.squeeze(axis=0)
 
-    def _shielded(self, obs: Any, logits: Any, vectorized: bool) -> Any:
-        """The policy's choice among the actions the shield allows: its draw (or most likely
-        action) when allowed, else a draw from (or the most likely of) the allowed ones."""
+    def _shielded(self, obs: Any, heads: list[Any], vectorized: bool) -> Any:
+        """The policy's choice, head by head (one for a table, one per dimension of a
+        ``MultiDiscrete``), among the actions the shield allows (all without one): its draw
+        (or most likely action) when allowed, else a draw from (or the most likely of) the
+        allowed ones. The shield's mask is the heads' masks end to end, as sb3-contrib's."""
         import torch
 
-        assert self.shield is not None
-        allowed = torch.as_tensor(np.asarray(self.shield(obs), dtype=bool)).reshape(1, -1)
-        if self.deterministic:
-            action = torch.where(allowed, logits, -torch.inf).argmax(dim=-1)
-        else:
-            action = torch.distributions.Categorical(logits=logits).sample()
-            if not bool(allowed[0, action[0]]):
-                masked = torch.where(allowed, logits, -torch.inf)
-                action = torch.distributions.Categorical(logits=masked).sample()
-        action = action.cpu().numpy()
+        sizes = [int(h.shape[-1]) for h in heads]
+        mask = (np.ones(sum(sizes), dtype=bool) if self.shield is None
+                else np.asarray(self.shield(obs), dtype=bool))  # fmt: skip
+        chosen = []
+        for logits, allowed in zip(heads, torch.split(torch.as_tensor(mask).reshape(1, -1),
+                                                      sizes, dim=1), strict=True):  # fmt: skip
+            if self.deterministic:
+                action = torch.where(allowed, logits, -torch.inf).argmax(dim=-1)
+            else:
+                action = torch.distributions.Categorical(logits=logits).sample()
+                if not bool(allowed[0, action[0]]):
+                    masked = torch.where(allowed, logits, -torch.inf)
+                    action = torch.distributions.Categorical(logits=masked).sample()
+            chosen.append(action)
+        action = (chosen[0] if len(chosen) == 1 else torch.stack(chosen, dim=1)).cpu().numpy()
         return action if vectorized else action.squeeze(axis=0)
 
     act = __call__
@@ -211,6 +236,7 @@ __all__ = [
     "ModelAgent",
     "algo_class",
     "contrib_missing",
+    "head_logits",
     "observation_seed",
     "policy_name",
 ]

@@ -268,10 +268,11 @@ class DaemonRecovery(gym.Wrapper):
 
 
 def policy_view(env: gym.Env, world: str, waypoint: bool = False, drop_image: bool = False,
-                relative_table: bool = False) -> gym.Env:  # fmt: skip
+                relative_table: bool = False, pan_head: bool = False) -> gym.Env:  # fmt: skip
     """``env`` as a policy trained with these rover-train flags sees and drives it:
     ``WithWaypoint`` (``--waypoint``), then ``DropImage`` (``--drop-image``), then
-    ``RelativeTable`` (``--relative-table``) (:mod:`rover_train.wrappers`)."""
+    ``RelativeTable`` (``--relative-table``, its two heads with ``--pan-head``)
+    (:mod:`rover_train.wrappers`)."""
     if waypoint:
         from rover_train.waypoint import WithWaypoint
 
@@ -282,7 +283,7 @@ def policy_view(env: gym.Env, world: str, waypoint: bool = False, drop_image: bo
         if drop_image:
             env = DropImage(env)
         if relative_table:
-            env = RelativeTable(env)
+            env = RelativeTable(env, pan_head=pan_head)
     return env
 
 
@@ -293,12 +294,13 @@ def env_factory(
     waypoint: bool = False,
     drop_image: bool = False,
     relative_table: bool = False,
+    pan_head: bool = False,
     **kwargs: Any,
 ) -> Callable[[], gym.Env]:
     """A picklable thunk for SB3 vector envs; the env (and its renderer) is built in the worker.
 
     The stack is ``Monitor(EpisodeRng([DaemonRecovery(]env[)]))``, with :func:`policy_view`'s
-    wrappers (``waypoint``, ``drop_image``, ``relative_table``) around the env;
+    wrappers (``waypoint``, ``drop_image``, ``relative_table``, ``pan_head``) around the env;
     ``EpisodeRng`` lets a resumed run restart each episode in flight from its start.
     ``append_monitor`` appends to the slot's ``monitor.csv`` (a resumed run) instead of
     starting it afresh. Fused envs
@@ -320,7 +322,7 @@ def env_factory(
             )
         else:
             env = make_env(kind, **kwargs)
-        env = policy_view(env, kwargs["world"], waypoint, drop_image, relative_table)
+        env = policy_view(env, kwargs["world"], waypoint, drop_image, relative_table, pan_head)
         env = EpisodeRng(env)
         filename = None
         if monitor_dir is not None:

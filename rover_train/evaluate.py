@@ -179,7 +179,8 @@ def _as_trained(recipe: dict[str, Any], env: Any) -> Any:
     the waypoint, the image dropped, the relative table), for the space check."""
     from rover_train.envs import policy_view
 
-    flags = {k: bool(recipe.get(k)) for k in ("waypoint", "drop_image", "relative_table")}
+    flags = {k: bool(recipe.get(k))
+             for k in ("waypoint", "drop_image", "relative_table", "pan_head")}  # fmt: skip
     if not any(flags.values()):
         return env
     return policy_view(env, env.unwrapped.world, **flags)

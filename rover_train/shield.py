@@ -96,13 +96,22 @@ def table_trajectories(horizon_s: float) -> np.ndarray:
 
 class CollisionShield:
     """The allowed relative-table actions for one camera-scan observation (see the module
-    docstring): ``shield(obs)`` -> a (60,) bool mask."""
+    docstring): ``shield(obs)`` -> a (60,) bool mask (see ``pan_windows`` and ``pan_head`` for
+    the gaze env's tables)."""
 
-    def __init__(self, config: ShieldConfig | None = None, pan_windows: int = 1) -> None:
+    def __init__(self, config: ShieldConfig | None = None, pan_windows: int = 1,
+                 pan_head: bool = False) -> None:  # fmt: skip
         self.config = cfg = config or ShieldConfig()
         self.pan_windows = int(pan_windows)
         """Actions per drive in the policy's table: 1 for the relative table, 5 for the gaze
         env's (``action // 5`` is the drive; the camera's target does not move the rover)."""
+        self.pan_head = bool(pan_head)
+        """The gaze env's table as two heads (``MultiDiscrete([60, 5])``, ``--pan-head``): the
+        mask is sb3-contrib's for that space, the drive head's 60 then the pan head's 5, every
+        window allowed (where the camera looks never moves the rover)."""
+        if self.pan_head and self.pan_windows != 1:
+            raise ValueError("pan_head masks a drive head and a pan head; pan_windows is for "
+                             "the one-head table of drives x windows: give one of them")
         self._poses = table_trajectories(cfg.horizon_s)
         x, y, yaw = (self._poses[..., k, None] for k in range(3))
         self._cos, self._sin = np.cos(yaw), np.sin(yaw)
@@ -158,6 +167,8 @@ class CollisionShield:
         if scan.ndim == 3:  # a batch of one, as a vector env gives it
             scan = scan[0]
         allowed = self.allowed(scan)
+        if self.pan_head:
+            return np.concatenate([allowed, np.ones(len(PAN_WINDOWS), dtype=bool)])
         return np.repeat(allowed, self.pan_windows) if self.pan_windows > 1 else allowed
 
 
@@ -169,6 +180,8 @@ def shield_for(recipe: dict[str, Any], what: str,
         raise ValueError(f"the collision shield guards a policy over the relative table on the "
                          f"camera scan (rover-train --camera-scan --relative-table); {what} "
                          f"is not one")  # fmt: skip
+    if recipe.get("pan_head"):
+        return CollisionShield(config, pan_head=True)
     looking = recipe.get("env") == "fused-gaze"
     return CollisionShield(config, pan_windows=len(PAN_WINDOWS) if looking else 1)
 

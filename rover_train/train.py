@@ -136,6 +136,10 @@ class TrainArgs:
     fused-gaze Discrete(300), each with one of the 5 pan windows (-60 to +60 deg) as the
     camera's target, so the policy learns where to look from the reward.
     rover_train.wrappers.RelativeTable."""
+    pan_head: bool = False
+    """With --env fused-gaze --relative-table: the table as two heads, MultiDiscrete([60, 5])
+    (a drive of the relative table, a pan window), instead of Discrete(300). Each head learns
+    from the whole reward; with --shield only the drive head is masked."""
     shield: bool = False
     """With --camera-scan --relative-table and --algo ppo: train behind the collision shield
     (rover_train.shield): sb3-contrib's MaskablePPO, the shield's mask of the table actions
@@ -402,6 +406,13 @@ def validate(args: TrainArgs) -> str | None:
     if args.relative_table and args.env not in ("fused", "fused-gaze"):
         return ("--relative-table puts Discrete(60) over a continuous fused env: use --env fused "
                 "or fused-gaze (lidar-discrete has the same table already)")
+    if args.pan_head and not (args.env == "fused-gaze" and args.relative_table):
+        return ("--pan-head splits the gaze env's relative table into a drive head and a pan "
+                f"head: give --env fused-gaze --relative-table (got --env {args.env}"
+                f"{'' if args.relative_table else ', no --relative-table'})")  # fmt: skip
+    if args.pan_head and args.algo not in ON_POLICY:
+        return (f"--pan-head's two heads (MultiDiscrete) are for --algo ppo or recurrent-ppo "
+                f"(got --algo {args.algo})")  # fmt: skip
     if args.shield and not (args.camera_scan and args.relative_table and args.algo == "ppo"):
         return ("--shield masks the relative table's actions by the camera scan, for PPO: give "
                 "--camera-scan --relative-table with --algo ppo (got "
@@ -589,6 +600,7 @@ def _build_vec_env(args: TrainArgs, monitor_dir: Path, append_monitor: bool) -> 
             camera_scan=args.camera_scan,
             drop_image=args.drop_image,
             relative_table=args.relative_table,
+            pan_head=args.pan_head,
         )
         for i in range(args.slots)
     ]

@@ -4,7 +4,9 @@ drives the plain env.
 - :class:`RelativeTable` (``rover-train --relative-table``): ``Discrete(60)`` over a
   continuous env's ``[speed, relative heading]`` action, the seed's 5 speeds x 12 headings
   relative to the yaw, exactly ``RoverEnvDiscrete``'s table (on a gaze env ``Discrete(300)``:
-  each of them with each of the 5 pan windows as the camera's target). PPO from scratch learns the
+  each of them with each of the 5 pan windows as the camera's target; or, with
+  ``pan_head=True`` (``--pan-head``), ``MultiDiscrete([60, 5])``: the drive and the pan
+  window as two heads of the policy). PPO from scratch learns the
   nav task on that table where Gaussian noise on the box, filtered out by the rover's
   inertia, did not (the LIDAR RL entries); the fused discrete env's table steers to
   absolute compass headings, which a policy must then learn at every yaw.
@@ -66,6 +68,18 @@ def relative_action(action: Any) -> np.ndarray:
     return np.array([SPEED_LEVELS[speed_idx], RELATIVE_ANGLES[direction_idx]], dtype=np.float32)
 
 
+def relative_head_action(action: Any) -> np.ndarray:
+    """The ``[speed, relative heading, pan target]`` float32 command of a two-head action
+    ``[drive, window]`` (``MultiDiscrete([60, 5])``: the relative table's action and the pan
+    window, ``PAN_WINDOWS`` index); the same command as :func:`relative_looking_action` of
+    ``drive * 5 + window``."""
+    drive, window = (int(a) for a in np.asarray(action).reshape(-1))
+    if not (0 <= drive < N_SEED_ACTIONS and 0 <= window < len(PAN_WINDOWS)):
+        raise ValueError(f"a two-head action is [drive 0..{N_SEED_ACTIONS - 1}, pan window "
+                         f"0..{len(PAN_WINDOWS) - 1}], got {action!r}")  # fmt: skip
+    return np.array([*relative_action(drive), PAN_WINDOWS[window]], dtype=np.float32)
+
+
 def relative_looking_action(action: Any) -> np.ndarray:
     """The ``[speed, relative heading, pan target]`` float32 command of an action in
     ``0..299`` of the relative table with a pan target: ``action // 5`` is the drive (the
@@ -81,9 +95,12 @@ class RelativeTable(gym.ActionWrapper):
     ``Discrete(60)`` (see the module docstring); over a gaze env's ``[speed, relative heading,
     pan target]``: ``Discrete(300)``, each drive with each of the 5 pan windows as the pan
     target (:func:`relative_looking_action`), so that one policy chooses how to drive and
-    where to look, each step, with no state in between."""
+    where to look, each step, with no state in between; with ``pan_head=True``,
+    ``MultiDiscrete([60, 5])`` (:func:`relative_head_action`): the drive and the window are
+    two heads, each of 60 and 5 choices, so what the reward teaches of one is not spread over
+    the other's 5 or 60 copies of it."""
 
-    def __init__(self, env: gym.Env) -> None:
+    def __init__(self, env: gym.Env, pan_head: bool = False) -> None:
         super().__init__(env)
         box = env.action_space
         if not isinstance(box, spaces.Box) or box.shape[0] not in (2, 3):
@@ -93,10 +110,24 @@ class RelativeTable(gym.ActionWrapper):
                 f"fused-gaze)"
             )
         self.looking = box.shape[0] == 3
-        self.action_space = spaces.Discrete(N_LOOKING_ACTIONS if self.looking else N_SEED_ACTIONS)
+        if pan_head and not self.looking:
+            raise ValueError("pan_head (--pan-head) splits a gaze env's table into a drive head "
+                             "and a pan head; this env has no pan (use --env fused-gaze)")
+        self.pan_head = pan_head
+        table = N_LOOKING_ACTIONS if self.looking else N_SEED_ACTIONS
+        self.action_space: spaces.Space[Any] = (
+            spaces.MultiDiscrete([N_SEED_ACTIONS, len(PAN_WINDOWS)]) if pan_head
+            else spaces.Discrete(table))  # fmt: skip
 
     def action(self, action: Any) -> np.ndarray:
-        return relative_looking_action(action) if self.looking else relative_action(action)
+        return table_command(action, self.looking, self.pan_head)
+
+
+def table_command(action: Any, looking: bool, pan_head: bool = False) -> np.ndarray:
+    """The env command of a relative-table action (see :class:`RelativeTable`)."""
+    if pan_head:
+        return relative_head_action(action)
+    return relative_looking_action(action) if looking else relative_action(action)
 
 
 class DropImage(gym.ObservationWrapper):
@@ -141,7 +172,10 @@ def agent_io(recipe: dict[str, Any]) -> tuple[Callable[[Any], Any] | None,
 
     act = None
     if recipe.get("relative_table"):
-        act = relative_looking_action if recipe.get("env") == "fused-gaze" else relative_action
+        if recipe.get("pan_head"):
+            act = relative_head_action
+        else:
+            act = relative_looking_action if recipe.get("env") == "fused-gaze" else relative_action
     return (observe if steps else None), act
 
 

@@ -381,6 +381,52 @@ def test_the_shield_is_trained_with_ppo_over_the_relative_table_on_the_scan(
             capsys.readouterr().err)
 
 
+def test_a_looking_agent_trains_with_a_drive_head_and_a_pan_head_behind_the_shield(
+    daemon: Daemon, tmp_path: Path
+) -> None:
+    """rover-train --env fused-gaze --relative-table --pan-head: MultiDiscrete([60, 5]), the
+    shield masking the drive head; the model drives the gaze env as trained."""
+    from rover_train import evaluate
+    from rover_train.envs import make_env
+    from rover_train.shield import CollisionShield
+    from rover_train.train import parse_args, train
+
+    args = ["--env", "fused-gaze", "--world", "inspect", "--task", "nav", "--camera-scan",
+            "--drop-image", "--relative-table", "--pan-head", "--waypoint", "--shield",
+            "--name", daemon.name, "--slots", "1", "--n-steps", "32", "--batch-size", "32",
+            "--n-epochs", "1", "--no-progress", "--checkpoint-every", "0", "--timesteps", "32",
+            "--logdir", str(tmp_path)]  # fmt: skip
+    assert train(parse_args(args))["status"] == "complete"
+    env = make_env("fused-gaze", world="inspect", name=daemon.name, task="nav",
+                   camera_scan=True)  # fmt: skip
+    try:
+        agent = evaluate.load_policy(tmp_path / "model.zip", env, deterministic=False)
+        assert agent.model.action_space.nvec.tolist() == [60, 5]
+        assert isinstance(agent.shield, CollisionShield) and agent.shield.pan_head
+        obs, _ = env.reset(seed=3)
+        for _ in range(5):
+            action = agent.act(obs)
+            assert env.action_space.contains(action) and action.shape == (3,)
+            obs, *_ = env.step(action)
+    finally:
+        env.close()
+
+
+def test_the_pan_head_is_for_the_gaze_envs_table_and_on_policy_learners(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from rover_train.train import parse_args
+
+    for bad, says in ((["--env", "fused", "--relative-table", "--pan-head"], "--env fused-gaze"),
+                      (["--env", "fused-gaze", "--pan-head"], "no --relative-table"),
+                      (["--env", "fused-gaze", "--relative-table", "--pan-head", "--algo",
+                        "dqn"], "--algo ppo or recurrent-ppo")):  # fmt: skip
+        with pytest.raises(SystemExit):
+            parse_args(bad)
+        err = capsys.readouterr().err
+        assert "--pan-head" in err and says in err
+
+
 def test_the_relative_table_is_rover_env_discretes_table() -> None:
     from rover_env.lidar_discrete_env import RoverEnvDiscrete
     from rover_train.wrappers import RelativeTable, relative_action

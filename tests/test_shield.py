@@ -24,6 +24,7 @@ from rover_train.wrappers import (
     RelativeTable,
     agent_io,
     relative_action,
+    relative_head_action,
     relative_looking_action,
 )
 
@@ -187,3 +188,70 @@ def test_the_shield_of_a_looking_policy_judges_the_drive_whatever_the_pan() -> N
     drives = CollisionShield().allowed(scan)
     assert np.array_equal(mask, np.repeat(drives, 5))  # action // 5 is the drive
     assert not mask[5 * _action(1.0, 0.0) + 4]
+
+
+def test_the_pan_head_splits_the_looking_table_into_a_drive_and_a_window() -> None:
+    env = RelativeTable(_Box3Env(), pan_head=True)
+    assert env.action_space == spaces.MultiDiscrete([60, 5])
+    for drive in range(60):
+        for window in range(5):
+            env.step(np.array([drive, window]))
+            assert env.unwrapped.sent == pytest.approx(relative_looking_action(5 * drive + window))
+    recipe = {"relative_table": True, "env": "fused-gaze", "pan_head": True}
+    assert agent_io(recipe)[1] is relative_head_action
+    with pytest.raises(ValueError, match="pan window 0..4"):
+        relative_head_action([0, 5])
+    with pytest.raises(ValueError, match="--env fused-gaze"):
+        RelativeTable(_Box2Env(), pan_head=True)
+
+
+class _Box2Env(_Box3Env):
+    action_space = spaces.Box(-np.ones(2, np.float32), np.ones(2, np.float32))
+
+
+def test_the_shield_of_the_pan_head_masks_the_drive_head_and_frees_the_window() -> None:
+    recipe = {"relative_table": True, "camera_scan": True, "env": "fused-gaze", "pan_head": True}
+    shield = shield_for(recipe, "x")
+    scan = _scan((0.01, 0.45))
+    mask = shield({"camera_scan": scan})
+    assert mask.shape == (65,)  # sb3-contrib's MultiDiscrete mask: 60 drives, then 5 windows
+    assert np.array_equal(mask[:60], CollisionShield().allowed(scan)) and mask[60:].all()
+    assert not mask[_action(1.0, 0.0)]
+    with pytest.raises(ValueError, match="give one of them"):
+        CollisionShield(pan_windows=5, pan_head=True)
+
+
+class _ScanEnv(gym.Env):
+    """The camera scan in, the pan head's two heads out (for an untrained policy)."""
+
+    observation_space = spaces.Dict({"camera_scan": spaces.Box(0.0, FAR, shape=(3, 32))})
+    action_space = spaces.MultiDiscrete([60, 5])
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple:
+        return self.observation_space.sample(), {}
+
+    def step(self, action: np.ndarray) -> tuple:
+        return self.observation_space.sample(), 0.0, False, False, {}
+
+
+def test_a_shielded_two_head_agent_drives_allowed_and_looks_where_it_draws() -> None:
+    from sb3_contrib import MaskablePPO
+
+    model = MaskablePPO("MultiInputPolicy", _ScanEnv(), seed=0, device="cpu")
+    only = np.zeros(65, dtype=bool)
+    only[[_action(0.0, 0.0), _action(-0.2, 0.0)]] = True
+    only[60:] = True  # every window
+    windows = set()
+    changed = 0
+    for seed in range(30):
+        obs = {"camera_scan": _scan((0.5 * seed, 1.0))}
+        free = ModelAgent(model, deterministic=False, seed=seed,
+                          shield=lambda o: np.ones(65, dtype=bool)).act(obs)  # fmt: skip
+        guarded = ModelAgent(model, deterministic=False, seed=seed, shield=lambda o: only).act(obs)
+        assert free.shape == guarded.shape == (2,)
+        assert only[guarded[0]]
+        changed += int(free[0] != guarded[0])
+        windows.add(int(guarded[1]))
+        best = ModelAgent(model, shield=lambda o: only).act(obs)
+        assert only[best[0]] and 0 <= best[1] < 5
+    assert changed > 0 and len(windows) > 1  # the mask changed drives; the window stays drawn
