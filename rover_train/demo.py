@@ -25,7 +25,9 @@ Leaves under ``--out`` (default ``runs/demo``):
   checkpoint, or evaluates a finished one.
 - ``curve.json`` and ``learning_curve.png``: evaluation success and collisions by training
   steps, with the training episodes' success beside them.
-- ``eval.txt``: the trained agent beside random, and the curve.
+- ``eval.txt``: the trained agent beside the zoo's camera agent from the reward
+  (``rl-fused-inspect`` or ``rl-fused-maze``, :data:`ZOO_REFERENCE`, on the same episodes)
+  and random, and the curve.
 - ``eval.mp4``: the trained agent's first ``--video-episodes`` (chase view beside the gray,
   heatmap and depth channels), and ``eval_still.png``.
 
@@ -47,6 +49,7 @@ from pathlib import Path
 from typing import Any
 
 from rover_env.constants import CONTROL_DT
+from rover_train import zoo
 from rover_train.agents import RandomAgent
 from rover_train.checkpoint import Checkpoint, ResumeError, RunRecord, find_checkpoints
 from rover_train.envs import make_env
@@ -66,6 +69,8 @@ from shm_protocol.names import default_slots
 
 DEMO_WORLDS = ("inspect", "maze")
 """Worlds the demo trains in."""
+ZOO_REFERENCE = {"inspect": "rl-fused-inspect", "maze": "rl-fused-maze"}
+"""The zoo's camera agent from the reward for each demo world, measured beside the curve."""
 _LABEL_ROWS = 24  # video rows holding the panels' names (rover_train.evaluate.label_frame)
 
 
@@ -140,8 +145,9 @@ def training_success(episodes: list[dict[str, Any]], bins: int) -> list[dict[str
 
 
 def plot_curve(curve: list[dict[str, Any]], training: list[dict[str, float]],
-               path: Path, title: str) -> None:  # fmt: skip
-    """Evaluation success and collisions by training steps, training success beside them."""
+               reference: dict[str, Any] | None, path: Path, title: str) -> None:  # fmt: skip
+    """Evaluation success and collisions by training steps, training success beside them,
+    and the zoo's entry (``reference``) on the same episodes as a level line."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -156,6 +162,9 @@ def plot_curve(curve: list[dict[str, Any]], training: list[dict[str, float]],
     if training:
         ax.plot([t["steps"] for t in training], [100 * t["success"] for t in training], "-",
                 color="0.6", label="training episodes: reached the goal")  # fmt: skip
+    if reference is not None:
+        ax.axhline(100 * reference["success_rate"], color="b", linestyle=":",
+                   label=f"{reference['policy']}: reached the goal")  # fmt: skip
     ax.set_xlabel("training env steps (0: the random policy)")
     ax.set_ylabel("episodes (%)")
     ax.set_ylim(-5, 105)
@@ -169,7 +178,8 @@ def plot_curve(curve: list[dict[str, Any]], training: list[dict[str, float]],
 @dataclass(frozen=True)
 class PointJob:
     """One point of the learning curve to measure: a policy (a checkpoint's file, or None for
-    the seeded random policy) on the evaluation episodes, on one daemon slot."""
+    the seeded random policy; or the zoo entry ``entry``) on the evaluation episodes, on one
+    daemon slot."""
 
     world: str
     name: str
@@ -178,6 +188,7 @@ class PointJob:
     seed: int
     episodes: int
     max_steps: int
+    entry: str | None = None
 
     def run(self, frames: list[Any] | None = None, video_episodes: int = 0) -> dict[str, Any]:
         """The point's summary (``rover_train.evaluate.summarise``); ``frames`` gets the
@@ -185,10 +196,15 @@ class PointJob:
         env = make_env("fused", world=self.world, name=self.name, slot=self.slot, task="nav",
                        camera_scan=True, render_mode="rgb_array" if frames is not None else None)
         try:
-            agent = (RandomAgent(env.action_space, self.seed) if self.model is None else
-                     load_policy(Path(self.model), env, "ppo", deterministic=False,
-                                 seed=self.seed))  # fmt: skip
-            label = "random" if self.model is None else Path(self.model).stem
+            agent: Any
+            if self.entry is not None:  # as the zoo drives it (rover_train.zoo.load)
+                agent, label = zoo.load(self.entry), self.entry
+            elif self.model is None:
+                agent, label = RandomAgent(env.action_space, self.seed), "random"
+            else:
+                agent = load_policy(Path(self.model), env, "ppo", deterministic=False,
+                                    seed=self.seed)  # fmt: skip
+                label = Path(self.model).stem
             return summarise(evaluate_agent(
                 env, agent, self.episodes, EVAL_SEED_BASE, self.max_steps, frames,
                 video_episodes, StatusLine(f"demo eval ({label})",
@@ -320,19 +336,24 @@ def main(argv: Sequence[str] | None = None) -> int:
     t_train = time.monotonic() - t_start
 
     seeds = f"seeds {EVAL_SEED_BASE}..{EVAL_SEED_BASE + args.episodes - 1}"
+    entry = ZOO_REFERENCE[args.world]
     jobs = [PointJob(args.world, default_name(), 0, None, args.seed, args.episodes,
-                     args.max_steps)]  # fmt: skip
+                     args.max_steps),
+            PointJob(args.world, default_name(), 0, None, args.seed, args.episodes,
+                     args.max_steps, entry=entry)]  # fmt: skip
     jobs += [PointJob(args.world, default_name(), 0, str(ck.model_path), args.seed,
                       args.episodes, args.max_steps) for ck in found]  # fmt: skip
     frames: list[Any] = []
     summaries = evaluate_points(jobs, default_slots(), frames, args.video_episodes)
     curve = [{"steps": 0, "policy": f"random (seed {args.seed})", **summaries[0]}]
     curve += [{"steps": int(ck.state["num_timesteps"]), "policy": ck.model_path.name, **sm}
-              for ck, sm in zip(found, summaries[1:], strict=True)]  # fmt: skip
+              for ck, sm in zip(found, summaries[2:], strict=True)]  # fmt: skip
+    reference = {"policy": f"zoo entry {entry}", **summaries[1]}
     random, trained = curve[0], curve[-1]
     title = f"RoverEnvFused ({args.world}) nav task, {seeds}, at most {args.max_steps} steps"
     report = "\n\n".join([
         format_comparison([(f"PPO, {trained['steps']:,} steps", trained),
+                           (f"zoo entry {entry}", reference),
                            (f"random policy (seed {args.seed})", random)], title),
         "Learning curve (the same episodes):\n\n" + format_curve(curve),
     ])  # fmt: skip
@@ -340,7 +361,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     log_file = run_dir / "metrics.json"
     episodes = json.loads(log_file.read_text())["episode_log"] if log_file.is_file() else []
     training = training_success(episodes, 20)
-    plot_curve(curve, training, args.out / "learning_curve.png",
+    plot_curve(curve, training, reference, args.out / "learning_curve.png",
                f"PPO from scratch, camera scan, {args.world}: {seeds}")  # fmt: skip
     if frames:
         write_video(frames, args.out / "eval.mp4", 1.0 / CONTROL_DT)
@@ -348,7 +369,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     wall = time.monotonic() - t_start
     (args.out / "curve.json").write_text(json.dumps({
         "world": args.world, "episodes": args.episodes, "seed_base": EVAL_SEED_BASE,
-        "max_steps": args.max_steps, "curve": curve, "training": training,
+        "max_steps": args.max_steps, "curve": curve, "reference": reference,
+        "training": training,
         "train_wall_s": t_train, "wall_s": wall}, indent=2))  # fmt: skip
     print(report)
     print(f"demo: done in {wall / 60:.1f} min; outputs in {args.out}/: run/ curve.json "

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 from helpers.daemon import Daemon
 
-from rover_train import demo
+from rover_train import demo, zoo
 from rover_train.envs import make_env
 from rover_train.evaluate import evaluate_agent, load_policy, summarise
 from rover_train.zoo import EVAL_SEED_BASE
@@ -77,8 +77,21 @@ def test_the_main_job_trains_from_scratch_and_evaluates_each_checkpoint(
     assert {k: again[k] for k in ("success_rate", "collision_rate", "mean_return")} == {
         k: curve[-1][k] for k in ("success_rate", "collision_rate", "mean_return")}
 
+    # the zoo's camera agent from the reward drove the same episodes, as the zoo drives it
+    reference = record["reference"]
+    assert reference["policy"] == "zoo entry rl-fused-inspect"
+    assert reference["episodes"] == EPISODES
+    env = make_env("fused", world="inspect", name=paired.name, task="nav", camera_scan=True)
+    try:
+        entry = summarise(evaluate_agent(env, zoo.load("rl-fused-inspect"), EPISODES,
+                                         EVAL_SEED_BASE, MAX_STEPS))  # fmt: skip
+    finally:
+        env.close()
+    assert entry["mean_return"] == reference["mean_return"]
+
     table = (out / "eval.txt").read_text()
     assert "PPO, 1,024 steps" in table and "random policy (seed 0)" in table
+    assert "zoo entry rl-fused-inspect" in table
     assert "| 512 |" in table and "| 1,024 |" in table
 
     # the same command again continues the finished run: nothing retrained, the same curve
