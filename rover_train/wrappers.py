@@ -202,6 +202,75 @@ class FirstContact:
         return self.first_seen is not None
 
 
+class ViewLog:
+    """Where each pedestrian was when first inside the camera's view this episode (a
+    geometric test within 10 m: ``RoverSim.pedestrians_in_view``), and the episode's first
+    pedestrian contact (:class:`FirstContact`): was the person touched seen before?"""
+
+    def __init__(self) -> None:
+        self.first_contact: FirstContact | None = None
+        self._first_seen = np.zeros((0, 2))
+
+    def reset(self, base: Any) -> None:
+        """A new episode of ``base`` (an unwrapped rover env); call before its first
+        :meth:`note`."""
+        self.first_contact = None
+        self._first_seen = np.full((len(base.sim.pedestrian_positions), 2), np.nan)
+
+    def note(self, base: Any, in_view: np.ndarray) -> None:
+        """Record where each pedestrian in view now (``in_view``, (P,) bool) was first seen
+        from: (m from the rover, bearing in degrees from its heading, left positive)."""
+        new = in_view & ~np.isfinite(self._first_seen[:, 0])
+        if new.any():
+            rel = base.sim.pedestrian_positions[new] - base.position[:2]
+            bearing = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]) - base.orientation[2])
+            self._first_seen[new, 0] = np.hypot(rel[:, 0], rel[:, 1])
+            self._first_seen[new, 1] = (bearing + 180.0) % 360.0 - 180.0
+
+    def contact(self, base: Any, step: int) -> None:
+        """A pedestrian contact at ``step``: the episode's first is kept, with the nearest
+        person (the one touched) and whether, and where, they had been seen before."""
+        if self.first_contact is not None:
+            return
+        seen = self._first_seen[base.nearest_pedestrian_index()]
+        self.first_contact = FirstContact(
+            step, (float(seen[0]), float(seen[1])) if np.isfinite(seen[0]) else None)
+
+
+class ContactOrigins(gym.Wrapper):
+    """Any rover env (LIDAR, fused or gaze), unchanged, with :attr:`first_contact`: the
+    episode's first pedestrian contact and whether the person touched had been in the
+    camera's view before it (:class:`ViewLog`, on the camera as it was each step: ahead for a
+    fixed camera, turned for a gaze agent). What looking could ever win: a contact with a
+    person never in a fixed camera's view."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.views = ViewLog()
+        self.steps = 0
+
+    @property
+    def first_contact(self) -> FirstContact | None:
+        return self.views.first_contact
+
+    def reset(self, **kwargs: Any) -> tuple[Any, dict[str, Any]]:
+        obs, info = self.env.reset(**kwargs)
+        base: Any = self.env.unwrapped
+        self.steps = 0
+        self.views.reset(base)
+        self.views.note(base, base.sim.pedestrians_in_view())
+        return obs, info
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        base: Any = self.env.unwrapped
+        self.steps += 1
+        if info.get("pedestrian_collision"):
+            self.views.contact(base, self.steps)
+        self.views.note(base, base.sim.pedestrians_in_view())
+        return obs, reward, terminated, truncated, info
+
+
 class WithPanHead(gym.Wrapper):
     """An env without a pan action (RoverEnv) driven as RoverEnvFusedGaze is: the action is
     ``[speed, relative heading, pan target]``, after each step the sim's camera head turns
@@ -230,21 +299,22 @@ class WithPanHead(gym.Wrapper):
         self.pan_target = 0.0
         self.steps = 0
         self.nearest_in_view_steps = 0
-        self.first_contact: FirstContact | None = None
-        self._first_seen = np.zeros((0, 2))
+        self.views = ViewLog()
         self._in_view = np.zeros(0, dtype=bool)
+
+    @property
+    def first_contact(self) -> FirstContact | None:
+        return self.views.first_contact
 
     def reset(self, **kwargs: Any) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         base = self.env.unwrapped
         base.sim.set_camera_pan(0.0)  # type: ignore[attr-defined]
         self.pan_target = 0.0
         self.steps = self.nearest_in_view_steps = 0
-        self.first_contact = None
         obs, info = self.env.reset(**kwargs)
-        n = len(base.sim.pedestrian_positions)  # type: ignore[attr-defined]
-        self._first_seen = np.full((n, 2), np.nan)  # (m, deg) from the rover when first in view
+        self.views.reset(base)
         info = self._info(info)
-        self._note_views()
+        self.views.note(base, self._in_view)
         return self._observation(obs), info
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
@@ -262,23 +332,11 @@ class WithPanHead(gym.Wrapper):
         info = self._info(info)
         self.steps += 1
         self.nearest_in_view_steps += info["nearest_pedestrian_in_view"]
-        if info.get("pedestrian_collision") and self.first_contact is None:
-            who = self.env.unwrapped.nearest_pedestrian_index()  # type: ignore[attr-defined]
-            seen = self._first_seen[who]
-            self.first_contact = FirstContact(
-                self.steps, (float(seen[0]), float(seen[1])) if np.isfinite(seen[0]) else None)
-        self._note_views()
-        return self._observation(obs), float(reward), terminated, truncated, info
-
-    def _note_views(self) -> None:
-        """Where each pedestrian in view now was first seen from (distance, bearing)."""
         base: Any = self.env.unwrapped
-        new = self._in_view & ~np.isfinite(self._first_seen[:, 0])
-        if new.any():
-            rel = base.sim.pedestrian_positions[new] - base.position[:2]
-            bearing = np.degrees(np.arctan2(rel[:, 1], rel[:, 0]) - base.orientation[2])
-            self._first_seen[new, 0] = np.hypot(rel[:, 0], rel[:, 1])
-            self._first_seen[new, 1] = (bearing + 180.0) % 360.0 - 180.0
+        if info.get("pedestrian_collision"):
+            self.views.contact(base, self.steps)
+        self.views.note(base, self._in_view)
+        return self._observation(obs), float(reward), terminated, truncated, info
 
     def _observation(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         pan = self.env.unwrapped.sim.camera_pan  # type: ignore[attr-defined]

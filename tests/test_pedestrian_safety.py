@@ -183,24 +183,27 @@ def test_the_fused_envs_charge_the_nav_tasks_personal_space_wherever_the_camera_
         env.close()
 
 
+@pytest.mark.parametrize("wrapper", ["WithPanHead", "ContactOrigins"])
 @pytest.mark.parametrize(("start", "seen"), [((-4.0, 0.0), False), ((-1.0, 4.0), True)])
 def test_first_contact_says_whether_the_person_was_in_view_before(
-    start: tuple[float, float], seen: bool
+    start: tuple[float, float], seen: bool, wrapper: str
 ) -> None:
     """An oblivious walker walks through the parked rover from its left side (never in the
     forward camera's 90° view) or from ahead, a little left (in view from the start, 4 m off):
-    WithPanHead's first contact records which, and where the walker was first seen."""
-    from rover_train.wrappers import WithPanHead
+    the first contact (WithPanHead's, or ContactOrigins' over any env) records which, and
+    where the walker was first seen."""
+    from rover_train import wrappers
 
     rx, ry, _ = ROVER_AT
-    env = WithPanHead(RoverEnv(world_n="moon", n_pedestrians=1, pedestrian_mode="oblivious"))
+    env = getattr(wrappers, wrapper)(
+        RoverEnv(world_n="moon", n_pedestrians=1, pedestrian_mode="oblivious"))
     try:
         env.reset(seed=1, options={"rover_pose": ROVER_AT, "goal": (3.0, 3.0)})
         a = (rx + start[0], ry + start[1])
         b = (rx - start[0], ry - start[1])
         env.unwrapped.sim.pedestrians.crowd.lay_crossing(0, a, b, a, 1.2)
-        env._first_seen[:] = np.nan  # the walker was elsewhere at the reset
-        hold = np.zeros(3, dtype=np.float32)
+        env.views.reset(env.unwrapped)  # the walker was elsewhere at the reset
+        hold = np.zeros(env.action_space.shape, dtype=np.float32)
         for _ in range(140):
             env.step(hold)
             if env.first_contact is not None:
