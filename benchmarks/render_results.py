@@ -109,6 +109,10 @@ def validate(name: str, rec: dict) -> None:
     align = rec.get("align", "l" * width)
     if len(align) != width or set(align) - {"l", "r"}:
         raise RecordError(f"record {name}: 'align' needs one l or r per column ({width})")
+    for column in rec["columns"]:
+        if "|" in str(column) or "\n" in str(column):
+            raise RecordError(f"record {name}: the header {column!r} may not hold '|' or a "
+                              "newline (it would split the table's columns)")  # fmt: skip
     for i, row in enumerate(rec["rows"]):
         if not isinstance(row, list) or len(row) != width:
             raise RecordError(f"record {name}: row {i} must be a list of {width} cells")
