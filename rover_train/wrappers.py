@@ -268,7 +268,7 @@ class ContactOrigins(gym.Wrapper):
         if info.get("pedestrian_collision"):
             self.views.contact(base, self.steps)
         self.views.note(base, base.sim.pedestrians_in_view())
-        return obs, reward, terminated, truncated, info
+        return obs, float(reward), terminated, truncated, info
 
 
 class WithPanHead(gym.Wrapper):
