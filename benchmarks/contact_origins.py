@@ -9,11 +9,11 @@ A contact with a person never in a fixed camera's view is what looking could eve
 with a person seen in good time is the driving's. The agent is a rover-train model driven as
 trained (``rover_train.evaluate.load_policy``: its waypoint, table and shield; actions
 sampled, each draw seeded by ``--seed`` and the observation, as rover-eval ``--sample``).
-Episode i is ``reset(seed=--seed + i)`` and ends at the goal, a termination or 600 steps,
-as in rover-eval. The view is the camera's each step (``rover_train.wrappers.ContactOrigins``):
-ahead for RoverEnvFused, turned for the gaze env. ``--save`` puts the row in
-``records/looking_contact_origins.json`` (replacing one of the same label); render RESULTS
-after.
+Episode i is rover-eval's (``rover_train.evaluate.run_episode`` from ``reset(seed=--seed +
+i)``, ending at the goal, a termination or 600 steps). The view is the camera's each step
+(``rover_train.wrappers.ContactOrigins``): ahead for RoverEnvFused, turned for the gaze env.
+``--save`` puts the row in ``records/looking_contact_origins.json`` (replacing one of the
+same label); render RESULTS after.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from typing import Any
 
 from benchmarks.record_file import save_record
 from rover_train.envs import make_env
-from rover_train.evaluate import load_policy
+from rover_train.evaluate import load_policy, run_episode
 from rover_train.wrappers import ContactOrigins
 from roverav_cli import EVAL_SEED_BASE
 
@@ -43,14 +43,8 @@ def run(model: Path, env_kind: str, world: str, mode: str, people: int, episodes
     contacts = unseen = successes = 0
     try:
         agent = load_policy(model, env, deterministic=False, seed=seed)
-        for i in range(episodes):
-            obs, info = env.reset(seed=seed + i)
-            agent.reset()
-            for _ in range(MAX_STEPS):
-                obs, _, terminated, truncated, info = env.step(agent.act(obs))
-                if terminated or truncated:
-                    break
-            successes += bool(info.get("is_success"))
+        for i in range(episodes):  # rover-eval's episode: the same steps, the same success
+            successes += run_episode(env, agent, seed + i, MAX_STEPS, None).success
             contact = env.first_contact
             if contact is None:
                 continue

@@ -114,20 +114,23 @@ class RelativeTable(gym.ActionWrapper):
             raise ValueError("pan_head (--pan-head) splits a gaze env's table into a drive head "
                              "and a pan head; this env has no pan (use --env fused-gaze)")
         self.pan_head = pan_head
+        self._command = table_command(self.looking, pan_head)
         table = N_LOOKING_ACTIONS if self.looking else N_SEED_ACTIONS
         self.action_space: spaces.Space[Any] = (
             spaces.MultiDiscrete([N_SEED_ACTIONS, len(PAN_WINDOWS)]) if pan_head
             else spaces.Discrete(table))  # fmt: skip
 
     def action(self, action: Any) -> np.ndarray:
-        return table_command(action, self.looking, self.pan_head)
+        return self._command(action)
 
 
-def table_command(action: Any, looking: bool, pan_head: bool = False) -> np.ndarray:
-    """The env command of a relative-table action (see :class:`RelativeTable`)."""
+def table_command(looking: bool, pan_head: bool = False) -> Callable[[Any], np.ndarray]:
+    """What turns a relative-table action into the env's command (see
+    :class:`RelativeTable`): on a gaze env (``looking``) with one head or two, else the
+    table's own."""
     if pan_head:
-        return relative_head_action(action)
-    return relative_looking_action(action) if looking else relative_action(action)
+        return relative_head_action
+    return relative_looking_action if looking else relative_action
 
 
 class DropImage(gym.ObservationWrapper):
@@ -172,10 +175,7 @@ def agent_io(recipe: dict[str, Any]) -> tuple[Callable[[Any], Any] | None,
 
     act = None
     if recipe.get("relative_table"):
-        if recipe.get("pan_head"):
-            act = relative_head_action
-        else:
-            act = relative_looking_action if recipe.get("env") == "fused-gaze" else relative_action
+        act = table_command(recipe.get("env") == "fused-gaze", bool(recipe.get("pan_head")))
     return (observe if steps else None), act
 
 
