@@ -770,6 +770,8 @@ def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
             p.error("give an agent: a zoo entry, a model .zip or a student .pt (or --random)")
     elif args.agent in zoo.ENTRIES:
         entry = args.agent
+    elif args.agent in zoo.RETIRED:
+        p.error(zoo.RETIRED[args.agent].message(args.agent))
     else:
         path = Path(args.agent)
         if path.suffix not in (".zip", ".pt") and not path.exists():

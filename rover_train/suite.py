@@ -24,6 +24,8 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
+
 from rover_env.scenarios import Scenario
 
 WILSON_Z = 1.96  # 95 % interval
@@ -44,6 +46,31 @@ def wilson_interval(successes: int, n: int, z: float = WILSON_Z) -> tuple[float,
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
     return max(0.0, centre - half), min(1.0, centre + half)
+
+
+PAIRED_CONFIDENCE = 0.90
+"""The two-sided level of the paired bootstrap intervals (looking against a fixed camera)."""
+BOOTSTRAP = 2000
+"""Resamples of the episodes for a bootstrap interval."""
+
+
+def bootstrap(stat: Callable[[np.ndarray], np.ndarray], n: int, seed: int = 0) -> np.ndarray:
+    """``stat`` of :data:`BOOTSTRAP` resamples of ``n`` episodes (its argument: (B, n) indices
+    into the episodes)."""
+    idx = np.random.default_rng(seed).integers(0, n, (BOOTSTRAP, n))
+    return stat(idx)
+
+
+def percentile_interval(samples: np.ndarray,
+                        confidence: float = PAIRED_CONFIDENCE) -> tuple[float, float]:  # fmt: skip
+    """The ``confidence`` percentile interval of bootstrap ``samples`` (their finite ones;
+    NaNs without any)."""
+    a = (1.0 - confidence) / 2 * 100
+    finite = samples[np.isfinite(samples)]
+    if len(finite) == 0:
+        return math.nan, math.nan
+    lo, hi = np.percentile(finite, [a, 100 - a])
+    return float(lo), float(hi)
 
 
 def run_suite(

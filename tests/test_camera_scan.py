@@ -412,6 +412,29 @@ def test_a_looking_agent_trains_with_a_drive_head_and_a_pan_head_behind_the_shie
         env.close()
 
 
+def test_the_shipped_looking_entry_drives_its_env_and_turns_its_camera(daemon: Daemon) -> None:
+    """zoo.load / zoo.make_env of rl-fused-gaze-inspect: the two heads become the gaze env's
+    (speed, turn, pan) box, the drive behind the shield; the camera does not stay ahead."""
+    from rover_train import zoo
+
+    env = zoo.make_env("rl-fused-gaze-inspect", rl_obs_name=daemon.name, slot=0)
+    agent = zoo.load("rl-fused-gaze-inspect")
+    try:
+        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+        agent.reset()
+        pans = set()
+        for _ in range(40):
+            action = agent.act(obs)
+            assert env.action_space.contains(action) and action.shape == (3,)
+            pans.add(round(float(action[2]), 3))
+            obs, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                break
+        assert len(pans) > 1  # it chose more than one pan window
+    finally:
+        env.close()
+
+
 def test_the_pan_head_is_for_the_gaze_envs_table_and_on_policy_learners(
     capsys: pytest.CaptureFixture[str],
 ) -> None:

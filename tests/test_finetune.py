@@ -319,8 +319,7 @@ def test_a_fine_tuned_gaze_student_is_a_gaze_student_of_its_entry(tmp_path: Path
 
 def test_each_shipped_fine_tune_is_its_start_entrys_kind_and_remakes_from_its_file() -> None:
     shipped = [n for n in zoo.names() if zoo.ENTRIES[n].trainer == zoo.FINETUNE]
-    assert {"fused-moon-rl", "fused-gaze-moon-rl", "fused-inspect-10-rl",
-            "fused-gaze-inspect-10-rl"} <= set(shipped)  # fmt: skip
+    assert {"fused-moon-rl", "fused-gaze-moon-rl"} <= set(shipped)
     for name in shipped:
         spec = zoo.ENTRIES[name]
         recipe = read_recipe(spec.path)

@@ -119,8 +119,7 @@ def test_the_gaze_teacher_labels_pan_targets_and_the_fixed_one_none() -> None:
 
 
 @pytest.mark.parametrize("gaze, fixed", [("fused-gaze-moon", "fused-moon"),
-                                         ("fused-gaze-inspect", "fused-inspect"),
-                                         ("fused-gaze-inspect-10", "fused-inspect-10")])
+                                         ("fused-gaze-inspect", "fused-inspect")])
 def test_a_gaze_recipe_needs_the_gaze_teacher_that_sees_through_its_camera(
     gaze: str, fixed: str
 ) -> None:

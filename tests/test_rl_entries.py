@@ -13,6 +13,7 @@ from rover_train import evaluate, zoo
 from rover_train.algos import ModelAgent
 from rover_train.recipe import RECIPE_MEMBER, RecipeError, read_recipe
 from rover_train.train import parse_args, train
+from rover_train.zoo.registry import LOOKING_RL_PAIR
 
 TINY = ["--env", "lidar-discrete", "--world", "inspect", "--task", "nav", "--n-steps", "64",
         "--batch-size", "32", "--n-epochs", "1", "--no-progress", "--checkpoint-every", "0",
@@ -122,7 +123,8 @@ def test_rover_eval_scores_an_rl_model_and_refuses_the_expert_for_it(
 
 def test_shipped_rl_entries_carry_the_recipe_their_command_trains() -> None:
     shipped = [n for n in zoo.names() if zoo.ENTRIES[n].trainer == zoo.RL]
-    assert shipped == ["rl-fused-inspect", "rl-fused-maze", "rl-lidar-inspect", "rl-lidar-maze"]
+    assert shipped == ["rl-fused-gaze-inspect", "rl-fused-inspect", "rl-fused-inspect-twin",
+                       "rl-fused-maze", "rl-lidar-inspect", "rl-lidar-maze"]
     for name in shipped:
         spec = zoo.ENTRIES[name]
         recipe = read_recipe(spec.path)
@@ -138,9 +140,24 @@ def test_shipped_rl_entries_carry_the_recipe_their_command_trains() -> None:
         agent = zoo.load(name)
         assert isinstance(agent, ModelAgent)
         # the camera agents sample their policy (seeded), the LIDAR agents take its mode
-        assert agent.deterministic is (not spec.sampled) and spec.sampled is (spec.kind == "fused")
-        if spec.kind == "fused":  # the camera scan they were trained on, in the entry's env
+        camera = spec.kind in ("fused", "fused-gaze")
+        assert agent.deterministic is (not spec.sampled) and spec.sampled is camera
+        if camera:  # the camera scan they were trained on, in the entry's env, and the shield
             assert recipe["camera_scan"] and spec.env_kwargs["camera_scan"]
+            assert spec.shield and agent.shield is not None
+        # the looking one drives its two heads (a drive, a pan window), its twin one
+        assert bool(recipe.get("pan_head")) is (spec.kind == "fused-gaze")
+
+
+def test_the_looking_pair_differs_in_the_camera_alone() -> None:
+    looking, twin = (read_recipe(zoo.ENTRIES[n].path) for n in LOOKING_RL_PAIR)
+    assert (looking["env"], twin["env"]) == ("fused-gaze", "fused")
+    assert looking["pan_head"] and not twin.get("pan_head")
+    same = {k: v for k, v in looking.items() if k not in ("env", "pan_head")}
+    assert same == {k: v for k, v in twin.items() if k not in ("env", "pan_head")}
+    assert same["timesteps"] == 401_408 and same["shield"] and same["relative_table"]
+    assert [zoo.ENTRIES[n].env_kwargs for n in LOOKING_RL_PAIR] == [
+        {"world_n": "inspect", "camera_scan": True}] * 2
 
 
 def _actions(agent: ModelAgent, seed: int = zoo.EVAL_SEED_BASE, steps: int = 40) -> list[int]:

@@ -92,10 +92,11 @@ def test_a_bare_suite_is_the_worlds_scenarios_for_a_model_or_random_too(
     (["--random", "--shield"], ["--shield", "not --random"]),
     (["rl-lidar-maze", "--shield"], ["collision shield", "camera scan", "rl-lidar-maze"]),
     (["lidar-maze", "--shield"], ["collision shield", "lidar-maze"]),
+    (["fused-inspect-10"], ["fused-inspect-10", "was retired", "git show"]),
 ], ids=["no_agent", "world", "manners", "bad_manners", "expert_model", "typo",
         "dump_suite", "temperature_unsampled", "temperature_zero",
         "temperature_greedy_entry", "shield_random", "shield_lidar_rl",
-        "shield_student"])  # fmt: skip
+        "shield_student", "retired"])  # fmt: skip
 def test_rover_eval_usage_errors(argv: list[str], words: list[str],
                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     with pytest.raises(SystemExit) as exc:

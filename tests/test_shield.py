@@ -147,10 +147,12 @@ def test_the_shield_goes_with_the_camera_rl_entries_only() -> None:
         zoo.load("rl-lidar-inspect", shield=True)
     with pytest.raises(ValueError, match="student"):
         zoo.load("fused-inspect", shield=True)
-    for name in ("rl-fused-inspect", "rl-fused-maze"):  # they ship behind it
+    for name in ("rl-fused-inspect", "rl-fused-maze", "rl-fused-gaze-inspect",
+                 "rl-fused-inspect-twin"):  # they ship behind it
         assert isinstance(zoo.load(name).shield, CollisionShield)
     assert zoo.load("rl-fused-inspect", shield=False).shield is None
     assert zoo.load("rl-lidar-inspect").shield is None
+    assert zoo.load("rl-fused-gaze-inspect").shield.pan_head  # the drive head's mask
 
 
 class _Box3Env(gym.Env):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import math
+import subprocess
 import uuid
 from dataclasses import replace
 from pathlib import Path
@@ -47,6 +48,7 @@ from rover_train.zoo.agent import (
     state_features,
     unmapped_scan,
 )
+from rover_train.zoo.registry import ENTRY_DIR
 
 REQUIRED = ("fused-inspect", "fused-maze", "lidar-inspect", "lidar-maze")
 
@@ -74,6 +76,27 @@ def test_the_zoo_ships_the_four_entries_in_a_few_megabytes() -> None:
 def test_an_unknown_entry_names_the_ones_there_are() -> None:
     with pytest.raises(zoo.UnknownEntryError, match="lidar-maze"):
         zoo.load("lidar-mars")
+
+
+def test_a_retired_entry_says_it_was_retired_and_where_its_file_is() -> None:
+    for name, retired in zoo.RETIRED.items():
+        assert name not in zoo.ENTRIES and not (ENTRY_DIR / retired.file).exists()
+        with pytest.raises(zoo.UnknownEntryError) as exc:
+            zoo.load(name)
+        assert "was retired" in str(exc.value)
+        assert f"git show {retired.commit}:rover_train/zoo/entries/{retired.file}" in str(exc.value)
+    root = Path(__file__).resolve().parents[1]
+
+    def git(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True,
+                              check=False)  # fmt: skip
+
+    if (root / ".git").exists() and git("rev-parse", "--is-shallow-repository").stdout.strip() \
+            == "false":  # a clone with its whole history has each named file
+        for retired in zoo.RETIRED.values():
+            at = f"{retired.commit}:rover_train/zoo/entries/{retired.file}"
+            found = git("cat-file", "-e", at)
+            assert found.returncode == 0, found.stderr
 
 
 @pytest.mark.parametrize("name", ["lidar-maze", "lidar-inspect"])

@@ -31,12 +31,10 @@ from rover_env.reward import RewardConfig
 from rover_env.scenarios import Scenario
 from rover_train.evaluate import EpisodeResult, run_episode
 from rover_train.imitation.expert import ExpertConfig, PlannerExpert
-from rover_train.suite import wilson_interval
+from rover_train.suite import bootstrap, percentile_interval, wilson_interval
 from rover_train.wrappers import FirstContact, WithPanHead, WithSeedTable
 
-CONFIDENCE = 0.90
-Z = 1.6449  # two-sided 90 % normal quantile
-BOOTSTRAP = 2000  # resamples of the episodes
+Z = 1.6449  # two-sided 90 % normal quantile (PAIRED_CONFIDENCE's)
 TEACHERS: dict[str, dict[str, str]] = {
     "fixed teacher": {"sees": "camera", "gaze": "fixed"},
     "gaze teacher": {"sees": "camera", "gaze": "active"},
@@ -225,21 +223,6 @@ def write_clip(scenario: Scenario, students: dict[str, tuple[Path, bool]], seed:
 
 
 # --- statistics -----------------------------------------------------------------------------
-def bootstrap(stat: Callable[[np.ndarray], np.ndarray], n: int, seed: int = 0) -> np.ndarray:
-    """``stat`` of ``BOOTSTRAP`` resamples of ``n`` episodes (its argument: (B, n) indices)."""
-    idx = np.random.default_rng(seed).integers(0, n, (BOOTSTRAP, n))
-    return stat(idx)
-
-
-def percentile_interval(samples: np.ndarray) -> tuple[float, float]:
-    a = (1.0 - CONFIDENCE) / 2 * 100
-    finite = samples[np.isfinite(samples)]
-    if len(finite) == 0:
-        return math.nan, math.nan
-    lo, hi = np.percentile(finite, [a, 100 - a])
-    return float(lo), float(hi)
-
-
 def ratio_interval(num: np.ndarray, den: np.ndarray) -> tuple[float, float]:
     """Interval of ``sum(num) / sum(den)`` over episodes (bootstrap)."""
     return percentile_interval(bootstrap(lambda i: num[i].sum(1) / np.maximum(den[i].sum(1), 1),

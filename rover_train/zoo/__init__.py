@@ -30,6 +30,7 @@ from rover_train.zoo.registry import (
     EVAL_MAX_STEPS,
     EVAL_SEED_BASE,
     FINETUNE,
+    RETIRED,
     RL,
     EntrySpec,
     shown_path,
@@ -69,6 +70,8 @@ def _spec(name: str) -> EntrySpec:
     try:
         return ENTRIES[name]
     except KeyError:
+        if name in RETIRED:
+            raise UnknownEntryError(RETIRED[name].message(name)) from None
         raise UnknownEntryError(
             f"no zoo entry {name!r}; the zoo knows {sorted(ENTRIES)} "
             "(those shipped: rover_train.zoo.names())"
@@ -168,6 +171,7 @@ __all__ = [
     "DAGGER",
     "ENTRIES",
     "FINETUNE",
+    "RETIRED",
     "RL",
     "EVAL_EPISODES",
     "EVAL_MAX_STEPS",

@@ -1,0 +1,145 @@
+"""Looking learnt from the reward against its fixed twin: the zoo's RL pair on the same episodes.
+
+    nice -n 5 .venv/bin/python -m benchmarks.looking_rl              # RESULTS.md's table
+    .venv/bin/python -m benchmarks.looking_rl --rows inspect-crowd-3@100000:4 \\
+        --record runs/looking_rl/smoke.json                            # a smoke run
+
+Run from the repository root. The pair is ``rl-fused-gaze-inspect`` (PPO with a drive head and
+a pan head on RoverEnvFusedGaze) and ``rl-fused-inspect-twin`` (the same recipe, the camera
+fixed ahead on RoverEnvFused): ``--looking`` and ``--fixed`` take two other RL entries.
+
+Each row, ``SCENARIO@SEED:EPISODES`` (a name of ``rover_env.scenarios``: the suite's or
+``LOOKING_SCENARIOS``), runs ``rover-eval ENTRY --pedestrian-mode MODE --n-pedestrians N
+--episodes E --seed SEED --dump FILE --json`` for both entries at once, each under its own
+``rover-pair --slots 1`` (one daemon each), so episode i of both is ``reset(seed=SEED + i)``
+in the entries' world, and each entry acts as ``zoo.load`` makes it act (sampling its policy,
+seeded, behind its collision shield). The episodes' results and the logs go to ``--logs``
+(default ``runs/looking_rl/``).
+
+Columns: each agent's success / episodes with a person touched, and looking minus fixed in
+points on the same episodes, with 90 % paired bootstrap intervals over episodes
+(``rover_train.imitation.gaze_value``'s). The issue's target for a looking preset: +10
+points success, or at most half the fixed twin's episodes with a person touched, the interval
+clear of 0. Each row goes to the record (``--record``, default
+``benchmarks/records/looking_rl.json``) when done, replacing a row of the same scenario and
+seeds; rows there are skipped unless ``--redo``, so a stopped run resumes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from benchmarks.machine import cpu_description
+from benchmarks.record_file import read_record, save_record
+from rover_train import zoo
+from rover_train.evaluate import EpisodeResult
+from rover_train.looking_pair import COLUMNS, ROWS, TITLE, Row, parse_row, row_cells
+from rover_train.zoo.registry import LOOKING_RL_PAIR
+
+RECORD = Path("benchmarks/records/looking_rl.json")
+LOGS = Path("runs/looking_rl")
+LOOKING, FIXED = LOOKING_RL_PAIR
+
+
+def eval_command(entry: str, row: Row, dump: Path) -> list[str]:
+    bin_dir = Path(sys.executable).parent
+    s = row.scenario
+    return [str(bin_dir / "rover-pair"), "--name", f"look_{os.getpid()}_{entry.count('gaze')}",
+            "--slots", "1", "--daemon-arg=--log-level", "--daemon-arg=WARNING", "--",
+            str(bin_dir / "rover-eval"), entry, "--pedestrian-mode", s.mode, "--n-pedestrians",
+            str(s.n_pedestrians), "--episodes", str(row.episodes), "--seed", str(row.seed),
+            "--dump", str(dump), "--json"]  # fmt: skip
+
+
+def run_pair(row: Row, entries: tuple[str, str], logs: Path) -> list[list[EpisodeResult]]:
+    """Both entries on ``row``'s episodes at once; RuntimeError naming the log that failed."""
+    logs.mkdir(parents=True, exist_ok=True)
+    procs = []
+    for entry in entries:
+        if zoo.ENTRIES[entry].world != row.scenario.world:
+            raise ValueError(f"{entry} drives {zoo.ENTRIES[entry].world}, the row "
+                             f"{row.scenario.name} another world")  # fmt: skip
+        stem = f"{entry}-{row.scenario.name}-{row.seed}-e{row.episodes}"
+        dump, log = logs / f"{stem}.json", logs / f"{stem}.log"
+        dump.unlink(missing_ok=True)
+        cmd = eval_command(entry, row, dump)
+        print(f"[{_now()}] {shlex.join(cmd)}", flush=True)
+        with log.open("w") as out:
+            procs.append((subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT), dump, log))
+    out = []
+    for proc, dump, log in procs:
+        rc = proc.wait()
+        if rc != 0 or not dump.is_file():
+            last = (log.read_text().strip().splitlines() or [""])[-1]
+            raise RuntimeError(f"exit status {rc} ({log}): {last}")
+        out.append([EpisodeResult(**r) for r in json.loads(dump.read_text())])
+    return out
+
+
+def load_record(path: Path) -> dict[str, Any]:
+    return read_record(path, {"title": TITLE, "columns": COLUMNS, "rows": []})
+
+
+def _now() -> str:
+    return dt.datetime.now(dt.UTC).strftime("%H:%M:%S")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description="The zoo's looking RL entry against its fixed "
+                                            "twin, paired on the same episodes")  # fmt: skip
+    p.add_argument("--looking", default=LOOKING, help=f"the looking entry (default {LOOKING})")
+    p.add_argument("--fixed", default=FIXED, help=f"its fixed twin (default {FIXED})")
+    p.add_argument(
+        "--rows",
+        default=",".join(ROWS),
+        help="SCENARIO@SEED:EPISODES, separated by commas (default RESULTS.md's)",
+    )
+    p.add_argument("--record", type=Path, default=RECORD, help=f"default {RECORD}")
+    p.add_argument("--logs", type=Path, default=LOGS, help=f"episode dumps (default {LOGS})")
+    p.add_argument("--redo", action="store_true", help="run rows already in the record again")
+    args = p.parse_args(argv)
+    for entry in (args.looking, args.fixed):
+        if entry not in zoo.names() or zoo.ENTRIES[entry].trainer != zoo.RL:
+            p.error(
+                f"{entry}: not a shipped RL zoo entry (those: "
+                f"{', '.join(n for n in zoo.names() if zoo.ENTRIES[n].trainer == zoo.RL)})"
+            )
+    try:
+        rows = [parse_row(r) for r in args.rows.split(",") if r.strip()]
+    except ValueError as exc:
+        p.error(f"--rows: {exc}")
+    for row in rows:
+        key = [row.label, row.episodes, row.seeds]
+        if not args.redo and any(r[:3] == key for r in load_record(args.record)["rows"]):
+            print(f"[{_now()}] {row.scenario.name} {row.seeds}: in the record, skipped")
+            continue
+        t0 = time.monotonic()
+        looking, fixed = run_pair(row, (args.looking, args.fixed), args.logs)
+        cells = row_cells(row, looking, fixed)
+        record = load_record(args.record)
+        record["rows"] = [r for r in record["rows"] if r[:3] != key] + [cells]
+        order = {r.label: i for i, r in enumerate(map(parse_row, ROWS))}
+        record["rows"].sort(key=lambda r: (order.get(r[0], len(order)), r[2]))
+        record.update(title=TITLE, columns=COLUMNS, cpu=cpu_description(),
+                      date=dt.datetime.now(dt.UTC).strftime("%Y-%m-%d"),
+                      command=f".venv/bin/python -m benchmarks.looking_rl --looking "
+                              f"{args.looking} --fixed {args.fixed}")  # fmt: skip
+        save_record(args.record, record)
+        print(
+            f"[{_now()}] {' | '.join(map(str, cells))} ({(time.monotonic() - t0) / 60:.1f} min)",
+            flush=True,
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
