@@ -90,8 +90,9 @@ NOTES = (
     "7 % among 10. The entries made for 10 people (fused-inspect-10, "
     "fused-gaze-inspect-10 and their -rl fine-tunes), retired on 2026-12-03 "
     "(rover_train.zoo.registry.RETIRED), keep their rows, last: their 3-people row is the "
-    "default crowd's target (3 %), their 10-people row their own crowd's (7 %). Rows were written as each finished; an entry absent from the rows was "
-    "not run (or failed: see errors)."
+    "default crowd's target (3 %), their 10-people row their own crowd's (7 %). Rows were "
+    "written as each finished; an entry absent from the rows was not run (or failed: see "
+    "errors)."
 )
 
 
