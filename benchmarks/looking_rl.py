@@ -50,10 +50,11 @@ LOGS = Path("runs/looking_rl")
 LOOKING, FIXED = LOOKING_RL_PAIR
 
 
-def eval_command(entry: str, row: Row, dump: Path) -> list[str]:
+def eval_command(entry: str, row: Row, dump: Path, daemon: str) -> list[str]:
+    """rover-eval of ``entry`` on ``row``'s episodes under rover-pair (its daemon ``daemon``)."""
     bin_dir = Path(sys.executable).parent
     s = row.scenario
-    return [str(bin_dir / "rover-pair"), "--name", f"look_{os.getpid()}_{entry.count('gaze')}",
+    return [str(bin_dir / "rover-pair"), "--name", daemon,
             "--slots", "1", "--daemon-arg=--log-level", "--daemon-arg=WARNING", "--",
             str(bin_dir / "rover-eval"), entry, "--pedestrian-mode", s.mode, "--n-pedestrians",
             str(s.n_pedestrians), "--episodes", str(row.episodes), "--seed", str(row.seed),
@@ -62,27 +63,35 @@ def eval_command(entry: str, row: Row, dump: Path) -> list[str]:
 
 def run_pair(row: Row, entries: tuple[str, str], logs: Path) -> list[list[EpisodeResult]]:
     """Both entries on ``row``'s episodes at once; RuntimeError naming the log that failed."""
+    wrong = [e for e in entries if zoo.ENTRIES[e].world != row.scenario.world]
+    if wrong:
+        raise ValueError(f"{', '.join(wrong)} drive another world than the row "
+                         f"{row.scenario.name}")  # fmt: skip
     logs.mkdir(parents=True, exist_ok=True)
     procs = []
-    for entry in entries:
-        if zoo.ENTRIES[entry].world != row.scenario.world:
-            raise ValueError(f"{entry} drives {zoo.ENTRIES[entry].world}, the row "
-                             f"{row.scenario.name} another world")  # fmt: skip
-        stem = f"{entry}-{row.scenario.name}-{row.seed}-e{row.episodes}"
-        dump, log = logs / f"{stem}.json", logs / f"{stem}.log"
-        dump.unlink(missing_ok=True)
-        cmd = eval_command(entry, row, dump)
-        print(f"[{_now()}] {shlex.join(cmd)}", flush=True)
-        with log.open("w") as out:
-            procs.append((subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT), dump, log))
-    out = []
-    for proc, dump, log in procs:
-        rc = proc.wait()
-        if rc != 0 or not dump.is_file():
-            last = (log.read_text().strip().splitlines() or [""])[-1]
-            raise RuntimeError(f"exit status {rc} ({log}): {last}")
-        out.append([EpisodeResult(**r) for r in json.loads(dump.read_text())])
-    return out
+    try:
+        for i, entry in enumerate(entries):
+            stem = f"{entry}-{row.scenario.name}-{row.seed}-e{row.episodes}"
+            dump, log = logs / f"{stem}.json", logs / f"{stem}.log"
+            dump.unlink(missing_ok=True)
+            cmd = eval_command(entry, row, dump, f"look_{os.getpid()}_{i}")
+            print(f"[{_now()}] {shlex.join(cmd)}", flush=True)
+            with log.open("w") as out:
+                proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT)
+            procs.append((proc, dump, log))
+        out = []
+        for proc, dump, log in procs:
+            rc = proc.wait()
+            if rc != 0 or not dump.is_file():
+                last = (log.read_text().strip().splitlines() or [""])[-1]
+                raise RuntimeError(f"exit status {rc} ({log}): {last}")
+            out.append([EpisodeResult(**r) for r in json.loads(dump.read_text())])
+        return out
+    finally:  # one failed or we were stopped: rover-pair stops its daemon on SIGTERM
+        for proc, _, _ in procs:
+            if proc.poll() is None:
+                proc.terminate()
+                proc.wait()
 
 
 def load_record(path: Path) -> dict[str, Any]:

@@ -18,10 +18,11 @@ from rover_env.scenarios import LOOKING_SCENARIOS, SCENARIOS, Scenario
 from rover_train.evaluate import EpisodeResult
 from rover_train.suite import bootstrap, percentile_interval
 
-ROWS = ("inspect-crowd-3@100000:200", "inspect-blind-crossing-3@100000:600",
-        "inspect-blind-crossing-3@200000:600", "inspect-oblivious-10@100000:200")  # fmt: skip
-"""RESULTS.md's rows: the default crowd (looking must cost nothing there), the blind crossers
-on two seed ranges, ten people who do not see the rover."""
+ROWS = ("inspect-crowd-3@100000:200", "inspect-crowd-10@100000:200",
+        "inspect-blind-crossing-3@100000:600", "inspect-blind-crossing-3@200000:600",
+        "inspect-oblivious-10@100000:200")  # fmt: skip
+"""RESULTS.md's rows: the crowds of 3 (the default) and 10, where looking must cost at most 3
+points, the blind crossers on two seed ranges, ten people who do not see the rover."""
 TITLE = ("A looking camera agent from the reward against its fixed-camera twin, paired on the "
          "same episodes (success / episodes with a person touched; looking \u2212 fixed in "
          "points, 90 % bootstrap intervals over episodes)")  # fmt: skip

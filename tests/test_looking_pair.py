@@ -22,7 +22,7 @@ def test_a_row_names_a_scenario_its_first_seed_and_its_episodes() -> None:
     assert row == Row(LOOKING_SCENARIOS["inspect-blind-crossing-3"], 200_000, 600)
     assert row.seeds == "200000..200599" and row.label == "`inspect-blind-crossing-3`"
     assert parse_row("inspect-crowd-3@100000:200").label == "inspect, the default crowd (3)"
-    assert [parse_row(r).scenario.world for r in ROWS] == ["inspect"] * 4
+    assert [parse_row(r).scenario.world for r in ROWS] == ["inspect"] * 5
     assert SCENARIOS["inspect-crowd-3"] == parse_row(ROWS[0]).scenario
     for bad, words in (("inspect-crowd-3", "SCENARIO@SEED:EPISODES"),
                        ("inspect-crowd-3@1:x", "SCENARIO@SEED:EPISODES"),
