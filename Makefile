@@ -32,13 +32,13 @@ $(STAMP): pyproject.toml constraints.txt .sysdeps
 	@touch $(STAMP)
 
 # The main job: a supervised daemon + trainer pair; PPO learns to drive RoverEnvFused from
-# the reward, from scratch, over the camera scan and behind the collision shield (4 envs, a
-# daemon slot each), then random and each checkpoint drive the same 20 evaluation episodes,
-# at once over the slots: the learning curve, the table and a video land in runs/demo/ (the
-# same command continues a stopped run).
-DEMO_STEPS ?= 250000
+# the reward, from scratch, over the camera scan and behind the collision shield (8 envs of
+# 256-step rollouts, a daemon slot each), then random and each checkpoint drive the same 20
+# evaluation episodes, at once over the slots: the learning curve, the table and a video land
+# in runs/demo/ (the same command continues a stopped run).
+DEMO_STEPS ?= 200000
 demo: setup
-	$(PY) launch/run_pair.py --name roverav_demo --slots 4 --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --timesteps $(DEMO_STEPS) --points 5 --episodes 20 --out runs/demo
+	$(PY) launch/run_pair.py --name roverav_demo --slots 8 --daemon-arg=--log-level --daemon-arg=WARNING -- $(PY) -m rover_train.demo --n-steps 256 --timesteps $(DEMO_STEPS) --points 4 --episodes 20 --out runs/demo
 
 # The main job before: DAgger fine-tunes the zoo's fused-maze student with the daemon in the loop.
 demo-finetune: setup

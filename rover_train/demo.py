@@ -2,7 +2,7 @@
 
 Run under the supervisor so the daemon is there, one slot per env (``make demo`` does this):
 
-    rover-pair --slots 4 -- python -m rover_train.demo --timesteps 250000 --points 5
+    rover-pair --slots 8 -- python -m rover_train.demo --n-steps 256 --timesteps 200000 --points 4
 
 PPO trains from scratch on RoverEnvFused's nav task (``rover-train``'s camera recipe,
 :func:`camera_args`): the policy reads the camera scan (a rover-frame memory of what the
@@ -74,19 +74,25 @@ ZOO_REFERENCE = {"inspect": "rl-fused-inspect", "maze": "rl-fused-maze"}
 _LABEL_ROWS = 24  # video rows holding the panels' names (rover_train.evaluate.label_frame)
 
 
+CAMERA_N_STEPS = 512
+"""Rollout steps per env before each PPO update in the camera recipe (4 envs: 2,048 samples an
+update). ``make demo`` runs 8 envs of 256: the same 2,048 samples an update, and on two cores
+more steps a second, since one env waits on the daemon while another steps."""
+
+
 def camera_args(world: str, timesteps: int, slots: int, seed: int, logdir: Path,
-                checkpoint_every: int) -> TrainArgs:  # fmt: skip
+                checkpoint_every: int, n_steps: int = CAMERA_N_STEPS) -> TrainArgs:  # fmt: skip
     """rover-train's camera recipe: PPO on RoverEnvFused's nav task, the camera scan, the
     map planner's waypoint and the state through an MLP (the image dropped from the policy),
     the relative table behind the collision shield (MaskablePPO on the shield's masks), a
-    discount of 0.995 and 512-step rollouts per env.
+    discount of 0.995 and ``n_steps``-step rollouts per env.
 
     The same as ``rover-train --env fused --world WORLD --task nav --camera-scan
     --drop-image --relative-table --shield --waypoint --gamma 0.995 --n-steps 512``.
     """
     return TrainArgs(
         env="fused", world=world, task="nav", camera_scan=True, drop_image=True,
-        relative_table=True, shield=True, waypoint=True, gamma=0.995, n_steps=512,
+        relative_table=True, shield=True, waypoint=True, gamma=0.995, n_steps=n_steps,
         timesteps=timesteps, slots=slots, seed=seed, logdir=logdir,
         checkpoint_every=checkpoint_every, progress=False, name=default_name(),
     )  # fmt: skip
@@ -282,6 +288,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="PPO env steps over all envs (0: evaluate the run in --out as it is)")
     p.add_argument("--points", type=int, default=5,
                    help="checkpoints evaluated along the run (the curve's points after random)")
+    p.add_argument("--n-steps", type=int, default=CAMERA_N_STEPS,
+                   help=f"rollout steps per env before each PPO update (default "
+                        f"{CAMERA_N_STEPS}; make demo: 256 over 8 envs)")
     p.add_argument("--seed", type=int, default=0, help="seeds training and the random policy")
     p.add_argument("--video-episodes", type=int, default=2)
     p.add_argument("--out", type=Path, default=Path("runs/demo"))
@@ -304,6 +313,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         p.error(f"--world {args.world}: the demo trains in {' or '.join(DEMO_WORLDS)}")
     if args.points < 1:
         p.error(f"--points {args.points}: give 1 or more")
+    if args.n_steps < 2:
+        p.error(f"--n-steps {args.n_steps}: PPO needs 2 or more rollout steps per env")
     run_dir = args.out / "run"
     try:
         earlier = _earlier_run(run_dir)
@@ -318,7 +329,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     t_start = time.monotonic()
     if args.timesteps > 0:
         every = max(1, args.timesteps // args.points)
-        targs = camera_args(args.world, args.timesteps, default_slots(), args.seed, run_dir, every)
+        targs = camera_args(args.world, args.timesteps, default_slots(), args.seed, run_dir, every,
+                            args.n_steps)  # fmt: skip
         if earlier is not None:  # a stopped or finished run: continued, nothing lost
             targs.resume = run_dir
             print(f"demo: continuing the run in {run_dir} from its newest checkpoint",

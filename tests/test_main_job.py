@@ -21,7 +21,7 @@ from shm_protocol.names import NAME_ENV_VAR, SLOTS_ENV_VAR
 
 EPISODES = 2
 MAX_STEPS = 15
-STEPS = 1024  # two checkpoints of 512 steps (one env, 512-step rollouts)
+STEPS = 1024  # two checkpoints of 512 steps (one env)
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +51,7 @@ def test_the_main_job_trains_from_scratch_and_evaluates_each_checkpoint(
     paired: Daemon, tmp_path: Path
 ) -> None:
     out = tmp_path / "demo"
-    assert demo.main(_args(out)) == 0
+    assert demo.main(_args(out, "--n-steps", "256")) == 0
     for name in ("curve.json", "learning_curve.png", "eval.txt", "eval.mp4", "eval_still.png",
                  "run/model.zip", "run/metrics.json"):  # fmt: skip
         assert (out / name).is_file(), name
@@ -62,6 +62,7 @@ def test_the_main_job_trains_from_scratch_and_evaluates_each_checkpoint(
     assert all(p["episodes"] == EPISODES for p in curve)
     metrics = json.loads((out / "run/metrics.json").read_text())
     assert metrics["timesteps"] == STEPS and metrics["args"]["camera_scan"]
+    assert metrics["args"]["n_steps"] == 256  # --n-steps: the rollout per env
     assert metrics["args"]["drop_image"] and metrics["args"]["relative_table"]
     assert metrics["args"]["shield"]  # trained behind the collision shield (MaskablePPO)
 
@@ -95,7 +96,7 @@ def test_the_main_job_trains_from_scratch_and_evaluates_each_checkpoint(
     assert "| 512 |" in table and "| 1,024 |" in table
 
     # the same command again continues the finished run: nothing retrained, the same curve
-    assert demo.main(_args(out)) == 0
+    assert demo.main(_args(out, "--n-steps", "256")) == 0
     assert json.loads((out / "run/metrics.json").read_text())["timesteps"] == STEPS
     assert json.loads((out / "curve.json").read_text())["curve"] == curve
 
