@@ -73,7 +73,7 @@ from rover_train.algos import ALGOS, RECURRENT, ModelAgent, algo_class
 from rover_train.envs import DEFAULT_TASK, ENV_IDS, NAV_LENGTH, TASKS, make_env
 from rover_train.progress import StatusLine
 from rover_train.recipe import RecipeError, read_recipe
-from rover_train.shield import shield_for
+from rover_train.shield import ShieldConfig, shield_for
 from rover_train.wrappers import agent_io
 from rover_train.zoo.registry import (
     EVAL_MAX_STEPS,
@@ -125,7 +125,8 @@ class PolicyLoadError(ValueError):
 
 def load_policy(model: Path, env: Any, algo: str | None = None,
                 deterministic: bool = True, seed: int = 0,
-                temperature: float = 1.0, shield: bool | None = None) -> ModelAgent:  # fmt: skip
+                temperature: float = 1.0, shield: bool | None = None,
+                shield_config: ShieldConfig | None = None) -> ModelAgent:  # fmt: skip
     """The rover-train model at ``model`` as an agent for ``env``: a
     :class:`~rover_train.algos.ModelAgent` (``reset()`` per episode, ``act(obs)``, also
     callable), deterministic or sampling its policy (each draw seeded by ``seed`` and the
@@ -133,7 +134,9 @@ def load_policy(model: Path, env: Any, algo: str | None = None,
     image, relative table; a recurrent model keeps its LSTM state). ``algo``: default from
     ``metrics.json`` beside it; ``seed``: of the sampled actions; ``shield``: behind the
     collision shield on its camera scan (``rover_train.shield``); None: where it was trained
-    behind it (``rover-train --shield``). Raises :class:`PolicyLoadError`.
+    behind it (``rover-train --shield``); ``shield_config``: the shield's settings at drive time
+    (default ``ShieldConfig()``, what the shielded recipes train behind). Raises
+    :class:`PolicyLoadError`.
     """
     if not model.is_file():
         raise PolicyLoadError(_no_model_file(model))
@@ -153,8 +156,11 @@ def load_policy(model: Path, env: Any, algo: str | None = None,
         check_spaces(model, loaded, _as_trained(recipe, env))
         observe, act = agent_io(recipe)
         try:
-            guard = (shield_for(recipe, str(model))
+            guard = (shield_for(recipe, str(model), shield_config)
                      if (masked if shield is None else shield) else None)  # fmt: skip
+            if guard is None and shield_config is not None:
+                raise ValueError("shield settings were given, but it drives without the shield "
+                                 "(add --shield, or drop the settings)")  # fmt: skip
             return ModelAgent(loaded, deterministic=deterministic, observe=observe, act=act,
                               seed=seed, temperature=temperature, shield=guard)
         except ValueError as exc:
@@ -645,6 +651,12 @@ def validate(args: argparse.Namespace) -> str | None:
     if args.shield is not None and (args.random or args.expert):
         return ("--shield guards a camera RL policy's own actions: give a zoo entry or a "
                 "model .zip, not --random or --expert")  # fmt: skip
+    if args.person_margin is not None:
+        if not args.person_margin >= 0:
+            return f"--person-margin must be 0 or more metres, got {args.person_margin}"
+        if args.shield is False or args.random or args.expert:
+            return ("--person-margin sets the collision shield's berth from people: give it "
+                    "to a shielded camera RL entry or model, without --no-shield")  # fmt: skip
     if args.suite is not None:
         for flag, what in (("--video", args.video), ("--record", args.record),
                            ("--dump", args.dump)):  # fmt: skip
@@ -708,6 +720,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="with sampled actions (--sample, or an entry that samples): scale the "
                         "policy's spread by T before each draw (logits / T); 1 is the policy as "
                         "trained, below 1 nearer its most likely action (default: 1)")  # fmt: skip
+    p.add_argument("--person-margin", type=float, default=None, metavar="M",
+                   help="with the collision shield: metres its drives keep from a person "
+                        "reading (default 0.3, what the shielded recipes train behind; "
+                        "docs/decisions.md: 0.6 halves contact among 10 people)")  # fmt: skip
     p.add_argument("--shield", action=argparse.BooleanOptionalAction, default=None,
                    help="a camera RL entry behind the collision shield on its camera scan, or "
                         "not (rover_train.shield; default: as the entry ships)")  # fmt: skip
@@ -792,7 +808,7 @@ def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
         model = args.model
         source = random if args.random else AgentSource(
             str(model), lambda env: _model_agent(model, env, args.algo, args.sample, args.seed,
-                                      args.temperature, args.shield))
+                                      args.temperature, args.shield, _shield_config(args)))
         return _Plan(source, None, args.world)
     spec = zoo.ENTRIES[entry]
     given = [f for f, v in (("--env", args.env), ("--world", args.world), ("--task", args.task),
@@ -814,7 +830,8 @@ def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
     else:
         file = args.file if args.file is not None else student
         try:
-            loaded = zoo.load(entry, file, temperature=args.temperature, shield=args.shield)
+            loaded = zoo.load(entry, file, temperature=args.temperature, shield=args.shield,
+                              shield_config=_shield_config(args))  # fmt: skip
         except (FileNotFoundError, RecipeError, zoo.StudentFileError, ValueError) as exc:
             p.error(f"--file: {exc}" if args.file is not None else str(exc))
         source = AgentSource(f"zoo {entry}" if file is None else str(file),
@@ -836,13 +853,20 @@ def _student_entry(path: Path, p: argparse.ArgumentParser) -> str:
     return str(made_like)
 
 
+def _shield_config(args: argparse.Namespace) -> ShieldConfig | None:
+    """The shield's drive-time settings rover-eval's arguments ask for (None: its defaults)."""
+    if args.person_margin is None:
+        return None
+    return ShieldConfig(person_margin_m=args.person_margin)
+
+
 def _model_agent(model: Path, env: Any, algo: str | None, sample: bool, seed: int,
-                 temperature: float | None = None,
-                 shield: bool | None = None) -> Agent:  # fmt: skip
+                 temperature: float | None = None, shield: bool | None = None,
+                 shield_config: ShieldConfig | None = None) -> Agent:  # fmt: skip
     try:
         return load_policy(model, env, algo, deterministic=not sample, seed=seed,
                            temperature=1.0 if temperature is None else temperature,
-                           shield=shield)
+                           shield=shield, shield_config=shield_config)
     except PolicyLoadError as exc:
         raise _EvalError(f"rover-eval: {exc}") from exc
 

@@ -153,6 +153,12 @@ def test_the_shield_goes_with_the_camera_rl_entries_only() -> None:
     assert zoo.load("rl-fused-inspect", shield=False).shield is None
     assert zoo.load("rl-lidar-inspect").shield is None
     assert zoo.load("rl-fused-gaze-inspect").shield.pan_head  # the drive head's mask
+    # the shield's settings at drive time (rover-eval --person-margin)
+    wider = zoo.load("rl-fused-inspect", shield_config=ShieldConfig(person_margin_m=0.6))
+    assert wider.shield.config.person_margin_m == 0.6
+    assert zoo.load("rl-fused-inspect").shield.config == ShieldConfig()
+    with pytest.raises(ValueError, match="without the collision shield"):
+        zoo.load("rl-fused-inspect", shield=False, shield_config=ShieldConfig())
 
 
 class _Box3Env(gym.Env):

@@ -38,6 +38,7 @@ from rover_train.zoo.registry import (
 
 if TYPE_CHECKING:
     from rover_train.algos import ModelAgent
+    from rover_train.shield import ShieldConfig
     from rover_train.zoo.agent import (
         Agent,
         FeatureSpec,
@@ -112,8 +113,8 @@ def make_env(name: str, **overrides: Any) -> gym.Env:
 
 
 def load(name: str, path: str | os.PathLike[str] | None = None,
-         temperature: float | None = None,
-         shield: bool | None = None) -> StudentAgent | ModelAgent:  # fmt: skip
+         temperature: float | None = None, shield: bool | None = None,
+         shield_config: ShieldConfig | None = None) -> StudentAgent | ModelAgent:  # fmt: skip
     """The agent of entry ``name``: ``agent.reset()`` per episode, ``agent.act(obs)`` (an
     :class:`Agent`). A student comes as a :class:`StudentAgent`, which also saves, fine-tunes
     and says what it is in ``meta``; an RL entry as a :class:`rover_train.algos.ModelAgent`.
@@ -125,6 +126,8 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
         collision shield on the scan (``rover_train.shield``) or not; None: as the entry says
         (``EntrySpec.shield``), or behind it where the entry was trained behind it
         (``rover-train --shield``).
+    :param shield_config: the shield's settings at drive time (default ``ShieldConfig()``, what
+        the shielded recipes train behind); ValueError for an agent that drives without it.
     :raises FileNotFoundError: no file; :class:`StudentFileError`: a student file that does
         not read (cut short, say). Both name the file and the command that remakes it.
     """
@@ -137,7 +140,7 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
             f"zoo entry {name!r} has no file at {file}; make it with: {spec.command}"
         )
     if spec.trainer != RL:
-        if shield:
+        if shield or shield_config is not None:
             raise ValueError(f"the collision shield guards an RL policy over the relative table "
                              f"on the camera scan (the rl-fused entries); zoo entry {name} is a "
                              f"student")  # fmt: skip
@@ -162,7 +165,10 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
     if shield if shield is not None else (spec.shield or recipe.get("shield")):
         from rover_train.shield import shield_for
 
-        guard = shield_for(recipe, f"zoo entry {name}")
+        guard = shield_for(recipe, f"zoo entry {name}", shield_config)
+    elif shield_config is not None:
+        raise ValueError(f"shield settings were given, but zoo entry {name} drives without the "
+                         f"collision shield (shield=False, or not a shielded entry)")  # fmt: skip
     return ModelAgent(model, deterministic=not spec.sampled, observe=observe, act=act,
                       temperature=1.0 if temperature is None else temperature, shield=guard)
 
