@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import json
 import os
 import shlex
 import subprocess
@@ -40,6 +39,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from benchmarks.entry_eval import dumped_episodes, eval_command, now
 from benchmarks.record_file import (
     add_record_arguments,
     note_cpu,
@@ -51,7 +51,7 @@ from rover_env.pedestrians import DEFAULT_MODE
 from rover_train import zoo
 from rover_train.evaluate import EpisodeResult, summarise
 from rover_train.suite import wilson_interval
-from rover_train.zoo.registry import EVAL_SEED_BASE, STUDENT_FUSED_KINDS
+from rover_train.zoo.registry import EVAL_SEED_BASE
 
 RECORD = Path("benchmarks/records/pedestrian_contact.json")
 LOGS = Path("runs/contact")
@@ -162,41 +162,27 @@ def row_for(entry: str, people: int, episodes: int, seed: int, results: list[Epi
     ]  # fmt: skip
 
 
-def eval_command(entry: str, people: int, args: argparse.Namespace, dump: Path) -> list[str]:
-    """rover-eval on ``entry`` among ``people``, under rover-pair for a fused entry."""
-    bin_dir = Path(sys.executable).parent
-    cmd = [str(bin_dir / "rover-eval"), entry, "--episodes", str(args.episodes),
-           "--n-pedestrians", str(people), "--seed", str(args.seed), "--dump", str(dump),
-           "--json"]  # fmt: skip
-    if zoo.ENTRIES[entry].kind in STUDENT_FUSED_KINDS:
-        name = f"contact_{os.getpid()}"
-        cmd = [str(bin_dir / "rover-pair"), "--name", name, "--slots", "1", "--", *cmd]
-    return cmd
-
-
 def run_row(entry: str, people: int, args: argparse.Namespace) -> tuple[list[Any] | None, str]:
     """One (entry, people) evaluation: (its row, "") or (None, what went wrong)."""
     args.logs.mkdir(parents=True, exist_ok=True)
     stem = f"{entry}-p{people}-e{args.episodes}"
     dump, log = args.logs / f"{stem}.json", args.logs / f"{stem}.log"
     dump.unlink(missing_ok=True)
-    cmd = eval_command(entry, people, args, dump)
-    print(f"[{_now()}] {entry}, {people} people: {shlex.join(cmd)}", flush=True)
+    flags = ["--episodes", str(args.episodes), "--n-pedestrians", str(people), "--seed",
+             str(args.seed)]  # fmt: skip
+    cmd = eval_command(entry, flags, dump, f"contact_{os.getpid()}")
+    print(f"[{now()}] {entry}, {people} people: {shlex.join(cmd)}", flush=True)
     t0 = time.monotonic()
     with log.open("w") as out:
         rc = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, check=False).returncode
     wall = time.monotonic() - t0
-    if rc != 0 or not dump.is_file():
-        last = (log.read_text().strip().splitlines() or [""])[-1]
-        return None, f"exit status {rc} after {wall:.0f} s ({log}): {last}"
-    results = [EpisodeResult(**r) for r in json.loads(dump.read_text())]
-    if len(results) != args.episodes:
-        return None, f"{len(results)} of {args.episodes} episodes in {dump}"
+    try:
+        results = dumped_episodes(rc, dump, log, args.episodes)
+    except RuntimeError as exc:
+        return None, f"{exc} (after {wall:.0f} s)"
     return row_for(entry, people, args.episodes, args.seed, results, wall), ""
 
 
-def _now() -> str:
-    return dt.datetime.now(dt.UTC).strftime("%H:%M:%S")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -209,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     for entry in args.entries:
         for people in args.people:
             if (entry, people) in done and not args.redo:
-                print(f"[{_now()}] {entry}, {people} people: in the record, skipped", flush=True)
+                print(f"[{now()}] {entry}, {people} people: in the record, skipped", flush=True)
                 continue
             row, error = run_row(entry, people, args)
             record = load_record(args.record)
@@ -220,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
             if row is None:
                 failed += 1
                 errors[f"{entry}/{people}"] = error
-                print(f"[{_now()}] {entry}, {people} people: FAILED: {error}", flush=True)
+                print(f"[{now()}] {entry}, {people} people: FAILED: {error}", flush=True)
             else:
                 record["rows"] = [r for r in record["rows"] if (r[0], r[3]) != (entry, people)]
                 record["rows"].append(row)
@@ -229,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
                 note_cpu(record, f"{entry}@{people}", [f"{r[0]}@{r[3]}" for r in record["rows"]])
                 cells = zip(COLUMNS[4:], row[4:], strict=True)
                 print(
-                    f"[{_now()}] {entry}, {people} people: "
+                    f"[{now()}] {entry}, {people} people: "
                     + ", ".join(f"{c} {v}" for c, v in cells),
                     flush=True,
                 )

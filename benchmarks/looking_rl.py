@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import json
 import os
 import shlex
 import subprocess
@@ -38,6 +37,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from benchmarks.entry_eval import dumped_episodes, eval_command, now
 from benchmarks.machine import cpu_description
 from benchmarks.record_file import read_record, save_record
 from rover_train import zoo
@@ -48,17 +48,6 @@ from rover_train.zoo.registry import LOOKING_RL_PAIR
 RECORD = Path("benchmarks/records/looking_rl.json")
 LOGS = Path("runs/looking_rl")
 LOOKING, FIXED = LOOKING_RL_PAIR
-
-
-def eval_command(entry: str, row: Row, dump: Path, daemon: str) -> list[str]:
-    """rover-eval of ``entry`` on ``row``'s episodes under rover-pair (its daemon ``daemon``)."""
-    bin_dir = Path(sys.executable).parent
-    s = row.scenario
-    return [str(bin_dir / "rover-pair"), "--name", daemon,
-            "--slots", "1", "--daemon-arg=--log-level", "--daemon-arg=WARNING", "--",
-            str(bin_dir / "rover-eval"), entry, "--pedestrian-mode", s.mode, "--n-pedestrians",
-            str(s.n_pedestrians), "--episodes", str(row.episodes), "--seed", str(row.seed),
-            "--dump", str(dump), "--json"]  # fmt: skip
 
 
 def run_pair(row: Row, entries: tuple[str, str], logs: Path) -> list[list[EpisodeResult]]:
@@ -74,19 +63,15 @@ def run_pair(row: Row, entries: tuple[str, str], logs: Path) -> list[list[Episod
             stem = f"{entry}-{row.scenario.name}-{row.seed}-e{row.episodes}"
             dump, log = logs / f"{stem}.json", logs / f"{stem}.log"
             dump.unlink(missing_ok=True)
-            cmd = eval_command(entry, row, dump, f"look_{os.getpid()}_{i}")
-            print(f"[{_now()}] {shlex.join(cmd)}", flush=True)
+            sc = row.scenario
+            flags = ["--pedestrian-mode", sc.mode, "--n-pedestrians", str(sc.n_pedestrians),
+                     "--episodes", str(row.episodes), "--seed", str(row.seed)]  # fmt: skip
+            cmd = eval_command(entry, flags, dump, f"look_{os.getpid()}_{i}", quiet_daemon=True)
+            print(f"[{now()}] {shlex.join(cmd)}", flush=True)
             with log.open("w") as out:
                 proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT)
             procs.append((proc, dump, log))
-        out = []
-        for proc, dump, log in procs:
-            rc = proc.wait()
-            if rc != 0 or not dump.is_file():
-                last = (log.read_text().strip().splitlines() or [""])[-1]
-                raise RuntimeError(f"exit status {rc} ({log}): {last}")
-            out.append([EpisodeResult(**r) for r in json.loads(dump.read_text())])
-        return out
+        return [dumped_episodes(proc.wait(), dump, log, row.episodes) for proc, dump, log in procs]
     finally:  # one failed or we were stopped: rover-pair stops its daemon on SIGTERM
         for proc, _, _ in procs:
             if proc.poll() is None:
@@ -96,10 +81,6 @@ def run_pair(row: Row, entries: tuple[str, str], logs: Path) -> list[list[Episod
 
 def load_record(path: Path) -> dict[str, Any]:
     return read_record(path, {"title": TITLE, "columns": COLUMNS, "rows": []})
-
-
-def _now() -> str:
-    return dt.datetime.now(dt.UTC).strftime("%H:%M:%S")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -129,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     for row in rows:
         key = [row.label, row.episodes, row.seeds]
         if not args.redo and any(r[:3] == key for r in load_record(args.record)["rows"]):
-            print(f"[{_now()}] {row.scenario.name} {row.seeds}: in the record, skipped")
+            print(f"[{now()}] {row.scenario.name} {row.seeds}: in the record, skipped")
             continue
         t0 = time.monotonic()
         looking, fixed = run_pair(row, (args.looking, args.fixed), args.logs)
@@ -144,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                               f"{args.looking} --fixed {args.fixed}")  # fmt: skip
         save_record(args.record, record)
         print(
-            f"[{_now()}] {' | '.join(map(str, cells))} ({(time.monotonic() - t0) / 60:.1f} min)",
+            f"[{now()}] {' | '.join(map(str, cells))} ({(time.monotonic() - t0) / 60:.1f} min)",
             flush=True,
         )
     return 0
