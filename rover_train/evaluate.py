@@ -722,8 +722,8 @@ def _parser() -> argparse.ArgumentParser:
                         "trained, below 1 nearer its most likely action (default: 1)")  # fmt: skip
     p.add_argument("--person-margin", type=float, default=None, metavar="M",
                    help="with the collision shield: metres its drives keep from a person "
-                        "reading (default 0.3, what the shielded recipes train behind; "
-                        "docs/decisions.md: 0.6 halves contact among 10 people)")  # fmt: skip
+                        "reading (default: a zoo entry's own, 0.6 for the shielded ones; "
+                        "0.3 for a model file, what the shielded recipes train with)")  # fmt: skip
     p.add_argument("--shield", action=argparse.BooleanOptionalAction, default=None,
                    help="a camera RL entry behind the collision shield on its camera scan, or "
                         "not (rover_train.shield; default: as the entry ships)")  # fmt: skip

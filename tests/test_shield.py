@@ -153,10 +153,16 @@ def test_the_shield_goes_with_the_camera_rl_entries_only() -> None:
     assert zoo.load("rl-fused-inspect", shield=False).shield is None
     assert zoo.load("rl-lidar-inspect").shield is None
     assert zoo.load("rl-fused-gaze-inspect").shield.pan_head  # the drive head's mask
-    # the shield's settings at drive time (rover-eval --person-margin)
-    wider = zoo.load("rl-fused-inspect", shield_config=ShieldConfig(person_margin_m=0.6))
-    assert wider.shield.config.person_margin_m == 0.6
-    assert zoo.load("rl-fused-inspect").shield.config == ShieldConfig()
+    # the shield's settings at drive time: the entry's own berth from people, unless given
+    for name in ("rl-fused-inspect", "rl-fused-maze", "rl-fused-gaze-inspect",
+                 "rl-fused-inspect-twin"):  # fmt: skip
+        config = zoo.load(name).shield.config
+        assert config.person_margin_m == zoo.ENTRIES[name].person_margin_m == 0.6
+        assert config.margin_m == ShieldConfig().margin_m  # only the berth from people
+    given = zoo.load("rl-fused-inspect", shield_config=ShieldConfig(person_margin_m=0.45))
+    assert given.shield.config.person_margin_m == 0.45
+    # the recipe in the file keeps training behind the default, so zoo.command remakes it
+    assert "person" not in zoo.command("rl-fused-inspect")
     with pytest.raises(ValueError, match="without the collision shield"):
         zoo.load("rl-fused-inspect", shield=False, shield_config=ShieldConfig())
 

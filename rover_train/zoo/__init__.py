@@ -126,8 +126,9 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
         collision shield on the scan (``rover_train.shield``) or not; None: as the entry says
         (``EntrySpec.shield``), or behind it where the entry was trained behind it
         (``rover-train --shield``).
-    :param shield_config: the shield's settings at drive time (default ``ShieldConfig()``, what
-        the shielded recipes train behind); ValueError for an agent that drives without it.
+    :param shield_config: the shield's settings at drive time (None: the entry's
+        ``EntrySpec.person_margin_m`` where it sets one, else ``ShieldConfig()``, what the
+        shielded recipes train behind); ValueError for an agent that drives without it.
     :raises FileNotFoundError: no file; :class:`StudentFileError`: a student file that does
         not read (cut short, say). Both name the file and the command that remakes it.
     """
@@ -163,8 +164,10 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
                          f"{name}")  # fmt: skip
     guard = None
     if shield if shield is not None else (spec.shield or recipe.get("shield")):
-        from rover_train.shield import shield_for
+        from rover_train.shield import ShieldConfig, shield_for
 
+        if shield_config is None and spec.person_margin_m is not None:
+            shield_config = ShieldConfig(person_margin_m=spec.person_margin_m)
         guard = shield_for(recipe, f"zoo entry {name}", shield_config)
     elif shield_config is not None:
         raise ValueError(f"shield settings were given, but zoo entry {name} drives without the "
