@@ -13,7 +13,10 @@ Each row, ``SCENARIO@SEED:EPISODES`` (a name of ``rover_env.scenarios``: the sui
 --episodes E --seed SEED --dump FILE --json`` for both entries at once, each under its own
 ``rover-pair --slots 1`` (one daemon each), so episode i of both is ``reset(seed=SEED + i)``
 in the entries' world, and each entry acts as ``zoo.load`` makes it act (sampling its policy,
-seeded, behind its collision shield). The episodes' results and the logs go to ``--logs``
+seeded, behind its collision shield), except that a shielded entry keeps the berth from people
+its recipe trained behind (``--person-margin 0.3``): the pair is compared as trained, while the
+zoo ships both with a wider berth (``DRIVE_PERSON_MARGIN_M``, measured by
+``benchmarks.contact_table``). The episodes' results and the logs go to ``--logs``
 (default ``runs/looking_rl/``).
 
 Columns: each agent's success / episodes with a person touched, and looking minus fixed in
@@ -43,11 +46,15 @@ from benchmarks.record_file import read_record, save_record
 from rover_train import zoo
 from rover_train.evaluate import EpisodeResult
 from rover_train.looking_pair import COLUMNS, ROWS, TITLE, Row, parse_row, row_cells
+from rover_train.shield import ShieldConfig
 from rover_train.zoo.registry import LOOKING_RL_PAIR
 
 RECORD = Path("benchmarks/records/looking_rl.json")
 LOGS = Path("runs/looking_rl")
 LOOKING, FIXED = LOOKING_RL_PAIR
+TRAINED_PERSON_MARGIN_M = ShieldConfig().person_margin_m
+"""The shield's berth from people that the pair's recipe trains behind, which the pair is
+compared at."""
 
 
 def run_pair(row: Row, entries: tuple[str, str], logs: Path) -> list[list[EpisodeResult]]:
@@ -66,6 +73,8 @@ def run_pair(row: Row, entries: tuple[str, str], logs: Path) -> list[list[Episod
             sc = row.scenario
             flags = ["--pedestrian-mode", sc.mode, "--n-pedestrians", str(sc.n_pedestrians),
                      "--episodes", str(row.episodes), "--seed", str(row.seed)]  # fmt: skip
+            if zoo.ENTRIES[entry].shield:
+                flags += ["--person-margin", str(TRAINED_PERSON_MARGIN_M)]
             cmd = eval_command(entry, flags, dump, f"look_{os.getpid()}_{i}", quiet_daemon=True)
             print(f"[{now()}] {shlex.join(cmd)}", flush=True)
             with log.open("w") as out:
