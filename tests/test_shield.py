@@ -154,11 +154,11 @@ def test_the_shield_goes_with_the_camera_rl_entries_only() -> None:
     assert zoo.load("rl-lidar-inspect").shield is None
     assert zoo.load("rl-fused-gaze-inspect").shield.pan_head  # the drive head's mask
     # the shield's settings at drive time: the entry's own berth from people, unless given
-    for name in ("rl-fused-inspect", "rl-fused-maze", "rl-fused-gaze-inspect",
-                 "rl-fused-inspect-twin"):  # fmt: skip
+    for name in ("rl-fused-inspect", "rl-fused-gaze-inspect", "rl-fused-inspect-twin"):
         config = zoo.load(name).shield.config
         assert config.person_margin_m == zoo.ENTRIES[name].person_margin_m == 0.6
         assert config.margin_m == ShieldConfig().margin_m  # only the berth from people
+    assert zoo.load("rl-fused-maze").shield.config == ShieldConfig()  # its training berth
     given = zoo.load("rl-fused-inspect", shield_config=ShieldConfig(person_margin_m=0.45))
     assert given.shield.config.person_margin_m == 0.45
     # the recipe in the file keeps training behind the default, so zoo.command remakes it
