@@ -649,14 +649,14 @@ def validate(args: argparse.Namespace) -> str | None:
             return ("--temperature scales a model's sampled actions: add --sample (a zoo entry "
                     "that samples takes it alone)")  # fmt: skip
     if args.shield is not None and (args.random or args.expert):
-        return ("--shield guards a camera RL policy's own actions: give a zoo entry or a "
+        return ("--shield guards an RL policy's own actions: give a zoo entry or a "
                 "model .zip, not --random or --expert")  # fmt: skip
     if args.person_margin is not None:
         if not args.person_margin >= 0:
             return f"--person-margin must be 0 or more metres, got {args.person_margin}"
         if args.shield is False or args.random or args.expert:
             return ("--person-margin sets the collision shield's berth from people: give it "
-                    "to a shielded camera RL entry or model, without --no-shield")  # fmt: skip
+                    "to a shielded RL entry or model, without --no-shield")  # fmt: skip
     if args.suite is not None:
         for flag, what in (("--video", args.video), ("--record", args.record),
                            ("--dump", args.dump)):  # fmt: skip
@@ -725,8 +725,9 @@ def _parser() -> argparse.ArgumentParser:
                         "reading (default: a zoo entry's own, 0.6 for the shielded ones; "
                         "0.3 for a model file, what the shielded recipes train with)")  # fmt: skip
     p.add_argument("--shield", action=argparse.BooleanOptionalAction, default=None,
-                   help="a camera RL entry behind the collision shield on its camera scan, or "
-                        "not (rover_train.shield; default: as the entry ships)")  # fmt: skip
+                   help="an RL entry behind the collision shield on its camera scan (or its "
+                        "LIDAR: rl-lidar-*), or not (rover_train.shield; default: as the entry "
+                        "ships)")  # fmt: skip
     p.add_argument("--task", choices=tuple(TASKS), default=None,
                    help="a model's episode, as rover-train --task: seed (the env's own "
                         f"length) or nav ({NAV_LENGTH} steps); default: the model's "

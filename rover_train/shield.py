@@ -14,7 +14,10 @@ allowed. :class:`rover_train.algos.ModelAgent` draws from the policy restricted 
 actions (``shield=``), so a learnt policy keeps its choice wherever it was safe.
 
 It reads only the observation (the ``camera_scan`` key: ranges and bearings in the rover's
-frame), never the simulator.
+frame), never the simulator. On RoverEnvDiscrete, whose ``Discrete(60)`` is the same table, it
+reads the LIDAR instead (``source="lidar"``): 360 degrees, every step, but with no telling a
+person from a wall, so one margin for every return; for the LIDAR RL entries that margin is
+their ``EntrySpec.person_margin_m`` (docs/decisions.md, "A shield on the LIDAR").
 """
 
 from __future__ import annotations
@@ -94,13 +97,27 @@ def table_trajectories(horizon_s: float) -> np.ndarray:
     return poses
 
 
+LIDAR_KEY = "lidar"
+"""RoverEnv's observation key of the planar LIDAR's ranges (m), point i the minimum over the
+i-th of equal sectors from straight behind, counter-clockwise (``rover_env.rover.Lidar``)."""
+SOURCES = ("camera_scan", "lidar")
+
+
 class CollisionShield:
-    """The allowed relative-table actions for one camera-scan observation (see the module
-    docstring): ``shield(obs)`` -> a (60,) bool mask (see ``pan_windows`` and ``pan_head`` for
-    the gaze env's tables)."""
+    """The allowed relative-table actions for one observation (see the module docstring):
+    ``shield(obs)`` -> a (60,) bool mask (see ``pan_windows`` and ``pan_head`` for the gaze
+    env's tables).
+
+    :param source: what it reads: ``camera_scan`` (the camera scan's obstacle and person
+        rows, each with its margin) or ``lidar`` (RoverEnvDiscrete's 360-degree LIDAR, which
+        does not tell people from scenery: every point is kept ``person_margin_m`` off).
+    """
 
     def __init__(self, config: ShieldConfig | None = None, pan_windows: int = 1,
-                 pan_head: bool = False) -> None:  # fmt: skip
+                 pan_head: bool = False, source: str = "camera_scan") -> None:  # fmt: skip
+        if source not in SOURCES:
+            raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
+        self.source = source
         self.config = cfg = config or ShieldConfig()
         self.pan_windows = int(pan_windows)
         """Actions per drive in the policy's table: 1 for the relative table, 5 for the gaze
@@ -118,9 +135,14 @@ class CollisionShield:
         # a reading p in the frame of pose (x, y, yaw): R(-yaw) (p - (x, y)), its offsets here
         self._u0 = self._cos * x + self._sin * y
         self._v0 = -self._sin * x + self._cos * y
-        self._rows = [SCAN_ROWS.index("obstacle")] + ([SCAN_ROWS.index("person")]
-                                                      if cfg.people else [])  # fmt: skip
-        self._row_margins = np.array([cfg.margin_m, cfg.person_margin_m])[:len(self._rows), None]
+        if source == "lidar":  # one row of ranges; a return may be a person
+            self._rows = [0]
+            self._row_margins = np.array([[cfg.person_margin_m if cfg.people else cfg.margin_m]])
+        else:
+            self._rows = [SCAN_ROWS.index("obstacle")] + ([SCAN_ROWS.index("person")]
+                                                          if cfg.people else [])  # fmt: skip
+            self._row_margins = np.array([cfg.margin_m, cfg.person_margin_m])[
+                :len(self._rows), None]  # fmt: skip
         self._bearings: np.ndarray | None = None
         travel = float(np.abs(SPEED_LEVELS).max()) * self._poses.shape[1] * c.CONTROL_DT
         self.reach = travel + math.hypot(HALF_LENGTH, HALF_WIDTH) + float(self._row_margins.max())
@@ -160,12 +182,18 @@ class CollisionShield:
         return closest >= min(now, 0.0) - 1e-9
 
     def __call__(self, obs: Any) -> np.ndarray:
-        if not isinstance(obs, dict) or SCAN_KEY not in obs:
-            raise ValueError(f"the collision shield reads the {SCAN_KEY!r} observation key: "
-                             f"make the env with camera_scan=True")  # fmt: skip
-        scan = np.asarray(obs[SCAN_KEY])
-        if scan.ndim == 3:  # a batch of one, as a vector env gives it
-            scan = scan[0]
+        if self.source == "lidar":
+            if not isinstance(obs, dict) or LIDAR_KEY not in obs:
+                raise ValueError(f"the LIDAR shield reads RoverEnv's {LIDAR_KEY!r} observation "
+                                 f"key: give it RoverEnvDiscrete's observations")  # fmt: skip
+            scan = np.asarray(obs[LIDAR_KEY]).reshape(1, -1)
+        else:
+            if not isinstance(obs, dict) or SCAN_KEY not in obs:
+                raise ValueError(f"the collision shield reads the {SCAN_KEY!r} observation key: "
+                                 f"make the env with camera_scan=True")  # fmt: skip
+            scan = np.asarray(obs[SCAN_KEY])
+            if scan.ndim == 3:  # a batch of one, as a vector env gives it
+                scan = scan[0]
         allowed = self.allowed(scan)
         if self.pan_head:
             return np.concatenate([allowed, np.ones(len(PAN_WINDOWS), dtype=bool)])
@@ -175,11 +203,14 @@ class CollisionShield:
 def shield_for(recipe: dict[str, Any], what: str,
                config: ShieldConfig | None = None) -> CollisionShield:  # fmt: skip
     """The shield of a model trained with ``recipe`` (its stored rover-train arguments);
-    ``ValueError`` naming ``what`` unless it drives the relative table on the camera scan."""
+    ``ValueError`` naming ``what`` unless it drives the relative table on the camera scan, or
+    RoverEnvDiscrete (the same table) on its LIDAR."""
+    if recipe.get("env") == "lidar-discrete":
+        return CollisionShield(config, source="lidar")
     if not (recipe.get("relative_table") and recipe.get("camera_scan")):
         raise ValueError(f"the collision shield guards a policy over the relative table on the "
-                         f"camera scan (rover-train --camera-scan --relative-table); {what} "
-                         f"is not one")  # fmt: skip
+                         f"camera scan (rover-train --camera-scan --relative-table) or on the "
+                         f"LIDAR (--env lidar-discrete); {what} is neither")  # fmt: skip
     if recipe.get("pan_head"):
         return CollisionShield(config, pan_head=True)
     looking = recipe.get("env") == "fused-gaze"

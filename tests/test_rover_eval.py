@@ -90,19 +90,16 @@ def test_a_bare_suite_is_the_worlds_scenarios_for_a_model_or_random_too(
     (["rl-fused-maze", "--temperature", "0"], ["--temperature", "> 0"]),
     (["rl-lidar-maze", "--temperature", "0.5"], ["entries that sample", "rl-fused-maze"]),
     (["--random", "--shield"], ["--shield", "not --random"]),
-    (["rl-lidar-maze", "--shield"], ["collision shield", "camera scan", "rl-lidar-maze"]),
     (["lidar-maze", "--shield"], ["collision shield", "lidar-maze"]),
     (["fused-inspect-10"], ["fused-inspect-10", "was retired", "git show"]),
     (["rl-fused-inspect", "--person-margin", "-0.1"], ["--person-margin", "0 or more"]),
     (["rl-fused-inspect", "--no-shield", "--person-margin", "0.6"],
      ["--person-margin", "without --no-shield"]),
-    (["rl-lidar-maze", "--person-margin", "0.6"], ["without the collision shield"]),
     (["lidar-maze", "--person-margin", "0.6"], ["collision shield", "lidar-maze"]),
 ], ids=["no_agent", "world", "manners", "bad_manners", "expert_model", "typo",
         "dump_suite", "temperature_unsampled", "temperature_zero",
-        "temperature_greedy_entry", "shield_random", "shield_lidar_rl",
-        "shield_student", "retired", "margin_negative", "margin_unshielded",
-        "margin_lidar_rl", "margin_student"])  # fmt: skip
+        "temperature_greedy_entry", "shield_random", "shield_student", "retired",
+        "margin_negative", "margin_unshielded", "margin_student"])  # fmt: skip
 def test_rover_eval_usage_errors(argv: list[str], words: list[str],
                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     with pytest.raises(SystemExit) as exc:

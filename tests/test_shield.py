@@ -103,6 +103,32 @@ def test_people_get_a_wider_berth_than_the_scenery() -> None:
     assert CollisionShield().allowed(person)[_action(-0.2, 0.0)]
 
 
+def _lidar(*readings: tuple[float, float]) -> dict[str, np.ndarray]:
+    """A RoverEnvDiscrete observation's LIDAR, clear to 12 m but for ``(bearing, range)``."""
+    ranges = np.full(32, 12.0, dtype=np.float32)
+    for bearing, rng in readings:
+        ranges[sector_of(np.array([bearing]), 32)[0]] = rng
+    return {"lidar": ranges, "pose": np.zeros(3, np.float32)}
+
+
+def test_the_lidar_shield_keeps_the_person_margin_off_every_return_all_round() -> None:
+    shield = CollisionShield(source="lidar")
+    assert shield(_lidar()).all()
+    at = (0.01, HALF_LENGTH + 0.25)  # 25 cm ahead: a person or a wall, the LIDAR cannot say
+    allowed = shield(_lidar(at))
+    assert not allowed[_action(0.3, 0.0)] and allowed[_action(0.0, 0.0)]
+    assert CollisionShield(ShieldConfig(person_margin_m=0.05), source="lidar")(
+        _lidar(at))[_action(0.3, 0.0)]  # with the scenery's margin it may go 15 cm on
+    behind = shield(_lidar((np.pi - 0.01, HALF_LENGTH + 0.35)))  # where no camera looks
+    assert not behind[_action(-0.2, 0.0)] and behind[_action(1.0, 0.0)]
+    batch = {k: v[None] for k, v in _lidar(at).items()}  # as a vector env gives it
+    assert np.array_equal(shield(batch), allowed)
+    with pytest.raises(ValueError, match="'lidar'"):
+        shield({"camera_scan": _scan()})
+    with pytest.raises(ValueError, match="source"):
+        CollisionShield(source="sonar")
+
+
 def test_bad_settings_and_observations_are_refused() -> None:
     with pytest.raises(ValueError, match="horizon_s"):
         ShieldConfig(horizon_s=0.0)
@@ -143,15 +169,16 @@ def test_a_shielded_agent_chooses_among_the_allowed_actions_only() -> None:
 
 
 def test_the_shield_goes_with_the_camera_rl_entries_only() -> None:
-    with pytest.raises(ValueError, match="camera scan"):
-        zoo.load("rl-lidar-inspect", shield=True)
+    for name in ("rl-lidar-inspect", "rl-lidar-maze"):  # they ship behind the LIDAR's
+        lidar = zoo.load(name).shield
+        assert lidar.source == "lidar" and lidar.config.person_margin_m == 0.15
     with pytest.raises(ValueError, match="student"):
         zoo.load("fused-inspect", shield=True)
     for name in ("rl-fused-inspect", "rl-fused-maze", "rl-fused-gaze-inspect",
                  "rl-fused-inspect-twin"):  # they ship behind it
         assert isinstance(zoo.load(name).shield, CollisionShield)
     assert zoo.load("rl-fused-inspect", shield=False).shield is None
-    assert zoo.load("rl-lidar-inspect").shield is None
+    assert zoo.load("rl-lidar-inspect", shield=False).shield is None
     assert zoo.load("rl-fused-gaze-inspect").shield.pan_head  # the drive head's mask
     # the shield's settings at drive time: the entry's own berth from people, unless given
     for name in ("rl-fused-inspect", "rl-fused-gaze-inspect", "rl-fused-inspect-twin"):

@@ -122,10 +122,10 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
     :param path: another file made like the entry (a candidate) instead of the shipped one.
     :param temperature: a sampled RL entry's sampling temperature
         (``rover_train.algos.ModelAgent``; None: 1, the policy as trained).
-    :param shield: an RL entry over the relative table with the camera scan: drive behind the
-        collision shield on the scan (``rover_train.shield``) or not; None: as the entry says
-        (``EntrySpec.shield``), or behind it where the entry was trained behind it
-        (``rover-train --shield``).
+    :param shield: an RL entry over the relative table: drive behind the collision shield
+        (``rover_train.shield``) on its camera scan, or on its LIDAR for an ``rl-lidar`` entry,
+        or not; None: as the entry says (``EntrySpec.shield``), or behind it where the entry
+        was trained behind it (``rover-train --shield``).
     :param shield_config: the shield's settings at drive time (None: the entry's
         ``EntrySpec.person_margin_m`` where it sets one, else ``ShieldConfig()``, what the
         shielded recipes train behind); ValueError for an agent that drives without it.
@@ -143,7 +143,7 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
     if spec.trainer != RL:
         if shield or shield_config is not None:
             raise ValueError(f"the collision shield guards an RL policy over the relative table "
-                             f"on the camera scan (the rl-fused entries); zoo entry {name} is a "
+                             f"(the rl-fused and rl-lidar entries); zoo entry {name} is a "
                              f"student")  # fmt: skip
         try:
             return StudentAgent.load(file)
