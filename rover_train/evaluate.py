@@ -997,6 +997,8 @@ def _make_env(args: argparse.Namespace, plan: _Plan, slot: int, env_kwargs: dict
     ``args.env`` in ``env_kwargs``' world (default ``args.world``) as the model was trained."""
     if plan.entry is not None:
         render_mode = {"render_mode": "rgb_array"} if render else {}
+        if args.shield and zoo.ENTRIES[plan.entry].trainer != zoo.RL:  # the student's shield
+            env_kwargs = {**env_kwargs, "camera_scan": True}  # reads the camera scan
         return entry_env(plan.entry, args.name, slot, **env_kwargs, **render_mode)
     return make_env(
         args.env, world=env_kwargs.get("world_n", args.world), slot=slot, name=args.name,

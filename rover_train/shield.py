@@ -78,13 +78,14 @@ def outline_distance(points: np.ndarray) -> np.ndarray:
     return box_distance(points[..., 0], points[..., 1])
 
 
-def table_trajectories(horizon_s: float) -> np.ndarray:
-    """Poses (60, N, 3) ``x, y, yaw`` in the rover's frame after each of the N control steps
-    of each relative-table action held: the commanded speed, and the yaw rate the heading PID
-    commands for a constant relative heading (``kp`` times it, clamped)."""
+def command_trajectories(commands: np.ndarray, horizon_s: float) -> np.ndarray:
+    """Poses (N, steps, 3) ``x, y, yaw`` in the rover's frame after each control step of each
+    ``[speed, relative heading]`` command (N, 2) held for ``horizon_s``: the commanded speed,
+    and the yaw rate the heading PID commands for a constant relative heading (``kp`` times
+    it, clamped)."""
     steps = max(1, round(horizon_s / c.CONTROL_DT))
-    commands = np.stack([relative_action(a) for a in range(N_SEED_ACTIONS)])
-    speed = commands[:, 0].astype(np.float64)
+    commands = np.asarray(commands, dtype=np.float64).reshape(-1, 2)
+    speed = commands[:, 0]
     rate = np.clip(c.PID_KP * commands[:, 1], -c.MAX_ANGULAR_VELOCITY, c.MAX_ANGULAR_VELOCITY)
     poses = np.zeros((len(commands), steps, 3))
     x = y = yaw = np.zeros(len(commands))
@@ -95,6 +96,13 @@ def table_trajectories(horizon_s: float) -> np.ndarray:
         yaw = yaw + rate * c.CONTROL_DT
         poses[:, k] = np.stack([x, y, yaw], axis=1)
     return poses
+
+
+def table_trajectories(horizon_s: float) -> np.ndarray:
+    """Poses (60, N, 3) ``x, y, yaw`` in the rover's frame after each of the N control steps
+    of each relative-table action held (:func:`command_trajectories` of the table)."""
+    commands = np.stack([relative_action(a) for a in range(N_SEED_ACTIONS)])
+    return command_trajectories(commands, horizon_s)
 
 
 LIDAR_KEY = "lidar"
@@ -169,19 +177,39 @@ class CollisionShield:
     def allowed(self, scan: np.ndarray) -> np.ndarray:
         """The (60,) mask of actions whose rolled-forward outline keeps its margin from every
         reading, or, where the rover is inside a margin already, gets no deeper into one."""
+        return self._clear(scan, self._cos, self._sin, self._u0, self._v0)
+
+    def allowed_commands(self, scan: np.ndarray, commands: np.ndarray) -> np.ndarray:
+        """:meth:`allowed` for any ``[speed, relative heading]`` commands (N, 2), held for the
+        horizon: a (N,) mask (a continuous policy's own command, say)."""
+        poses = command_trajectories(commands, self.config.horizon_s)
+        x, y, yaw = (poses[..., k, None] for k in range(3))
+        cos, sin = np.cos(yaw), np.sin(yaw)
+        return self._clear(scan, cos, sin, cos * x + sin * y, -sin * x + cos * y)
+
+    def _clear(self, scan: np.ndarray, cos: np.ndarray, sin: np.ndarray, u0: np.ndarray,
+               v0: np.ndarray) -> np.ndarray:  # fmt: skip
         pts, margin = self.points(np.asarray(scan))
-        mask = np.ones(self.n_actions, dtype=bool)
+        mask = np.ones(len(cos), dtype=bool)
         if not len(pts):
             return mask
         now = float((outline_distance(pts) - margin).min())
         # each reading in the frame of each future pose, x and y apart: (A, N, K) each
         px, py = pts[:, 0], pts[:, 1]
-        x = self._cos * px + self._sin * py - self._u0
-        y = self._cos * py - self._sin * px - self._v0
+        x = cos * px + sin * py - u0
+        y = cos * py - sin * px - v0
         closest = (box_distance(x, y) - margin).min(axis=(1, 2))
         return closest >= min(now, 0.0) - 1e-9
 
     def __call__(self, obs: Any) -> np.ndarray:
+        allowed = self.allowed(self.scan_of(obs))
+        if self.pan_head:
+            return np.concatenate([allowed, np.ones(len(PAN_WINDOWS), dtype=bool)])
+        return np.repeat(allowed, self.pan_windows) if self.pan_windows > 1 else allowed
+
+    def scan_of(self, obs: Any) -> np.ndarray:
+        """What the shield reads of an observation (a batch of one is taken as one); a
+        ValueError naming the key and the fix where the observation lacks it."""
         if self.source == "lidar":
             if not isinstance(obs, dict) or LIDAR_KEY not in obs:
                 raise ValueError(f"the LIDAR shield reads RoverEnv's {LIDAR_KEY!r} observation "
@@ -194,10 +222,7 @@ class CollisionShield:
             scan = np.asarray(obs[SCAN_KEY])
             if scan.ndim == 3:  # a batch of one, as a vector env gives it
                 scan = scan[0]
-        allowed = self.allowed(scan)
-        if self.pan_head:
-            return np.concatenate([allowed, np.ones(len(PAN_WINDOWS), dtype=bool)])
-        return np.repeat(allowed, self.pan_windows) if self.pan_windows > 1 else allowed
+        return scan
 
 
 def shield_for(recipe: dict[str, Any], what: str,
@@ -268,3 +293,55 @@ def shielded_vec_env(venv: Any, shield: CollisionShield) -> Any:
 
 __all__ = ["CollisionShield", "HALF_LENGTH", "HALF_WIDTH", "ShieldConfig", "box_distance",
            "outline_distance", "shield_for", "shielded_vec_env", "table_trajectories"]
+
+
+SHIELDED_STUDENT_KINDS = ("fused", "fused-gaze")
+"""The student kinds :class:`ShieldedAgent` guards: their actions are Box commands
+``[speed, relative heading(, pan target)]``, which the shield can roll forward as they are."""
+_SPEED_SPAN = float(c.FUSED_ACTION_HIGH[0] - c.FUSED_ACTION_LOW[0])
+
+
+class ShieldedAgent:
+    """A continuous-action agent behind the shield (a distilled camera student: RoverEnvFused's
+    ``[speed, relative heading]`` or the gaze env's ``[speed, relative heading, pan target]``):
+    its own command where the shield allows it, held for the horizon; otherwise the allowed
+    relative-table drive nearest to it (speed over its range plus heading over pi), the rest
+    of its action (where the camera looks) kept. A safety filter in the sense of Nav2's
+    collision monitor: it changes the command only where the scan says it would touch.
+
+    :param agent: an agent (``reset()``, ``act(obs)``) whose first two action values are the
+        speed and relative heading; its attributes (a student's ``meta``, ``spec``) read
+        through.
+    :param shield: the shield (``source="camera_scan"``: the env needs ``camera_scan=True``).
+    """
+
+    def __init__(self, agent: Any, shield: CollisionShield) -> None:
+        self.agent = agent
+        self.shield = shield
+        self._table = np.stack([relative_action(a) for a in range(N_SEED_ACTIONS)])
+        self.overridden = 0
+        """Steps whose command the shield replaced, since this agent was made."""
+
+    def reset(self) -> None:
+        self.agent.reset()
+
+    def act(self, obs: Any) -> np.ndarray:
+        action = np.array(self.agent.act(obs), dtype=np.float32)
+        scan = self.shield.scan_of(obs)
+        command = np.clip(action[:2].astype(np.float64), c.FUSED_ACTION_LOW, c.FUSED_ACTION_HIGH)
+        if self.shield.allowed_commands(scan, command[None])[0]:
+            return action
+        turn = np.angle(np.exp(1j * (self._table[:, 1] - command[1])))
+        cost = np.abs(self._table[:, 0] - command[0]) / _SPEED_SPAN + np.abs(turn) / math.pi
+        cost[~self.shield.allowed(scan)] = np.inf  # standing still is always allowed
+        action[:2] = self._table[int(np.argmin(cost))]
+        self.overridden += 1
+        return action
+
+    __call__ = act
+
+    def __getattr__(self, name: str) -> Any:
+        if name == "agent":  # not set yet (unpickling): no recursion
+            raise AttributeError(name)
+        return getattr(self.agent, name)
+

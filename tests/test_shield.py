@@ -16,6 +16,7 @@ from rover_train.shield import (
     HALF_WIDTH,
     CollisionShield,
     ShieldConfig,
+    ShieldedAgent,
     outline_distance,
     shield_for,
     table_trajectories,
@@ -129,6 +130,51 @@ def test_the_lidar_shield_keeps_the_person_margin_off_every_return_all_round() -
         CollisionShield(source="sonar")
 
 
+def test_any_command_is_checked_as_the_tables_are() -> None:
+    shield = CollisionShield()
+    table = np.stack([relative_action(a) for a in range(60)])
+    for scan in (_scan((0.01, 0.45)), _scan((np.pi / 2, HALF_WIDTH + 0.2), row=1), _scan()):
+        assert np.array_equal(shield.allowed_commands(scan, table), shield.allowed(scan))
+    wall = _scan((0.01, 0.45))
+    assert not shield.allowed_commands(wall, np.array([[0.8, 0.1]]))[0]  # not a table drive
+    assert shield.allowed_commands(wall, np.array([[-0.5, 0.0]]))[0]  # backing off
+
+
+class _Steady:
+    """An agent that always sends one action, as a Box student would."""
+
+    def __init__(self, action: list[float]) -> None:
+        self.action, self.resets = np.array(action, np.float32), 0
+
+    def reset(self) -> None:
+        self.resets += 1
+
+    def act(self, obs: object) -> np.ndarray:
+        return self.action.copy()
+
+
+def test_a_shielded_student_keeps_its_command_where_safe_and_the_nearest_safe_drive_else() -> None:
+    ahead = ShieldedAgent(_Steady([1.0, 0.2, 0.5]), CollisionShield())  # gaze: pan kept
+    clear = ahead.act({"camera_scan": _scan()})
+    assert np.array_equal(clear, np.float32([1.0, 0.2, 0.5])) and ahead.overridden == 0
+    wall = {"camera_scan": _scan((0.01, 0.45))}
+    guarded = ahead.act(wall)
+    assert ahead.overridden == 1 and guarded[2] == np.float32(0.5)
+    shield = CollisionShield()
+    assert shield.allowed_commands(wall["camera_scan"], guarded[None, :2].astype(float))[0]
+    # the nearest allowed table drive: no other allowed one is nearer to the asked command
+    table = np.stack([relative_action(a) for a in range(60)])
+    turn = np.abs(np.angle(np.exp(1j * (table[:, 1] - 0.2))))
+    cost = np.where(shield.allowed(wall["camera_scan"]),
+                    np.abs(table[:, 0] - 1.0) / 1.6 + turn / np.pi, np.inf)  # fmt: skip
+    assert np.allclose(guarded[:2], table[np.argmin(cost)])
+    assert guarded[0] < 1.0  # slowed, not driven on into the wall
+    ahead.reset()
+    assert ahead.resets == 1  # read through to the student
+    with pytest.raises(ValueError, match="camera_scan=True"):
+        ahead.act({"fused_image": np.zeros((96, 96, 3))})
+
+
 def test_bad_settings_and_observations_are_refused() -> None:
     with pytest.raises(ValueError, match="horizon_s"):
         ShieldConfig(horizon_s=0.0)
@@ -168,12 +214,16 @@ def test_a_shielded_agent_chooses_among_the_allowed_actions_only() -> None:
     assert changed > 0  # the mask did change draws
 
 
-def test_the_shield_goes_with_the_camera_rl_entries_only() -> None:
+def test_the_shield_goes_with_the_rl_entries_and_the_box_students() -> None:
     for name in ("rl-lidar-inspect", "rl-lidar-maze"):  # they ship behind the LIDAR's
         lidar = zoo.load(name).shield
         assert lidar.source == "lidar" and lidar.config.person_margin_m == 0.15
-    with pytest.raises(ValueError, match="student"):
-        zoo.load("fused-inspect", shield=True)
+    with pytest.raises(ValueError, match="lidar student"):
+        zoo.load("lidar-inspect", shield=True)
+    with pytest.raises(ValueError, match="steer by"):
+        zoo.load("discrete-inspect", shield=True)  # the seed's compass table
+    student = zoo.load("fused-inspect", shield=True)  # a Box student, behind it when asked
+    assert isinstance(student, ShieldedAgent) and student.meta == student.agent.meta
     for name in ("rl-fused-inspect", "rl-fused-maze", "rl-fused-gaze-inspect",
                  "rl-fused-inspect-twin"):  # they ship behind it
         assert isinstance(zoo.load(name).shield, CollisionShield)

@@ -38,7 +38,7 @@ from rover_train.zoo.registry import (
 
 if TYPE_CHECKING:
     from rover_train.algos import ModelAgent
-    from rover_train.shield import ShieldConfig
+    from rover_train.shield import ShieldConfig, ShieldedAgent
     from rover_train.zoo.agent import (
         Agent,
         FeatureSpec,
@@ -114,18 +114,22 @@ def make_env(name: str, **overrides: Any) -> gym.Env:
 
 def load(name: str, path: str | os.PathLike[str] | None = None,
          temperature: float | None = None, shield: bool | None = None,
-         shield_config: ShieldConfig | None = None) -> StudentAgent | ModelAgent:  # fmt: skip
+         shield_config: ShieldConfig | None = None
+         ) -> StudentAgent | ModelAgent | ShieldedAgent:  # fmt: skip
     """The agent of entry ``name``: ``agent.reset()`` per episode, ``agent.act(obs)`` (an
     :class:`Agent`). A student comes as a :class:`StudentAgent`, which also saves, fine-tunes
-    and says what it is in ``meta``; an RL entry as a :class:`rover_train.algos.ModelAgent`.
+    and says what it is in ``meta`` (behind the shield, a
+    :class:`rover_train.shield.ShieldedAgent` around it, its ``agent``); an RL entry as a
+    :class:`rover_train.algos.ModelAgent`.
 
     :param path: another file made like the entry (a candidate) instead of the shipped one.
     :param temperature: a sampled RL entry's sampling temperature
         (``rover_train.algos.ModelAgent``; None: 1, the policy as trained).
-    :param shield: an RL entry over the relative table: drive behind the collision shield
-        (``rover_train.shield``) on its camera scan, or on its LIDAR for an ``rl-lidar`` entry,
-        or not; None: as the entry says (``EntrySpec.shield``), or behind it where the entry
-        was trained behind it (``rover-train --shield``).
+    :param shield: drive behind the collision shield (``rover_train.shield``) or not: an RL
+        entry over the relative table on its camera scan (on its LIDAR for an ``rl-lidar``
+        entry), a fused or fused-gaze student on its camera scan (its env needs
+        ``camera_scan=True``); None: as the entry says (``EntrySpec.shield``), or behind it
+        where the entry was trained behind it (``rover-train --shield``).
     :param shield_config: the shield's settings at drive time (None: the entry's
         ``EntrySpec.person_margin_m`` where it sets one, else ``ShieldConfig()``, what the
         shielded recipes train behind); ValueError for an agent that drives without it.
@@ -141,16 +145,13 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
             f"zoo entry {name!r} has no file at {file}; make it with: {spec.command}"
         )
     if spec.trainer != RL:
-        if shield or shield_config is not None:
-            raise ValueError(f"the collision shield guards an RL policy over the relative table "
-                             f"(the rl-fused and rl-lidar entries); zoo entry {name} is a "
-                             f"student")  # fmt: skip
         try:
-            return StudentAgent.load(file)
+            student = StudentAgent.load(file)
         except StudentFileError as exc:
             raise StudentFileError(
                 f"{exc}. Remake it with zoo entry {name}'s command: {spec.command}"
             ) from exc
+        return _shielded_student(spec, student, shield, shield_config)
     from rover_train.algos import ModelAgent, algo_class
     from rover_train.recipe import read_recipe
     from rover_train.wrappers import agent_io
@@ -174,6 +175,29 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
                          f"collision shield (shield=False, or not a shielded entry)")  # fmt: skip
     return ModelAgent(model, deterministic=not spec.sampled, observe=observe, act=act,
                       temperature=1.0 if temperature is None else temperature, shield=guard)
+
+
+def _shielded_student(spec: EntrySpec, student: StudentAgent, shield: bool | None,
+                      config: ShieldConfig | None) -> StudentAgent | ShieldedAgent:  # fmt: skip
+    """``student`` behind the collision shield on its camera scan where asked (``shield``,
+    None: as the entry ships), for the students that steer by Box commands."""
+    from rover_train.shield import SHIELDED_STUDENT_KINDS, CollisionShield, ShieldConfig
+    from rover_train.shield import ShieldedAgent as Guarded
+
+    if not (shield if shield is not None else spec.shield):
+        if config is not None:
+            raise ValueError(f"shield settings were given, but zoo entry {spec.name} drives "
+                             f"without the collision shield (shield=False, or not a shielded "
+                             f"entry)")  # fmt: skip
+        return student
+    if spec.kind not in SHIELDED_STUDENT_KINDS:
+        raise ValueError(f"the collision shield guards the RL entries and the students that "
+                         f"steer by [speed, heading] on the camera scan (kinds "
+                         f"{', '.join(SHIELDED_STUDENT_KINDS)}); zoo entry {spec.name} is a "
+                         f"{spec.kind} student")  # fmt: skip
+    if config is None and spec.person_margin_m is not None:
+        config = ShieldConfig(person_margin_m=spec.person_margin_m)
+    return Guarded(student, CollisionShield(config))
 
 
 __all__ = [
