@@ -366,6 +366,35 @@ def test_a_camera_agent_trains_behind_the_shield_and_is_driven_behind_it(
         env.close()
 
 
+def test_rover_eval_puts_a_box_student_behind_the_shield_on_the_scan_it_adds(
+    daemon: Daemon, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """rover-eval STUDENT --shield makes the student's env with the camera scan (which the
+    shield reads) and drives it behind the shield; the student alone needs no scan."""
+    from rover_train import evaluate, zoo
+    from rover_train.shield import ShieldedAgent
+
+    argv = ["fused-inspect", "--episodes", "1", "--max-steps", "40", "--name", daemon.name,
+            "--json"]  # fmt: skip
+    assert evaluate.main([*argv, "--shield", "--person-margin", "0.6"]) == 0
+    guarded = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert guarded["episodes"] == 1
+    agent = zoo.load("fused-inspect", shield=True)
+    assert isinstance(agent, ShieldedAgent)
+    env = zoo.make_env("fused-inspect", rl_obs_name=daemon.name, camera_scan=True)
+    try:
+        obs, _ = env.reset(seed=zoo.EVAL_SEED_BASE)
+        agent.reset()
+        for _ in range(20):
+            action = agent.act(obs)
+            assert env.action_space.contains(action)
+            command = np.clip(action[:2], env.action_space.low, env.action_space.high)
+            assert agent.shield.allowed_commands(obs["camera_scan"], command[None])[0]
+            obs, *_ = env.step(action)
+    finally:
+        env.close()
+
+
 def test_the_shield_is_trained_with_ppo_over_the_relative_table_on_the_scan(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
