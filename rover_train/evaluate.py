@@ -116,6 +116,8 @@ class EpisodeResult:
     scenery_contact: bool = False  # ... or the scenery
     seed_collision: bool = False  # a step with info["collision"] (the seed's LIDAR test)
     intimate_intrusion: bool = False  # a pedestrian within 0.45 m at some step
+    walked_into: bool = False  # a pedestrian touched the rover while it stood (HuNavSim's
+    # pedestrian_hit_rover); a touch while it moved is rover_hit_pedestrian
 
 
 class PolicyLoadError(ValueError):
@@ -384,7 +386,7 @@ def run_episode(
     start_distance = float(obs["target"][0])
     control_dt = float(getattr(base, "control_dt", 0.05))
     path = 0.0
-    seed_collision = ped_contact = scenery_contact = intimate = False
+    seed_collision = ped_contact = scenery_contact = intimate = walked_into = False
     intrusions = 0
     min_ped = float(info.get("min_pedestrian_distance", np.inf))
     ret = 0.0
@@ -407,6 +409,7 @@ def run_episode(
         ped_contact |= bool(info.get("pedestrian_collision", False))
         scenery_contact |= bool(info.get("scenery_contact", False))
         intimate |= bool(info.get("intimate_space_intrusion", False))
+        walked_into |= bool(info.get("pedestrian_hit_rover", False))
         d_ped = float(info.get("min_pedestrian_distance", np.inf))
         intrusions += int(d_ped < PERSONAL_SPACE_M)
         min_ped = min(min_ped, d_ped)
@@ -435,6 +438,7 @@ def run_episode(
         scenery_contact=scenery_contact,
         seed_collision=seed_collision,
         intimate_intrusion=intimate,
+        walked_into=walked_into,
     )
     if frames is not None and steps > 0:
         hold = max(1, round(OUTCOME_HOLD_S / control_dt))
@@ -529,6 +533,7 @@ def summarise(results: list[EpisodeResult]) -> dict[str, Any]:
         "pedestrian_contact_rate": sum(r.pedestrian_contact for r in results) / n,
         "scenery_contact_rate": sum(r.scenery_contact for r in results) / n,
         "intimate_intrusion_rate": sum(r.intimate_intrusion for r in results) / n,
+        "walked_into_rate": sum(r.walked_into for r in results) / n,
         "timeouts": sum(r.timeout for r in results),
         "path_length_m": float(np.mean([r.path_length for r in results])),
         "spl": float(np.mean(spl)),

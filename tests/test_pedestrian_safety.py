@@ -74,6 +74,8 @@ def test_the_evaluators_headline_counts_a_touched_person_as_a_collision_episode(
         env.close()
     assert result.pedestrian_contact and not result.seed_collision
     assert result.collided  # the headline: contact counted
+    assert result.walked_into  # parked: the person walked into it
+    assert summarise([result])["walked_into_rate"] == 1.0
     summary = summarise_scenario([result])
     assert summary["collision_rate"] == 1.0 and summary["seed_collision_rate"] == 0.0
     assert summary["pedestrian_contact_rate"] == 1.0
