@@ -837,7 +837,7 @@ def _plan(args: argparse.Namespace, p: argparse.ArgumentParser) -> _Plan:
         file = args.file if args.file is not None else student
         try:
             loaded = zoo.load(entry, file, temperature=args.temperature, shield=args.shield,
-                              shield_config=_shield_config(args))  # fmt: skip
+                              shield_config=_shield_config(args, entry))  # fmt: skip
         except (FileNotFoundError, RecipeError, zoo.StudentFileError, ValueError) as exc:
             p.error(f"--file: {exc}" if args.file is not None else str(exc))
         source = AgentSource(f"zoo {entry}" if file is None else str(file),
@@ -859,11 +859,13 @@ def _student_entry(path: Path, p: argparse.ArgumentParser) -> str:
     return str(made_like)
 
 
-def _shield_config(args: argparse.Namespace) -> ShieldConfig | None:
-    """The shield's drive-time settings rover-eval's arguments ask for (None: its defaults)."""
+def _shield_config(args: argparse.Namespace, entry: str | None = None) -> ShieldConfig | None:
+    """The shield's drive-time settings rover-eval's arguments ask for (None: the entry's, or
+    the defaults): ``--person-margin`` over zoo entry ``entry``'s own settings."""
     if args.person_margin is None:
         return None
-    return ShieldConfig(person_margin_m=args.person_margin)
+    settings = zoo.ENTRIES[entry].shield_settings if entry is not None else {}
+    return ShieldConfig(**{**settings, "person_margin_m": args.person_margin})
 
 
 def _model_agent(model: Path, env: Any, algo: str | None, sample: bool, seed: int,

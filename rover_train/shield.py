@@ -17,7 +17,8 @@ It reads only the observation (the ``camera_scan`` key: ranges and bearings in t
 frame), never the simulator. On RoverEnvDiscrete, whose ``Discrete(60)`` is the same table, it
 reads the LIDAR instead (``source="lidar"``): 360 degrees, every step, but with no telling a
 person from a wall, so one margin for every return; for the LIDAR RL entries that margin is
-their ``EntrySpec.person_margin_m`` (docs/decisions.md, "A shield on the LIDAR").
+their ``EntrySpec.shield_settings``; with ``lidar_map`` the world's map tells walls from
+people, each kept its own margin (docs/decisions.md, "A shield on the LIDAR").
 """
 
 from __future__ import annotations
@@ -55,6 +56,10 @@ class ShieldConfig:
     """Metres kept from a person reading: a wider berth than from the scenery, since people
     walk (on the zoo's episodes 0.3 m cut inspect's person touches from 8 to 6 of 200, the
     maze's stayed at 11; docs/decisions.md, "RL")."""
+    lidar_map: bool = False
+    """On the LIDAR: tell people from walls by the world's map (a return the map does not
+    explain, ``rover_train.zoo.agent.unmapped_scan``, is a person's), each kept its own margin;
+    False: every return kept ``person_margin_m`` off."""
 
     def __post_init__(self) -> None:
         if not self.horizon_s >= c.CONTROL_DT:
@@ -122,11 +127,15 @@ class CollisionShield:
     """
 
     def __init__(self, config: ShieldConfig | None = None, pan_windows: int = 1,
-                 pan_head: bool = False, source: str = "camera_scan") -> None:  # fmt: skip
+                 pan_head: bool = False, source: str = "camera_scan",
+                 world: str | None = None) -> None:  # fmt: skip
         if source not in SOURCES:
             raise ValueError(f"source must be one of {', '.join(SOURCES)}, got {source!r}")
         self.source = source
         self.config = cfg = config or ShieldConfig()
+        if source == "lidar" and cfg.lidar_map and world is None:
+            raise ValueError("lidar_map tells people from walls by a world's map: give world")
+        self.world = world
         self.pan_windows = int(pan_windows)
         """Actions per drive in the policy's table: 1 for the relative table, 5 for the gaze
         env's (``action // 5`` is the drive; the camera's target does not move the rover)."""
@@ -143,7 +152,10 @@ class CollisionShield:
         # a reading p in the frame of pose (x, y, yaw): R(-yaw) (p - (x, y)), its offsets here
         self._u0 = self._cos * x + self._sin * y
         self._v0 = -self._sin * x + self._cos * y
-        if source == "lidar":  # one row of ranges; a return may be a person
+        if source == "lidar" and cfg.lidar_map:  # walls and people apart, by the map
+            self._rows = [0, 1]
+            self._row_margins = np.array([[cfg.margin_m], [cfg.person_margin_m]])
+        elif source == "lidar":  # one row of ranges; a return may be a person
             self._rows = [0]
             self._row_margins = np.array([[cfg.person_margin_m if cfg.people else cfg.margin_m]])
         else:
@@ -214,7 +226,9 @@ class CollisionShield:
             if not isinstance(obs, dict) or LIDAR_KEY not in obs:
                 raise ValueError(f"the LIDAR shield reads RoverEnv's {LIDAR_KEY!r} observation "
                                  f"key: give it RoverEnvDiscrete's observations")  # fmt: skip
-            scan = np.asarray(obs[LIDAR_KEY]).reshape(1, -1)
+            scan = np.asarray(obs[LIDAR_KEY], dtype=np.float32).reshape(1, -1)
+            if self.config.lidar_map:
+                scan = self._walls_and_people(obs, scan[0])
         else:
             if not isinstance(obs, dict) or SCAN_KEY not in obs:
                 raise ValueError(f"the collision shield reads the {SCAN_KEY!r} observation key: "
@@ -224,6 +238,17 @@ class CollisionShield:
                 scan = scan[0]
         return scan
 
+    def _walls_and_people(self, obs: dict[str, Any], lidar: np.ndarray) -> np.ndarray:
+        """(2, points): the returns the world's map explains (walls), then the others
+        (people), each row far where the other holds the return."""
+        from rover_train.zoo.agent import LIDAR_CLIP, unmapped_scan
+
+        one = {k: np.asarray(v).reshape(-1) for k, v in obs.items()}  # a batch of one too
+        assert self.world is not None
+        person = unmapped_scan(one, self.world) < 1.0
+        far = np.float32(max(LIDAR_CLIP, self.reach + 1.0))
+        return np.stack([np.where(person, far, lidar), np.where(person, lidar, far)])
+
 
 def shield_for(recipe: dict[str, Any], what: str,
                config: ShieldConfig | None = None) -> CollisionShield:  # fmt: skip
@@ -231,7 +256,7 @@ def shield_for(recipe: dict[str, Any], what: str,
     ``ValueError`` naming ``what`` unless it drives the relative table on the camera scan, or
     RoverEnvDiscrete (the same table) on its LIDAR."""
     if recipe.get("env") == "lidar-discrete":
-        return CollisionShield(config, source="lidar")
+        return CollisionShield(config, source="lidar", world=recipe.get("world"))
     if not (recipe.get("relative_table") and recipe.get("camera_scan")):
         raise ValueError(f"the collision shield guards a policy over the relative table on the "
                          f"camera scan (rover-train --camera-scan --relative-table) or on the "

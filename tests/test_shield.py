@@ -175,6 +175,29 @@ def test_a_shielded_student_keeps_its_command_where_safe_and_the_nearest_safe_dr
         ahead.act({"fused_image": np.zeros((96, 96, 3))})
 
 
+def test_the_lidar_shield_can_tell_people_from_walls_by_the_map() -> None:
+    from rover_env.lidar_discrete_env import RoverEnvDiscrete
+
+    shield = CollisionShield(ShieldConfig(lidar_map=True), source="lidar", world="maze")
+    env = RoverEnvDiscrete(world_n="maze", n_pedestrians=0)
+    try:
+        obs, _ = env.reset(seed=3)
+        for _ in range(10):
+            walls, people = shield.scan_of(obs)
+            assert np.sum(people < shield.reach) <= 1  # the map explains the walls
+            assert np.array_equal(walls[walls < shield.reach], obs["lidar"][walls < shield.reach])
+            obs, *_ = env.step(54)  # 1 m/s straight on
+        k = int(np.argmax(obs["lidar"]))  # the farthest return: open space
+        person = {**obs, "lidar": obs["lidar"].copy()}
+        person["lidar"][k] = 0.5  # something the map does not have, 0.5 m off
+        walls, people = shield.scan_of(person)
+        assert people[k] == pytest.approx(0.5) and walls[k] > shield.reach
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="give world"):
+        CollisionShield(ShieldConfig(lidar_map=True), source="lidar")
+
+
 def test_bad_settings_and_observations_are_refused() -> None:
     with pytest.raises(ValueError, match="horizon_s"):
         ShieldConfig(horizon_s=0.0)
@@ -215,9 +238,19 @@ def test_a_shielded_agent_chooses_among_the_allowed_actions_only() -> None:
 
 
 def test_the_shield_goes_with_the_rl_entries_and_the_box_students() -> None:
-    for name in ("rl-lidar-inspect", "rl-lidar-maze"):  # they ship behind the LIDAR's
-        lidar = zoo.load(name).shield
-        assert lidar.source == "lidar" and lidar.config.person_margin_m == 0.15
+    maze = zoo.load("rl-lidar-maze").shield  # they ship behind the LIDAR's
+    assert maze.source == "lidar" and maze.config.person_margin_m == 0.15
+    assert not maze.config.lidar_map  # one margin for every return
+    inspect = zoo.load("rl-lidar-inspect").shield  # walls and people apart, by the map
+    assert inspect.config == ShieldConfig(margin_m=0.15, person_margin_m=0.45, lidar_map=True)
+    assert inspect.world == "inspect"
+    # rover-eval --person-margin sets the berth from people over the entry's other settings
+    import argparse
+
+    from rover_train.evaluate import _shield_config
+
+    given = _shield_config(argparse.Namespace(person_margin=0.5), "rl-lidar-inspect")
+    assert given == ShieldConfig(margin_m=0.15, person_margin_m=0.5, lidar_map=True)
     with pytest.raises(ValueError, match="lidar student"):
         zoo.load("lidar-inspect", shield=True)
     with pytest.raises(ValueError, match="steer by"):
@@ -233,7 +266,8 @@ def test_the_shield_goes_with_the_rl_entries_and_the_box_students() -> None:
     # the shield's settings at drive time: the entry's own berth from people, unless given
     for name in ("rl-fused-inspect", "rl-fused-gaze-inspect", "rl-fused-inspect-twin"):
         config = zoo.load(name).shield.config
-        assert config.person_margin_m == zoo.ENTRIES[name].person_margin_m == 0.6
+        assert config.person_margin_m == zoo.ENTRIES[name].shield_settings["person_margin_m"]
+        assert config.person_margin_m == 0.6
         assert config.margin_m == ShieldConfig().margin_m  # only the berth from people
     assert zoo.load("rl-fused-maze").shield.config == ShieldConfig()  # its training berth
     given = zoo.load("rl-fused-inspect", shield_config=ShieldConfig(person_margin_m=0.45))

@@ -131,8 +131,8 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
         ``camera_scan=True``); None: as the entry says (``EntrySpec.shield``), or behind it
         where the entry was trained behind it (``rover-train --shield``).
     :param shield_config: the shield's settings at drive time (None: the entry's
-        ``EntrySpec.person_margin_m`` where it sets one, else ``ShieldConfig()``, what the
-        shielded recipes train behind); ValueError for an agent that drives without it.
+        ``EntrySpec.shield_settings`` over ``ShieldConfig()``'s defaults, what the shielded
+        recipes train behind); ValueError for an agent that drives without it.
     :raises FileNotFoundError: no file; :class:`StudentFileError`: a student file that does
         not read (cut short, say). Both name the file and the command that remakes it.
     """
@@ -167,8 +167,8 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
     if shield if shield is not None else (spec.shield or recipe.get("shield")):
         from rover_train.shield import ShieldConfig, shield_for
 
-        if shield_config is None and spec.person_margin_m is not None:
-            shield_config = ShieldConfig(person_margin_m=spec.person_margin_m)
+        if shield_config is None:
+            shield_config = ShieldConfig(**spec.shield_settings)
         guard = shield_for(recipe, f"zoo entry {name}", shield_config)
     elif shield_config is not None:
         raise ValueError(f"shield settings were given, but zoo entry {name} drives without the "
@@ -195,8 +195,8 @@ def _shielded_student(spec: EntrySpec, student: StudentAgent, shield: bool | Non
                          f"steer by [speed, heading] on the camera scan (kinds "
                          f"{', '.join(SHIELDED_STUDENT_KINDS)}); zoo entry {spec.name} is a "
                          f"{spec.kind} student")  # fmt: skip
-    if config is None and spec.person_margin_m is not None:
-        config = ShieldConfig(person_margin_m=spec.person_margin_m)
+    if config is None:
+        config = ShieldConfig(**spec.shield_settings)
     return Guarded(student, CollisionShield(config))
 
 
