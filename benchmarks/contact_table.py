@@ -90,9 +90,13 @@ NOTES = (
     "7 % among 10. The entries made for 10 people (fused-inspect-10, "
     "fused-gaze-inspect-10 and their -rl fine-tunes), retired on 2026-12-03 "
     "(rover_train.zoo.registry.RETIRED), keep their rows, last: their 3-people row is the "
-    "default crowd's target (3 %), their 10-people row their own crowd's (7 %). Rows were "
-    "written as each finished; an entry absent from the rows was not run (or failed: see "
-    "errors)."
+    "default crowd's target (3 %), their 10-people row their own crowd's (7 %). The RL "
+    "entries drive as zoo.load makes them: behind their collision shield at the entry's "
+    "drive-time settings (EntrySpec.shield_settings: rl-fused-inspect and the looking pair "
+    "0.6 m off a person, rl-fused-maze 0.3; on the LIDAR, rl-lidar-maze 0.15 m off every "
+    "return, rl-lidar-inspect 0.15 m off walls and 0.45 m off people, told apart by the "
+    "world's map); docs/decisions.md gives their rows before. Rows were written as each "
+    "finished; an entry absent from the rows was not run (or failed: see errors)."
 )
 
 
