@@ -56,6 +56,10 @@ class ShieldConfig:
     """Metres kept from a person reading: a wider berth than from the scenery, since people
     walk (on the zoo's episodes 0.3 m cut inspect's person touches from 8 to 6 of 200, the
     maze's stayed at 11; docs/decisions.md, "RL")."""
+    person_speed_mps: float = 0.0
+    """Metres per second a person may close in at: a person reading's margin grows by it over
+    each rolled-forward step's time (0: people held where they were seen). Walkers close at
+    1.2-1.8 m/s, and most touches behind the shield come while the rover moves."""
     lidar_map: bool = False
     """On the LIDAR: tell people from walls by the world's map (a return the map does not
     explain, ``rover_train.zoo.agent.unmapped_scan``, is a person's), each kept its own margin;
@@ -68,6 +72,8 @@ class ShieldConfig:
         if not (self.margin_m >= 0 and self.person_margin_m >= 0):
             raise ValueError(f"margin_m and person_margin_m must be >= 0 m, got "
                              f"{self.margin_m}, {self.person_margin_m}")  # fmt: skip
+        if not self.person_speed_mps >= 0:
+            raise ValueError(f"person_speed_mps must be >= 0, got {self.person_speed_mps}")
 
 
 def box_distance(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -155,17 +161,23 @@ class CollisionShield:
         if source == "lidar" and cfg.lidar_map:  # walls and people apart, by the map
             self._rows = [0, 1]
             self._row_margins = np.array([[cfg.margin_m], [cfg.person_margin_m]])
+            self._row_growth = np.array([[0.0], [cfg.person_speed_mps]])
         elif source == "lidar":  # one row of ranges; a return may be a person
             self._rows = [0]
+            self._row_growth = np.array([[cfg.person_speed_mps if cfg.people else 0.0]])
             self._row_margins = np.array([[cfg.person_margin_m if cfg.people else cfg.margin_m]])
         else:
             self._rows = [SCAN_ROWS.index("obstacle")] + ([SCAN_ROWS.index("person")]
                                                           if cfg.people else [])  # fmt: skip
             self._row_margins = np.array([cfg.margin_m, cfg.person_margin_m])[
                 :len(self._rows), None]  # fmt: skip
+            self._row_growth = np.array([0.0, cfg.person_speed_mps])[:len(self._rows), None]
         self._bearings: np.ndarray | None = None
-        travel = float(np.abs(SPEED_LEVELS).max()) * self._poses.shape[1] * c.CONTROL_DT
-        self.reach = travel + math.hypot(HALF_LENGTH, HALF_WIDTH) + float(self._row_margins.max())
+        horizon = self._poses.shape[1] * c.CONTROL_DT
+        self._times = (np.arange(self._poses.shape[1]) + 1.0) * c.CONTROL_DT
+        travel = float(np.abs(SPEED_LEVELS).max()) * horizon
+        widest = float((self._row_margins + self._row_growth * horizon).max())
+        self.reach = travel + math.hypot(HALF_LENGTH, HALF_WIDTH) + widest
         """Metres from the rover's centre beyond which no reading can come within its margin
         during the horizon (the farthest the table drives in it, plus the outline's
         half-diagonal and the wider margin); such readings are not checked."""
@@ -176,7 +188,12 @@ class CollisionShield:
 
     def points(self, scan: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The rover-frame points (K, 2) of the scan's readings within :attr:`reach`, and the
-        margin (K,) each is given."""
+        margin (K,) each is given now."""
+        pts, margin, _ = self._points(scan)
+        return pts, margin
+
+    def _points(self, scan: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`points` and each point's margin growth (K,), metres a second."""
         if self._bearings is None or len(self._bearings) != scan.shape[1]:
             self._bearings = sector_centres(scan.shape[1])
         ranges = scan[self._rows].astype(np.float64)
@@ -184,7 +201,8 @@ class CollisionShield:
         r = ranges[near]
         b = np.broadcast_to(self._bearings, ranges.shape)[near]
         margin = np.broadcast_to(self._row_margins, ranges.shape)[near]
-        return np.stack([r * np.cos(b), r * np.sin(b)], axis=1), margin
+        growth = np.broadcast_to(self._row_growth, ranges.shape)[near]
+        return np.stack([r * np.cos(b), r * np.sin(b)], axis=1), margin, growth
 
     def allowed(self, scan: np.ndarray) -> np.ndarray:
         """The (60,) mask of actions whose rolled-forward outline keeps its margin from every
@@ -201,16 +219,18 @@ class CollisionShield:
 
     def _clear(self, scan: np.ndarray, cos: np.ndarray, sin: np.ndarray, u0: np.ndarray,
                v0: np.ndarray) -> np.ndarray:  # fmt: skip
-        pts, margin = self.points(np.asarray(scan))
+        pts, margin, growth = self._points(np.asarray(scan))
         mask = np.ones(len(cos), dtype=bool)
         if not len(pts):
             return mask
-        now = float((outline_distance(pts) - margin).min())
+        ahead = margin + growth * self._times[:, None]  # (N, K): a person may close in
+        # standing still's clearance over the horizon: an action no worse is always allowed
+        now = float((outline_distance(pts) - ahead).min())
         # each reading in the frame of each future pose, x and y apart: (A, N, K) each
         px, py = pts[:, 0], pts[:, 1]
         x = cos * px + sin * py - u0
         y = cos * py - sin * px - v0
-        closest = (box_distance(x, y) - margin).min(axis=(1, 2))
+        closest = (box_distance(x, y) - ahead).min(axis=(1, 2))
         return closest >= min(now, 0.0) - 1e-9
 
     def __call__(self, obs: Any) -> np.ndarray:

@@ -198,6 +198,21 @@ def test_the_lidar_shield_can_tell_people_from_walls_by_the_map() -> None:
         CollisionShield(ShieldConfig(lidar_map=True), source="lidar")
 
 
+def test_a_person_may_close_in_over_the_horizon() -> None:
+    still = CollisionShield()
+    closing = CollisionShield(ShieldConfig(person_speed_mps=1.0))
+    at = _scan((0.01, HALF_LENGTH + 0.65), row=1)  # a person 0.65 m ahead of the bumper
+    assert still.allowed(at)[_action(0.6, 0.0)]  # 0.3 m on, 0.35 left: clear of 0.3
+    assert not closing.allowed(at)[_action(0.6, 0.0)]  # 0.3 + 0.5 m of closing: not
+    for shield in (still, closing):  # standing still stays allowed however close
+        assert shield.allowed(_scan((0.01, HALF_LENGTH + 0.1), row=1))[_action(0.0, 0.0)]
+    wall = _scan((0.01, HALF_LENGTH + 0.65))  # walls do not walk
+    assert np.array_equal(closing.allowed(wall), still.allowed(wall))
+    assert closing.reach == pytest.approx(still.reach + 0.5)
+    with pytest.raises(ValueError, match="person_speed_mps"):
+        ShieldConfig(person_speed_mps=-1.0)
+
+
 def test_bad_settings_and_observations_are_refused() -> None:
     with pytest.raises(ValueError, match="horizon_s"):
         ShieldConfig(horizon_s=0.0)
