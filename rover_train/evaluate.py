@@ -864,8 +864,9 @@ def _shield_config(args: argparse.Namespace, entry: str | None = None) -> Shield
     the defaults): ``--person-margin`` over zoo entry ``entry``'s own settings."""
     if args.person_margin is None:
         return None
-    settings = zoo.ENTRIES[entry].shield_settings if entry is not None else {}
-    return ShieldConfig(**{**settings, "person_margin_m": args.person_margin})
+    if entry is None:
+        return ShieldConfig(person_margin_m=args.person_margin)
+    return zoo.drive_shield(entry, person_margin_m=args.person_margin)
 
 
 def _model_agent(model: Path, env: Any, algo: str | None, sample: bool, seed: int,

@@ -109,11 +109,15 @@ def command_trajectories(commands: np.ndarray, horizon_s: float) -> np.ndarray:
     return poses
 
 
+TABLE_COMMANDS = np.stack([relative_action(a) for a in range(N_SEED_ACTIONS)])
+"""The relative table's ``[speed, relative heading]`` command of each of its 60 actions."""
+TABLE_COMMANDS.setflags(write=False)
+
+
 def table_trajectories(horizon_s: float) -> np.ndarray:
     """Poses (60, N, 3) ``x, y, yaw`` in the rover's frame after each of the N control steps
     of each relative-table action held (:func:`command_trajectories` of the table)."""
-    commands = np.stack([relative_action(a) for a in range(N_SEED_ACTIONS)])
-    return command_trajectories(commands, horizon_s)
+    return command_trajectories(TABLE_COMMANDS, horizon_s)
 
 
 LIDAR_KEY = "lidar"
@@ -363,7 +367,6 @@ class ShieldedAgent:
     def __init__(self, agent: Any, shield: CollisionShield) -> None:
         self.agent = agent
         self.shield = shield
-        self._table = np.stack([relative_action(a) for a in range(N_SEED_ACTIONS)])
         self.overridden = 0
         """Steps whose command the shield replaced, since this agent was made."""
 
@@ -376,10 +379,10 @@ class ShieldedAgent:
         command = np.clip(action[:2].astype(np.float64), c.FUSED_ACTION_LOW, c.FUSED_ACTION_HIGH)
         if self.shield.allowed_commands(scan, command[None])[0]:
             return action
-        turn = np.angle(np.exp(1j * (self._table[:, 1] - command[1])))
-        cost = np.abs(self._table[:, 0] - command[0]) / _SPEED_SPAN + np.abs(turn) / math.pi
+        turn = np.angle(np.exp(1j * (TABLE_COMMANDS[:, 1] - command[1])))
+        cost = np.abs(TABLE_COMMANDS[:, 0] - command[0]) / _SPEED_SPAN + np.abs(turn) / math.pi
         cost[~self.shield.allowed(scan)] = np.inf  # standing still is always allowed
-        action[:2] = self._table[int(np.argmin(cost))]
+        action[:2] = TABLE_COMMANDS[int(np.argmin(cost))]
         self.overridden += 1
         return action
 

@@ -165,11 +165,9 @@ def load(name: str, path: str | os.PathLike[str] | None = None,
                          f"{name}")  # fmt: skip
     guard = None
     if shield if shield is not None else (spec.shield or recipe.get("shield")):
-        from rover_train.shield import ShieldConfig, shield_for
+        from rover_train.shield import shield_for
 
-        if shield_config is None:
-            shield_config = ShieldConfig(**spec.shield_settings)
-        guard = shield_for(recipe, f"zoo entry {name}", shield_config)
+        guard = shield_for(recipe, f"zoo entry {name}", shield_config or drive_shield(name))
     elif shield_config is not None:
         raise ValueError(f"shield settings were given, but zoo entry {name} drives without the "
                          f"collision shield (shield=False, or not a shielded entry)")  # fmt: skip
@@ -181,7 +179,7 @@ def _shielded_student(spec: EntrySpec, student: StudentAgent, shield: bool | Non
                       config: ShieldConfig | None) -> StudentAgent | ShieldedAgent:  # fmt: skip
     """``student`` behind the collision shield on its camera scan where asked (``shield``,
     None: as the entry ships), for the students that steer by Box commands."""
-    from rover_train.shield import SHIELDED_STUDENT_KINDS, CollisionShield, ShieldConfig
+    from rover_train.shield import SHIELDED_STUDENT_KINDS, CollisionShield
     from rover_train.shield import ShieldedAgent as Guarded
 
     if not (shield if shield is not None else spec.shield):
@@ -195,9 +193,15 @@ def _shielded_student(spec: EntrySpec, student: StudentAgent, shield: bool | Non
                          f"steer by [speed, heading] on the camera scan (kinds "
                          f"{', '.join(SHIELDED_STUDENT_KINDS)}); zoo entry {spec.name} is a "
                          f"{spec.kind} student")  # fmt: skip
-    if config is None:
-        config = ShieldConfig(**spec.shield_settings)
-    return Guarded(student, CollisionShield(config))
+    return Guarded(student, CollisionShield(config or drive_shield(spec.name)))
+
+
+def drive_shield(name: str, **overrides: Any) -> ShieldConfig:
+    """The collision shield's settings entry ``name`` drives with: its
+    ``EntrySpec.shield_settings`` over ``ShieldConfig()``'s defaults, then ``overrides``."""
+    from rover_train.shield import ShieldConfig
+
+    return ShieldConfig(**{**_spec(name).shield_settings, **overrides})
 
 
 __all__ = [
@@ -217,6 +221,7 @@ __all__ = [
     "StudentNet",
     "UnknownEntryError",
     "command",
+    "drive_shield",
     "load",
     "make_env",
     "names",
